@@ -1,0 +1,54 @@
+"""Joining Zenoh: a BusConfig becomes a zenoh.Config, and a session opened with retries."""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+
+import zenoh
+
+from capsd.config import BusConfig
+from capsd.errors import BusError
+
+logger = logging.getLogger(__name__)
+
+
+def zenoh_config(bus: BusConfig) -> zenoh.Config:
+    """The zenoh.Config for `bus`: explicit endpoints, scouting off unless asked, fast retry."""
+    conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps(bus.mode))
+    conf.insert_json5("connect/endpoints", json.dumps(list(bus.connect)))
+    conf.insert_json5("listen/endpoints", json.dumps(list(bus.listen)))
+    conf.insert_json5("scouting/multicast/enabled", json.dumps(bus.multicast_scouting == "on"))
+    conf.insert_json5("connect/timeout_ms", json.dumps(int(bus.connect_timeout_s * 1000)))
+    # connect/retry is null by default: the whole object must be inserted (FIELD-NOTES).
+    retry = {
+        "period_init_ms": 100,
+        "period_max_ms": int(bus.reconnect_max_s * 1000),
+        "period_increase_factor": 2,
+    }
+    conf.insert_json5("connect/retry", json.dumps(retry))
+    return conf
+
+
+def open_session(bus: BusConfig, *, stop: threading.Event | None = None) -> zenoh.Session:
+    """Open a session, retrying while the router is unreachable until `stop` is set.
+
+    Without `stop`, one attempt is made and BusError raised on failure (for CLI tools).
+    """
+    attempt = 0
+    while True:
+        attempt += 1
+        try:
+            return zenoh.open(zenoh_config(bus))
+        except zenoh.ZError as exc:
+            if stop is None:
+                raise BusError(f"cannot join Zenoh via {list(bus.connect)}: {exc}") from None
+            if attempt == 1 or attempt % 10 == 0:
+                logger.warning(
+                    "waiting for Zenoh router",
+                    extra={"fields": {"connect": ",".join(bus.connect), "attempt": attempt}},
+                )
+        if stop.wait(0.1):
+            raise BusError("stopped while waiting for the Zenoh router")

@@ -1,0 +1,357 @@
+"""Every payload on the bus: frozen msgspec Structs, the single source of truth for the wire.
+
+Rules (CONVENTIONS.md): each payload carries `stamp_ns` (Unix ns at the instant of measurement,
+on the producer's clock) and a per-publisher `seq` starting at 0. SI units and radians inside.
+Orientations are quaternions (x, y, z, w). Covariances are row-major flattened square matrices.
+Optional values are `None`, never NaN: every float on the wire must be finite.
+
+A payload's `schema_version` is the major version of its schema. Adding an optional field keeps
+the version (decoders tolerate unknown fields); any incompatible change bumps it, and decoders
+reject versions they were not built for.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated, ClassVar, Literal
+
+import msgspec
+
+WireFormat = Literal["json", "msgpack"]
+
+NonNegInt = Annotated[int, msgspec.Meta(ge=0)]
+NonNegFloat = Annotated[float, msgspec.Meta(ge=0.0)]
+PosFloat = Annotated[float, msgspec.Meta(gt=0.0)]
+UnitFloat = Annotated[float, msgspec.Meta(ge=0.0, le=1.0)]
+Vec3 = tuple[float, float, float]
+QuatXYZW = tuple[float, float, float, float]
+Cov3 = Annotated[tuple[float, ...], msgspec.Meta(min_length=9, max_length=9)]
+Cov6 = Annotated[tuple[float, ...], msgspec.Meta(min_length=36, max_length=36)]
+
+_QUAT_NORM_TOLERANCE = 1e-3
+
+
+def _check_finite(obj: msgspec.Struct) -> None:
+    """Reject NaN and infinities in float fields and float tuples (msgpack can carry them)."""
+    for name in obj.__struct_fields__:
+        value = getattr(obj, name)
+        if type(value) is float:
+            finite = math.isfinite(value)
+        elif type(value) is tuple and value and type(value[0]) is float:
+            finite = all(map(math.isfinite, value))
+        else:
+            continue
+        if not finite:
+            raise ValueError(f"field '{name}' must be finite (NaN and infinity are not allowed)")
+
+
+def _check_quaternion(name: str, q: QuatXYZW) -> None:
+    norm = math.sqrt(sum(c * c for c in q))
+    if abs(norm - 1.0) > _QUAT_NORM_TOLERANCE:
+        raise ValueError(
+            f"field '{name}' must be a unit quaternion (x, y, z, w), norm is {norm:.6f}"
+        )
+
+
+def _check_covariance(name: str, cov: tuple[float, ...] | None) -> None:
+    if cov is None:
+        return
+    n = math.isqrt(len(cov))
+    for i in range(n):
+        if cov[i * n + i] < 0.0:
+            raise ValueError(f"field '{name}' has a negative variance at index {i}")
+        for j in range(i + 1, n):
+            a, b = cov[i * n + j], cov[j * n + i]
+            if abs(a - b) > 1e-9 * max(1.0, abs(a), abs(b)):
+                raise ValueError(f"field '{name}' is not symmetric at ({i}, {j})")
+
+
+class Payload(msgspec.Struct, frozen=True, kw_only=True):
+    """Base of every bus payload: measurement stamp, publisher sequence and schema version."""
+
+    WIRE: ClassVar[WireFormat] = "json"
+
+    stamp_ns: NonNegInt
+    seq: NonNegInt
+    schema_version: int = 1
+
+    def __post_init__(self) -> None:
+        _check_finite(self)
+
+
+# ---------------------------------------------------------------- service plumbing
+
+
+HealthState = Literal["starting", "ok", "degraded", "error", "stopping"]
+
+
+class StreamStats(msgspec.Struct, frozen=True, kw_only=True):
+    """Counters for one input or output stream of a service."""
+
+    key: str
+    count: NonNegInt = 0
+    rate_hz: NonNegFloat = 0.0
+    errors: NonNegInt = 0
+    dropped: NonNegInt = 0
+    last_stamp_ns: NonNegInt | None = None
+
+
+class Health(Payload, frozen=True, kw_only=True):
+    """A service's state and counters, published at 1 Hz; `stamp_ns` is the sender's clock."""
+
+    service: str
+    state: HealthState
+    pid: NonNegInt
+    host: str
+    software_version: str
+    uptime_s: NonNegFloat
+    inputs: tuple[StreamStats, ...] = ()
+    outputs: tuple[StreamStats, ...] = ()
+    decode_errors: NonNegInt = 0
+    dropped: NonNegInt = 0
+    last_error: str | None = None
+    last_error_stamp_ns: NonNegInt | None = None
+
+
+class FoxgloveTime(msgspec.Struct, frozen=True, kw_only=True):
+    """foxglove.Time: seconds and nanoseconds since the Unix epoch."""
+
+    sec: NonNegInt
+    nsec: Annotated[int, msgspec.Meta(ge=0, lt=1_000_000_000)]
+
+
+class Log(Payload, frozen=True, kw_only=True):
+    """One log line in the foxglove.Log JSON shape (as BlueOS services publish), plus stamp/seq."""
+
+    SCHEMA_NAME: ClassVar[str] = "foxglove.Log"
+
+    timestamp: FoxgloveTime
+    # foxglove.LogLevel: 0 unknown, 1 debug, 2 info, 3 warning, 4 error, 5 fatal
+    level: Annotated[int, msgspec.Meta(ge=0, le=5)]
+    message: str
+    name: str
+    file: str = ""
+    line: NonNegInt = 0
+
+
+# ---------------------------------------------------------------- ASV
+
+
+AsvPoseStatus = Literal["ok", "degraded", "lost"]
+AsvPoseSource = Literal["scan_match", "external", "sim"]
+
+
+class AsvPose(Payload, frozen=True, kw_only=True):
+    """The ASV body frame B in the world frame W at `stamp_ns` (H_W_B).
+
+    `covariance` is 6 x 6 over (x, y, z, roll, pitch, yaw): metres, and radians of small
+    rotations about the world axes.
+    """
+
+    position_m: Vec3
+    orientation_xyzw: QuatXYZW
+    covariance: Cov6
+    status: AsvPoseStatus = "ok"
+    source: AsvPoseSource = "scan_match"
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check_quaternion("orientation_xyzw", self.orientation_xyzw)
+        _check_covariance("covariance", self.covariance)
+
+
+class ImuSample(Payload, frozen=True, kw_only=True):
+    """One IMU sample in the IMU's own frame (the consumer applies the mounting rotation)."""
+
+    angular_velocity_rad_s: Vec3
+    linear_acceleration_m_s2: Vec3
+
+
+class LidarScan(Payload, frozen=True, kw_only=True):
+    """A 2D LiDAR scan in the scanner frame; `stamp_ns` is the first beam's time.
+
+    A range of 0.0 means no return for that beam.
+    """
+
+    angle_min_rad: float
+    angle_increment_rad: PosFloat
+    time_increment_s: NonNegFloat = 0.0
+    range_min_m: NonNegFloat
+    range_max_m: PosFloat
+    ranges_m: tuple[float, ...]
+    intensities: tuple[float, ...] = ()
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if any(r < 0.0 for r in self.ranges_m):
+            raise ValueError("field 'ranges_m' has a negative range")
+        if self.intensities and len(self.intensities) != len(self.ranges_m):
+            raise ValueError("field 'intensities' must be empty or as long as 'ranges_m'")
+
+
+# ---------------------------------------------------------------- sonar
+
+
+class SonarFrame(Payload, frozen=True, kw_only=True):
+    """One polar sonar image (range bins x beams) as the sonar formed it; msgpack on the wire.
+
+    `image` is row-major: n_ranges rows of n_beams samples, beam index fastest, little-endian
+    for 16-bit samples. `azimuths_rad` is theta per beam in the sonar frame S (port positive),
+    taken from the sonar's own bearing table and already corrected for the mount.
+    """
+
+    WIRE: ClassVar[WireFormat] = "msgpack"
+
+    ping_id: NonNegInt
+    n_ranges: Annotated[int, msgspec.Meta(ge=1)]
+    n_beams: Annotated[int, msgspec.Meta(ge=1)]
+    sample_bits: Literal[8, 16]
+    image: bytes
+    azimuths_rad: tuple[float, ...]
+    range_start_m: NonNegFloat
+    range_resolution_m: PosFloat
+    sound_speed_m_s: PosFloat
+    gain_percent: Annotated[float, msgspec.Meta(ge=0.0, le=100.0)]
+    frequency_hz: PosFloat
+    vertical_aperture_rad: PosFloat
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        expected = self.n_ranges * self.n_beams * (self.sample_bits // 8)
+        if len(self.image) != expected:
+            raise ValueError(
+                f"field 'image' holds {len(self.image)} bytes, expected {expected} "
+                f"({self.n_ranges} x {self.n_beams} x {self.sample_bits} bit)"
+            )
+        if len(self.azimuths_rad) != self.n_beams:
+            raise ValueError(
+                f"field 'azimuths_rad' has {len(self.azimuths_rad)} entries, "
+                f"expected {self.n_beams}"
+            )
+
+
+class Detection(msgspec.Struct, frozen=True, kw_only=True):
+    """One ROV candidate in a sonar frame: centre range/azimuth (sonar frame S) and footprint."""
+
+    range_m: PosFloat
+    azimuth_rad: Annotated[float, msgspec.Meta(ge=-math.pi, le=math.pi)]
+    range_sigma_m: NonNegFloat
+    azimuth_sigma_rad: NonNegFloat
+    confidence: UnitFloat
+    range_extent_m: NonNegFloat = 0.0
+    azimuth_extent_rad: NonNegFloat = 0.0
+
+    def __post_init__(self) -> None:
+        _check_finite(self)
+
+
+class SonarDetections(Payload, frozen=True, kw_only=True):
+    """The detector's candidates for one ping; `stamp_ns` is the ping's stamp."""
+
+    ping_id: NonNegInt
+    detector: str
+    detections: tuple[Detection, ...] = ()
+
+
+# ---------------------------------------------------------------- ROV
+
+
+class RovDepth(Payload, frozen=True, kw_only=True):
+    """Depth of the ROV's pressure sensor (positive down, metres below the still surface)."""
+
+    depth_m: float
+    pressure_pa: PosFloat | None = None
+    temperature_c: float | None = None
+    sigma_m: NonNegFloat = 0.01
+
+
+class RovAttitude(Payload, frozen=True, kw_only=True):
+    """The ROV body frame R's orientation in the world frame W, and its body rates."""
+
+    orientation_xyzw: QuatXYZW
+    angular_velocity_rad_s: Vec3 = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check_quaternion("orientation_xyzw", self.orientation_xyzw)
+
+
+class RovStatus(Payload, frozen=True, kw_only=True):
+    """The autopilot's state as the bridge sees it."""
+
+    armed: bool
+    mode: str
+    ekf_flags: NonNegInt = 0
+    vehicle_boot_ms: NonNegInt = 0
+
+
+# ---------------------------------------------------------------- locator
+
+
+FixQuality = Literal["good", "unsure", "invalid"]
+TrackState = Literal["none", "tracking", "coasting", "lost"]
+LocatorMethod = Literal["capsd", "paper"]
+
+
+class RovFix(Payload, frozen=True, kw_only=True):
+    """The locator's output for one sonar ping (`stamp_ns` is the ping's stamp).
+
+    `raw_*` is the single-ping geometric fix; `position_m`/`velocity_m_s`/`covariance_m2` are
+    the tracked estimate. `quality` is the one field a consumer must honour: only "good" may
+    reach an autopilot. The input stamps say which measurements produced the fix.
+    """
+
+    method: LocatorMethod
+    quality: FixQuality
+    no_fix_reason: str | None = None
+    raw_position_m: Vec3 | None = None
+    raw_covariance_m2: Cov3 | None = None
+    conditioning: NonNegFloat | None = None
+    track_state: TrackState = "none"
+    position_m: Vec3 | None = None
+    velocity_m_s: Vec3 | None = None
+    covariance_m2: Cov3 | None = None
+    asv_pose_stamp_ns: NonNegInt | None = None
+    depth_stamp_ns: NonNegInt | None = None
+    attitude_stamp_ns: NonNegInt | None = None
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check_covariance("raw_covariance_m2", self.raw_covariance_m2)
+        _check_covariance("covariance_m2", self.covariance_m2)
+        if self.quality == "good" and self.position_m is None and self.raw_position_m is None:
+            raise ValueError("a 'good' fix must carry a position")
+
+
+# ---------------------------------------------------------------- simulator
+
+
+class GroundTruth(Payload, frozen=True, kw_only=True):
+    """The simulator's true poses (its own key, never mixed with sensor keys)."""
+
+    asv_position_m: Vec3
+    asv_orientation_xyzw: QuatXYZW
+    rov_position_m: Vec3
+    rov_orientation_xyzw: QuatXYZW
+    rov_velocity_m_s: Vec3 = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check_quaternion("asv_orientation_xyzw", self.asv_orientation_xyzw)
+        _check_quaternion("rov_orientation_xyzw", self.rov_orientation_xyzw)
+
+
+ALL_PAYLOADS: tuple[type[Payload], ...] = (
+    Health,
+    Log,
+    AsvPose,
+    ImuSample,
+    LidarScan,
+    SonarFrame,
+    SonarDetections,
+    RovDepth,
+    RovAttitude,
+    RovStatus,
+    RovFix,
+    GroundTruth,
+)

@@ -1,0 +1,40 @@
+"""The runnable services by name, imported lazily so a light install never loads the rest."""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, cast
+
+from capsd.config import ServiceConfig
+
+
+@dataclass(frozen=True)
+class ServiceEntry:
+    """Where a service lives: its module exposes `Config` (a ServiceConfig) and `main(config)`."""
+
+    name: str
+    module: str
+    summary: str
+
+    def load(self) -> tuple[type[ServiceConfig], Callable[[Any], int]]:
+        module = importlib.import_module(self.module)
+        return cast(type[ServiceConfig], module.Config), cast(Callable[[Any], int], module.main)
+
+
+SERVICES: dict[str, ServiceEntry] = {
+    entry.name: entry
+    for entry in (
+        ServiceEntry(
+            "locator",
+            "services.locator.service",
+            "CAP-SD fix from detections, ASV pose and ROV depth",
+        ),
+        ServiceEntry(
+            "sim",
+            "simulator.service",
+            "simulated tank: ASV pose, ROV depth/attitude, detections, truth",
+        ),
+    )
+}

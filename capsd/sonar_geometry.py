@@ -1,0 +1,39 @@
+"""Sonar beam geometry (CONVENTIONS.md): planar and conical models, forward and inverse.
+
+theta is the azimuth (port positive), phi the elevation for the planar model, psi the rotation
+about the receive array (y axis) for the conical model. Both map (r, theta, elevation) to a
+point p_S in the sonar frame and back. The simulator and the solver must use the same model.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import numpy as np
+
+from capsd.geometry import Array
+
+BeamModel = Literal["planar", "conical"]
+
+
+def beam_direction(model: BeamModel, azimuth_rad: float, elevation_rad: float) -> Array:
+    """Unit vector in S toward (azimuth, elevation) under `model`."""
+    ct, st = math.cos(azimuth_rad), math.sin(azimuth_rad)
+    ce, se = math.cos(elevation_rad), math.sin(elevation_rad)
+    if model == "planar":
+        return np.array([ce * ct, ce * st, se])
+    return np.array([ct * ce, st, ct * se])
+
+
+def to_polar(model: BeamModel, p_s: Array) -> tuple[float, float, float]:
+    """(range, azimuth, elevation) of a point in S under `model` (inverse of beam_direction)."""
+    x, y, z = (float(c) for c in p_s)
+    r = math.sqrt(x * x + y * y + z * z)
+    if r == 0.0:
+        raise ValueError("the sonar's acoustic centre has no direction")
+    if model == "planar":
+        return r, math.atan2(y, x), math.asin(max(-1.0, min(1.0, z / r)))
+    # conical: y = r sin(theta); x, z = r cos(theta) (cos psi, sin psi)
+    azimuth = math.asin(max(-1.0, min(1.0, y / r)))
+    return r, azimuth, math.atan2(z, x)

@@ -1,0 +1,1 @@
+"""ASV pose service: LiDAR scan matching and IMU tilt filter (issue 9; not implemented yet)."""

@@ -1,0 +1,1 @@
+"""Locator: turns sonar detections, the ASV pose and the ROV's depth into ROV fixes."""

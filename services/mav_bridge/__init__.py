@@ -1,0 +1,1 @@
+"""MAVLink bridge to ArduSub (issue 6; not implemented yet)."""

@@ -1,0 +1,1 @@
+"""The simulated tank: world, vehicles and sensors, for dry runs, tests and benchmarks."""
