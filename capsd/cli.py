@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import json
 import signal
 import sys
@@ -133,7 +134,11 @@ def _cmd_tap(args: argparse.Namespace) -> int:
         with lock:
             if done.is_set():
                 return
-            print(json.dumps(line, separators=(",", ":")), flush=True)
+            try:
+                print(json.dumps(line, separators=(",", ":")), flush=True)
+            except BrokenPipeError:  # the reader went away (`| head`): stop quietly
+                done.set()
+                return
             printed += 1
             if args.count and printed >= args.count:
                 done.set()
@@ -297,6 +302,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    # `kill -USR1 <pid>` dumps every thread's stack to stderr: how a wedged service is diagnosed.
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
     args = build_parser().parse_args(argv)
     return int(args.func(args))
 

@@ -14,6 +14,7 @@ keeps running either way.
 
 from __future__ import annotations
 
+import faulthandler
 import logging
 import os
 import signal
@@ -41,6 +42,7 @@ P = TypeVar("P", bound=Payload)
 logger = logging.getLogger(__name__)
 
 _ERROR_LOG_INTERVAL_S = 1.0
+_SHUTDOWN_LIMIT_S = 1.5
 
 
 class StreamCounter:
@@ -146,7 +148,7 @@ class ServiceRunner:
         ] = []
         self._publishers: list[Publisher[Payload]] = []
         self._health_pub: Publisher[Health] | None = None
-        self._latest_health: bytes = b""
+        self._last_health_seq = 0
         self._health_thread: threading.Thread | None = None
         self._log_handler: BusLogHandler | None = None
         self._main_tick = time.monotonic()
@@ -206,6 +208,15 @@ class ServiceRunner:
         )
 
     def _shutdown(self) -> None:
+        # A wedged cleanup must not outlive systemd's stop timeout: after 1.5 s, dump every
+        # thread's stack to stderr (the diagnosis) and exit 1.
+        faulthandler.dump_traceback_later(_SHUTDOWN_LIMIT_S, exit=True)
+        try:
+            self._cleanup()
+        finally:
+            faulthandler.cancel_dump_traceback_later()
+
+    def _cleanup(self) -> None:
         self.stop_event.set()
         with self._lock:
             self._state = "stopping"
@@ -332,8 +343,8 @@ class ServiceRunner:
             self._last_error = message
             self._last_error_stamp_ns = time.time_ns()
 
-    def health(self) -> Health:
-        """The current Health payload (without publishing it)."""
+    def health(self, *, seq: int | None = None) -> Health:
+        """The current Health payload (without publishing it); `seq` defaults to the next one."""
         with self._lock:
             inputs = tuple(c.snapshot() for c in self._inputs)
             outputs = tuple(c.snapshot() for c in self._outputs)
@@ -342,7 +353,7 @@ class ServiceRunner:
         assert self._health_pub is not None
         return Health(
             stamp_ns=time.time_ns(),
-            seq=self._health_pub.next_seq(),
+            seq=self._health_pub.next_seq() if seq is None else seq,
             service=self.name,
             state=state,
             pid=os.getpid(),
@@ -361,14 +372,16 @@ class ServiceRunner:
         if self._health_pub is None:
             return
         health = self.health()
-        self._latest_health = self._health_pub.codec.encode(health)
+        self._last_health_seq = health.seq
         self._health_pub.put(health)
 
     def _answer_health_query(self, query: zenoh.Query) -> None:
-        if self._latest_health and self._health_pub is not None:
+        """Reply with the live state (seq of the last published Health: replies are no stream)."""
+        if self._health_pub is not None:
+            health = self.health(seq=self._last_health_seq)
             query.reply(
                 self._health_pub.key,
-                self._latest_health,
+                self._health_pub.codec.encode(health),
                 encoding=zenoh.Encoding(self._health_pub.codec.encoding),
             )
 

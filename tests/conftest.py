@@ -1,0 +1,121 @@
+"""Shared test fixtures: free loopback ports, real `capsd` processes, a client Zenoh session."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from capsd.bus import open_session
+from capsd.config import BusConfig
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that nobody listens on right now."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+class Proc:
+    """A real `capsd` child process whose output is kept for assertions."""
+
+    def __init__(self, args: list[str], *, env: dict[str, str] | None = None, log: Path):
+        self.args = args
+        self.log_path = log
+        self._log = log.open("wb")
+        self.popen = subprocess.Popen(
+            [sys.executable, "-m", "capsd", *args],
+            stdout=self._log,
+            stderr=subprocess.STDOUT,
+            env={**os.environ, **(env or {})},
+            cwd=REPO,
+        )
+
+    def output(self) -> str:
+        self._log.flush()
+        return self.log_path.read_text(errors="replace")
+
+    def terminate(self, timeout_s: float = 5.0) -> tuple[int, float]:
+        """SIGTERM; return (exit code, seconds until exit)."""
+        start = time.monotonic()
+        self.popen.send_signal(signal.SIGTERM)
+        try:
+            code = self.popen.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            self.popen.send_signal(signal.SIGUSR1)  # faulthandler: dump every thread's stack
+            time.sleep(1.0)
+            raise AssertionError(f"{self.args} ignored SIGTERM:\n{self.output()[-6000:]}") from None
+        return code, time.monotonic() - start
+
+    def kill(self) -> None:
+        if self.popen.poll() is None:
+            self.popen.kill()
+            self.popen.wait(timeout=5)
+        self._log.close()
+
+
+@pytest.fixture
+def spawn(tmp_path: Path) -> Iterator[Callable[..., Proc]]:
+    """Start `python -m capsd ARGS...`; every process is killed at teardown."""
+    procs: list[Proc] = []
+
+    def start(*args: str, env: dict[str, str] | None = None) -> Proc:
+        proc = Proc(list(args), env=env, log=tmp_path / f"proc{len(procs)}.log")
+        procs.append(proc)
+        return proc
+
+    yield start
+    for proc in procs:
+        proc.kill()
+
+
+@pytest.fixture
+def endpoint() -> str:
+    return f"tcp/127.0.0.1:{free_port()}"
+
+
+@pytest.fixture
+def router(spawn: Callable[..., Proc], endpoint: str) -> Proc:
+    """A real `capsd router` listening on a free loopback port."""
+    proc = spawn("router", "--listen", endpoint)
+    wait_for(lambda: _port_open(endpoint), timeout_s=10, what="router listening")
+    return proc
+
+
+@pytest.fixture
+def client(router: Proc, endpoint: str) -> Iterator[zenoh.Session]:
+    """A client session of the test itself, joined to the router."""
+    with open_session(BusConfig(connect=(endpoint,))) as session:
+        yield session
+
+
+def _port_open(endpoint: str) -> bool:
+    host, port = endpoint.removeprefix("tcp/").rsplit(":", 1)
+    with socket.socket() as sock:
+        sock.settimeout(0.2)
+        return sock.connect_ex((host, int(port))) == 0
+
+
+def wait_for(predicate: Callable[[], object], *, timeout_s: float, what: str) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return
+        time.sleep(0.1)
+    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
+
+
+def capsd_json_lines(output: str) -> list[dict[str, object]]:
+    return [json.loads(line) for line in output.splitlines() if line.startswith("{")]

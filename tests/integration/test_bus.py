@@ -1,0 +1,277 @@
+"""Real processes on 127.0.0.1: a router, two services, tap, list, signals, bad input."""
+
+from __future__ import annotations
+
+import json
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import msgspec
+import pytest
+import zenoh
+
+from capsd import topics
+from capsd.codec import Codec
+from capsd.keys import health_key, is_concrete
+from capsd.payloads import Health, Log, RovFix, SonarDetections
+from tests.conftest import REPO, Proc, capsd_json_lines, wait_for
+
+pytestmark = pytest.mark.integration
+
+
+def _health(session: zenoh.Session, vehicle: str, service: str) -> Health | None:
+    codec = Codec(Health)
+    for reply in session.get(health_key("tank", vehicle, service), timeout=1.0):
+        if reply.ok is not None:
+            return codec.decode(
+                reply.ok.payload.to_bytes(), encoding=str(reply.ok.encoding), key_expr="h"
+            )
+    return None
+
+
+def test_router_two_services_tap_list_and_sigterm(
+    spawn: Callable[..., Proc], router: Proc, endpoint: str
+) -> None:
+    sim = spawn("run", "sim", "--config", "deploy/config/sim.yaml", "--connect", endpoint)
+    locator = spawn(
+        "run", "locator", "--config", "deploy/config/locator.yaml", "--connect", endpoint
+    )
+
+    # A payload crosses: sim -> detections -> locator -> fix; tap prints it decoded.
+    tap = spawn(
+        "tap",
+        "cap/tank/topside/locator/fix",
+        "--connect",
+        endpoint,
+        "--count",
+        "3",
+        "--duration",
+        "30",
+    )
+    assert tap.popen.wait(timeout=40) == 0
+    lines = capsd_json_lines(tap.output())
+    assert len(lines) == 3
+    assert {line["schema"] for line in lines} == {"RovFix"}
+    fixes = [msgspec.convert(line["payload"], RovFix) for line in lines]
+    assert any(fix.quality == "good" and fix.raw_position_m is not None for fix in fixes)
+
+    listing = subprocess.run(
+        [sys.executable, "-m", "capsd", "list", "--json", "--connect", endpoint],
+        capture_output=True,
+        text=True,
+        timeout=30,
+        cwd=REPO,
+        check=True,
+    )
+    rows = [json.loads(line) for line in listing.stdout.splitlines()]
+    services = {(row["vehicle"], row["service"]): row for row in rows}
+    assert ("sim", "sim") in services
+    assert ("topside", "locator") in services
+    locator_health = services[("topside", "locator")]["health"]
+    assert locator_health["state"] == "ok"
+    assert sum(s["count"] for s in locator_health["inputs"]) > 0
+
+    human = subprocess.run(
+        [sys.executable, "-m", "capsd", "list", "--connect", endpoint],
+        capture_output=True,
+        text=True,
+        timeout=30,
+        cwd=REPO,
+        check=True,
+    )
+    assert "locator" in human.stdout
+    assert "sim" in human.stdout
+
+    for proc in (sim, locator, router):
+        code, seconds = proc.terminate()
+        assert code == 0, proc.output()
+        assert seconds < 2.0, f"{proc.args} took {seconds:.2f} s to stop"
+
+
+def test_bad_input_is_counted_and_dropped_while_serving(
+    spawn: Callable[..., Proc], client: zenoh.Session, endpoint: str
+) -> None:
+    locator = spawn(
+        "run", "locator", "--config", "deploy/config/locator.yaml", "--connect", endpoint
+    )
+    key = topics.SONAR_DETECTIONS.key("tank", "asv")
+    wait_for(
+        lambda: _health(client, "topside", "locator") is not None,
+        timeout_s=15,
+        what="locator health",
+    )
+
+    fixes: list[RovFix] = []
+    codec = Codec(RovFix)
+
+    def on_fix(sample: zenoh.Sample) -> None:
+        if is_concrete(str(sample.key_expr)):  # `cap/**` below reaches this test's input too
+            fixes.append(
+                codec.decode(
+                    sample.payload.to_bytes(),
+                    encoding=str(sample.encoding),
+                    key_expr=str(sample.key_expr),
+                )
+            )
+
+    sub = client.declare_subscriber(topics.ROV_FIX.key("tank", "topside"), on_fix)
+    good = Codec(SonarDetections).encode(
+        SonarDetections(stamp_ns=time.time_ns(), seq=0, ping_id=0, detector="test")
+    )
+    json_enc = zenoh.Encoding("application/json;SonarDetections")
+    bad_inputs: list[tuple[str, bytes]] = [
+        (key, b"\x00\x01garbage"),  # garbage bytes
+        (key, b'{"stamp_ns": "now", "seq": 0, "ping_id": 0, "detector": "x"}'),  # wrong type
+        (
+            key,
+            b'{"stamp_ns": 1, "seq": 0, "ping_id": 0, "detector": "x", "detections": '
+            b'[{"range_m": NaN, "azimuth_rad": 0, "range_sigma_m": 0, '
+            b'"azimuth_sigma_rad": 0, "confidence": 1}]}',
+        ),  # NaN where forbidden
+        (
+            key,
+            b'{"stamp_ns": 1, "seq": 0, "ping_id": 0, "detector": "x", "detections": '
+            b'[{"range_m": 1e999, "azimuth_rad": 0, "range_sigma_m": 0, '
+            b'"azimuth_sigma_rad": 0, "confidence": 1}]}',
+        ),  # infinity where forbidden
+        ("cap/tank/*/sonar/detections", good),  # wildcard key: refused even if well formed
+        ("cap/**", good),
+    ]
+    for bad_key, data in bad_inputs:
+        client.put(bad_key, data, encoding=json_enc)
+    time.sleep(0.5)
+    assert fixes == [], "no bad input may produce an output"
+
+    client.put(key, good, encoding=json_enc)
+    wait_for(lambda: len(fixes) == 1, timeout_s=5, what="a fix for the good input")
+    # No pose or depth yet: the locator answers honestly that it cannot fix.
+    assert fixes[0].quality == "invalid"
+    assert fixes[0].no_fix_reason is not None
+
+    def detection_errors() -> int:
+        health = _health(client, "topside", "locator")
+        assert health is not None
+        return next(s.errors for s in health.inputs if s.key == key)
+
+    wait_for(
+        lambda: detection_errors() == len(bad_inputs),
+        timeout_s=5,
+        what="decode errors counted in health",
+    )
+    # `cap/**` also reached the pose, depth and attitude inputs, and was refused there too.
+
+    health = _health(client, "topside", "locator")
+    assert health is not None
+    assert health.state == "ok"
+    assert health.decode_errors == len(bad_inputs) + 3
+    assert health.last_error is not None
+    assert "wildcard" in locator.output()
+    assert locator.popen.poll() is None, "the service must keep running"
+    sub.undeclare()
+    assert locator.terminate()[0] == 0
+
+
+def test_bad_config_exits_non_zero_naming_file_and_key(tmp_path: Path) -> None:
+    bad = tmp_path / "locator.yaml"
+    bad.write_text("site: tank\nsonar:\n  pitch_deg: 30\n  beam_modle: conical\n")
+    result = subprocess.run(
+        [sys.executable, "-m", "capsd", "run", "locator", "--config", str(bad)],
+        capture_output=True,
+        text=True,
+        timeout=30,
+        cwd=REPO,
+    )
+    assert result.returncode == 2
+    assert f"{bad}:4" in result.stderr
+    assert "sonar.beam_modle" in result.stderr
+
+    out_of_range = tmp_path / "range.yaml"
+    out_of_range.write_text("max_conditioning: -1\n")
+    result = subprocess.run(
+        [sys.executable, "-m", "capsd", "run", "locator", "--config", str(out_of_range)],
+        capture_output=True,
+        text=True,
+        timeout=30,
+        cwd=REPO,
+    )
+    assert result.returncode == 2
+    assert "max_conditioning" in result.stderr
+
+    bad_flag = subprocess.run(
+        [sys.executable, "-m", "capsd", "run", "locator", "--connect", "localhost"],
+        capture_output=True,
+        text=True,
+        timeout=30,
+        cwd=REPO,
+    )
+    assert bad_flag.returncode == 2
+    assert "not a Zenoh endpoint" in bad_flag.stderr
+
+
+def test_sd_notify_and_bus_logs_from_a_real_service(
+    spawn: Callable[..., Proc], client: zenoh.Session, endpoint: str, tmp_path: Path
+) -> None:
+    notify_path = tmp_path / "notify.sock"
+    messages: list[str] = []
+    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as server:
+        server.bind(str(notify_path))
+        server.settimeout(0.2)
+        stop = threading.Event()
+
+        def listen() -> None:
+            while not stop.is_set():
+                try:
+                    messages.append(server.recv(4096).decode())
+                except TimeoutError:
+                    continue
+
+        thread = threading.Thread(target=listen, daemon=True)
+        thread.start()
+        logs: list[Log] = []
+        log_codec = Codec(Log)
+        sub = client.declare_subscriber(
+            "services/*/log",
+            lambda s: logs.append(
+                log_codec.decode(
+                    s.payload.to_bytes(), encoding=str(s.encoding), key_expr=str(s.key_expr)
+                )
+            ),
+        )
+        proc = spawn(
+            "run",
+            "locator",
+            "--connect",
+            endpoint,
+            env={"NOTIFY_SOCKET": str(notify_path), "WATCHDOG_USEC": "1000000"},
+        )
+        wait_for(lambda: any("READY=1" in m for m in messages), timeout_s=15, what="READY=1")
+        wait_for(lambda: any("WATCHDOG=1" in m for m in messages), timeout_s=5, what="WATCHDOG=1")
+        code, seconds = proc.terminate()
+        assert code == 0
+        assert seconds < 2.0
+        wait_for(lambda: any("STOPPING=1" in m for m in messages), timeout_s=2, what="STOPPING=1")
+        stop.set()
+        thread.join()
+        sub.undeclare()
+    stop_logs = [log for log in logs if log.message.startswith("stop requested")]
+    assert stop_logs, [log.message for log in logs]
+    assert stop_logs[0].name == "locator"
+    assert stop_logs[0].level == 2
+
+
+def test_service_waits_for_a_late_router(spawn: Callable[..., Proc], endpoint: str) -> None:
+    locator = spawn("run", "locator", "--connect", endpoint)
+    wait_for(
+        lambda: "waiting for Zenoh router" in locator.output(),
+        timeout_s=15,
+        what="the waiting message",
+    )
+    assert locator.popen.poll() is None
+    spawn("router", "--listen", endpoint)
+    wait_for(lambda: "service started" in locator.output(), timeout_s=15, what="late join")
+    assert locator.terminate()[0] == 0
