@@ -8,7 +8,8 @@ import statistics
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import zenoh
 
@@ -90,37 +91,31 @@ def main(argv: Sequence[str] | None = None) -> int:
     comparison = Comparison()
     fix_codec, truth_codec = Codec(RovFix), Codec(GroundTruth)
 
-    def on_fix(sample: zenoh.Sample) -> None:
-        key = str(sample.key_expr)
-        if is_concrete(key):
+    def decoding(codec: Codec[Any], sink: Callable[[Any], None]) -> Callable[[zenoh.Sample], None]:
+        def on_sample(sample: zenoh.Sample) -> None:
+            key = str(sample.key_expr)
+            if not is_concrete(key):
+                return
             try:
-                comparison.add_fix(
-                    fix_codec.decode(
+                sink(
+                    codec.decode(
                         sample.payload.to_bytes(), encoding=str(sample.encoding), key_expr=key
                     )
                 )
             except PayloadError as exc:
                 print(f"compare: {exc}", file=sys.stderr)
 
-    def on_truth(sample: zenoh.Sample) -> None:
-        key = str(sample.key_expr)
-        if is_concrete(key):
-            try:
-                comparison.add_truth(
-                    truth_codec.decode(
-                        sample.payload.to_bytes(), encoding=str(sample.encoding), key_expr=key
-                    )
-                )
-            except PayloadError as exc:
-                print(f"compare: {exc}", file=sys.stderr)
+        return on_sample
 
     try:
         with open_session(bus) as session:
             fix_sub = session.declare_subscriber(
-                topics.ROV_FIX.key(args.site, args.locator_vehicle), on_fix
+                topics.ROV_FIX.key(args.site, args.locator_vehicle),
+                decoding(fix_codec, comparison.add_fix),
             )
             truth_sub = session.declare_subscriber(
-                topics.SIM_TRUTH.key(args.site, args.sim_vehicle), on_truth
+                topics.SIM_TRUTH.key(args.site, args.sim_vehicle),
+                decoding(truth_codec, comparison.add_truth),
             )
             end = time.monotonic() + args.duration
             try:

@@ -16,7 +16,9 @@ import pytest
 import zenoh
 
 from capsd import topics
+from capsd.bus import open_session
 from capsd.codec import Codec
+from capsd.config import BusConfig
 from capsd.keys import health_key, is_concrete
 from capsd.payloads import Health, Log, RovFix, SonarDetections
 from tests.conftest import REPO, Proc, capsd_json_lines, wait_for
@@ -275,3 +277,45 @@ def test_service_waits_for_a_late_router(spawn: Callable[..., Proc], endpoint: s
     spawn("router", "--listen", endpoint)
     wait_for(lambda: "service started" in locator.output(), timeout_s=15, what="late join")
     assert locator.terminate()[0] == 0
+
+
+def test_help_on_every_command() -> None:
+    for args in (
+        ["--help"],
+        ["run", "--help"],
+        ["router", "--help"],
+        ["tap", "--help"],
+        ["list", "--help"],
+    ):
+        result = subprocess.run(
+            [sys.executable, "-m", "capsd", *args],
+            capture_output=True,
+            text=True,
+            timeout=30,
+            cwd=REPO,
+        )
+        assert result.returncode == 0, args
+        assert "usage: capsd" in result.stdout
+
+
+def test_services_rejoin_a_restarted_router(
+    spawn: Callable[..., Proc], router: Proc, endpoint: str
+) -> None:
+    locator = spawn("run", "locator", "--connect", endpoint)
+    with open_session(BusConfig(connect=(endpoint,))) as session:
+        wait_for(
+            lambda: _health(session, "topside", "locator") is not None,
+            timeout_s=15,
+            what="locator health",
+        )
+    assert router.terminate()[0] == 0
+    spawn("router", "--listen", endpoint)
+    start = time.monotonic()
+    with open_session(BusConfig(connect=(endpoint,), connect_timeout_s=5.0)) as session:
+        wait_for(
+            lambda: _health(session, "topside", "locator") is not None,
+            timeout_s=10,
+            what="locator back after the router restart",
+        )
+    assert time.monotonic() - start < 5.0
+    assert locator.popen.poll() is None
