@@ -290,7 +290,7 @@ class RovStatus(Payload, frozen=True, kw_only=True):
 
 FixQuality = Literal["good", "unsure", "invalid"]
 TrackState = Literal["none", "tracking", "coasting", "lost"]
-LocatorMethod = Literal["capsd", "paper"]
+LocatorMethod = Literal["capsd", "paper", "ablation"]
 
 
 class RovFix(Payload, frozen=True, kw_only=True):
@@ -308,6 +308,9 @@ class RovFix(Payload, frozen=True, kw_only=True):
     raw_covariance_m2: Cov3 | None = None
     conditioning: NonNegFloat | None = None
     track_state: TrackState = "none"
+    # Bumped on every relocalisation jump of the track (the bridge's reset_counter follows it).
+    track_resets: NonNegInt = 0
+    candidates: NonNegInt = 0
     position_m: Vec3 | None = None
     velocity_m_s: Vec3 | None = None
     covariance_m2: Cov3 | None = None

@@ -1,14 +1,17 @@
-"""The locator service: per-ping CAP-SD fixes from detections, ASV pose and ROV depth/attitude.
+"""The locator service: ROV fixes from detections, ASV pose and ROV depth/attitude, tracked.
 
-Inputs are time-aligned at each ping's `stamp_ns` (pose: linear + slerp; depth: linear).
-This is the per-frame fix; the tracking filter of issue 4 builds on it.
+Per ping: inputs are time-aligned at the ping's `stamp_ns` (pose: linear + slerp; depth: linear;
+attitude: slerp), every candidate detection is solved exactly (services.locator.fix), ghosts
+(no valid root, outside the tank) are dropped, and the tracker fuses the candidate consistent
+with the track. The paper's method is one `method` preset away, for the benchmark; each of its
+choices can also be switched alone (for ablations).
 """
 
 from __future__ import annotations
 
 import logging
 import math
-from typing import Annotated
+from typing import Annotated, Literal, TypeVar
 
 import msgspec
 import numpy as np
@@ -16,23 +19,107 @@ import numpy as np
 from capsd import topics
 from capsd.config import ConfigSection, ServiceConfig
 from capsd.geometry import Array, Transform, quat_slerp, quat_to_matrix
+from capsd.keys import check_name
 from capsd.mounts import RovConfig, SonarMountConfig
-from capsd.payloads import AsvPose, Detection, RovAttitude, RovDepth, RovFix, SonarDetections
+from capsd.payloads import (
+    AsvPose,
+    Detection,
+    LocatorMethod,
+    RovAttitude,
+    RovDepth,
+    RovFix,
+    SonarDetections,
+)
 from capsd.runner import Publisher, ServiceRunner
 from services.locator.fix import FixUncertainty, rov_centre_z, solve_fix
-from services.locator.timeline import Timeline
+from services.locator.paper import paper_fix
+from services.locator.timeline import Lookup, Timeline
+from services.locator.tracker import Tracker, TrackerSettings
 
 logger = logging.getLogger(__name__)
 
+T = TypeVar("T")
+
+NonNeg = Annotated[float, msgspec.Meta(ge=0.0)]
+Positive = Annotated[float, msgspec.Meta(gt=0.0)]
+
 
 class LocatorInputs(ConfigSection, frozen=True, kw_only=True):
-    """Whose streams the locator reads."""
+    """Whose streams the locator reads, and how far inputs may be stretched in time."""
 
     asv_vehicle: str = "asv"
     rov_vehicle: str = "rov"
     # How far past the newest sample an input may be extrapolated before the fix is refused.
     max_extrapolation_s: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.15
     buffer_s: Annotated[float, msgspec.Meta(gt=0.0, le=30.0)] = 5.0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for field in ("asv_vehicle", "rov_vehicle"):
+            try:
+                check_name("vehicle", getattr(self, field))
+            except ValueError as exc:
+                raise ValueError(f"`{field}`: {exc}") from None
+
+
+class MethodConfig(ConfigSection, frozen=True, kw_only=True):
+    """How the fix is made. `preset` "paper" forces the paper's choices for all four."""
+
+    preset: Literal["capsd", "paper", "custom"] = "capsd"
+    geometry: Literal["exact", "paper"] = "exact"
+    matching: Literal["interpolate", "latest"] = "interpolate"
+    lever_arm: Literal["correct", "ignore"] = "correct"
+    tracking: Literal["filter", "per_frame"] = "filter"
+
+    def resolved(self) -> MethodConfig:
+        """The effective switches: presets fix them, "custom" keeps what the file says."""
+        if self.preset == "paper":
+            return MethodConfig(
+                preset="paper",
+                geometry="paper",
+                matching="latest",
+                lever_arm="ignore",
+                tracking="per_frame",
+            )
+        if self.preset == "capsd":
+            return MethodConfig()
+        return self
+
+
+class TankBounds(ConfigSection, frozen=True, kw_only=True):
+    """The tank's box in W (corner origin, z up); fixes outside it are ghosts."""
+
+    length_m: Positive = 28.0
+    width_m: Positive = 16.0
+    depth_m: Positive = 8.0
+    margin_m: NonNeg = 0.3
+
+    def contains(self, p: Array) -> bool:
+        m = self.margin_m
+        return bool(
+            -m <= p[0] <= self.length_m + m
+            and -m <= p[1] <= self.width_m + m
+            and -self.depth_m - m <= p[2] <= m
+        )
+
+
+class TrackingConfig(ConfigSection, frozen=True, kw_only=True):
+    """Tracker tuning (services.locator.tracker)."""
+
+    accel_density_xy: Positive = 0.02
+    accel_density_z: Positive = 0.01
+    gate_chi2: Positive = 16.27
+    lost_after_s: Positive = 2.0
+    reinit_after: Annotated[int, msgspec.Meta(ge=1)] = 5
+
+    def settings(self) -> TrackerSettings:
+        return TrackerSettings(
+            accel_density_xy=self.accel_density_xy,
+            accel_density_z=self.accel_density_z,
+            gate_chi2=self.gate_chi2,
+            lost_after_s=self.lost_after_s,
+            reinit_after=self.reinit_after,
+        )
 
 
 class Config(ServiceConfig, frozen=True, kw_only=True):
@@ -42,7 +129,10 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     inputs: LocatorInputs = LocatorInputs()
     sonar: SonarMountConfig = SonarMountConfig()
     rov: RovConfig = RovConfig()
-    max_conditioning: Annotated[float, msgspec.Meta(gt=0.0)] = 10.0
+    method: MethodConfig = MethodConfig()
+    tank: TankBounds | None = TankBounds()
+    tracking: TrackingConfig = TrackingConfig()
+    max_conditioning: Positive = 10.0
     min_confidence: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.5
 
 
@@ -54,30 +144,44 @@ def _lerp_float(a: float, b: float, f: float) -> float:
     return a + f * (b - a)
 
 
-def _lerp_quat(a: Array, b: Array, f: float) -> Array:
-    return quat_slerp(a, b, f)
+def _vec3(v: Array) -> tuple[float, float, float]:
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
+def _flat(m: Array) -> tuple[float, ...]:
+    return tuple(float(v) for v in m.ravel())
 
 
 class Locator:
-    """Holds the aligned input timelines and turns one detection message into one RovFix."""
+    """Aligned input timelines, the per-ping solver and the tracker: one RovFix per ping."""
 
     def __init__(self, config: Config):
         self.config = config
+        self.method = config.method.resolved()
+        self.label: LocatorMethod = (
+            "ablation" if self.method.preset == "custom" else self.method.preset
+        )
         self.mount = config.sonar.transform()
         self.aperture_rad = math.radians(config.sonar.vertical_aperture_deg)
-        self.lever_arm = np.array(config.rov.pressure_sensor_m)
+        self.lever_arm = (
+            np.array(config.rov.pressure_sensor_m)
+            if self.method.lever_arm == "correct"
+            else np.zeros(3)
+        )
         extrap = int(config.inputs.max_extrapolation_s * 1e9)
+        buffer_s = config.inputs.buffer_s
         self.poses: Timeline[tuple[Array, Array]] = Timeline(
-            _lerp_pose, capacity=int(config.inputs.buffer_s * 200), max_extrapolation_ns=extrap
+            _lerp_pose, capacity=int(buffer_s * 200), max_extrapolation_ns=extrap
+        )
+        self.depths: Timeline[float] = Timeline(
+            _lerp_float, capacity=int(buffer_s * 100), max_extrapolation_ns=extrap
+        )
+        self.attitudes: Timeline[Array] = Timeline(
+            quat_slerp, capacity=int(buffer_s * 100), max_extrapolation_ns=extrap
         )
         self.pose_cov: Array = np.eye(6) * 1e-4
-        self.depths: Timeline[float] = Timeline(
-            _lerp_float, capacity=int(config.inputs.buffer_s * 100), max_extrapolation_ns=extrap
-        )
         self.depth_sigma_m = 0.01
-        self.attitudes: Timeline[Array] = Timeline(
-            _lerp_quat, capacity=int(config.inputs.buffer_s * 100), max_extrapolation_ns=extrap
-        )
+        self.tracker = Tracker(config.tracking.settings())
 
     def on_pose(self, pose: AsvPose) -> None:
         if pose.status == "lost":
@@ -92,64 +196,124 @@ class Locator:
     def on_attitude(self, attitude: RovAttitude) -> None:
         self.attitudes.add(attitude.stamp_ns, np.array(attitude.orientation_xyzw))
 
-    def locate(self, detections: SonarDetections, *, seq: int) -> RovFix:
-        """The fix for one ping, or an invalid RovFix that says why there is none."""
-        stamp = detections.stamp_ns
-        refused = RovFix(stamp_ns=stamp, seq=seq, method="capsd", quality="invalid")
-        best: Detection | None = max(
-            detections.detections, key=lambda d: d.confidence, default=None
-        )
-        if best is None or best.confidence < self.config.min_confidence:
-            return msgspec.structs.replace(refused, no_fix_reason="no_detection")
-        pose = self.poses.at(stamp)
-        depth = self.depths.at(stamp)
-        attitude = self.attitudes.at(stamp)
-        refused = msgspec.structs.replace(
-            refused,
-            asv_pose_stamp_ns=pose.stamp_ns,
-            depth_stamp_ns=depth.stamp_ns,
-            attitude_stamp_ns=attitude.stamp_ns,
-        )
-        for name, lookup in (("asv_pose", pose), ("depth", depth), ("attitude", attitude)):
-            if lookup.failure is not None:
-                return msgspec.structs.replace(refused, no_fix_reason=f"{name}_{lookup.failure}")
-        assert pose.value is not None
-        assert depth.value is not None
-        assert attitude.value is not None
-        asv = Transform(quat_to_matrix(pose.value[1]), pose.value[0])
-        z = rov_centre_z(depth.value, quat_to_matrix(attitude.value), self.lever_arm)
+    def _lookup(self, line: Timeline[T], stamp_ns: int) -> Lookup[T]:
+        return line.latest() if self.method.matching == "latest" else line.at(stamp_ns)
+
+    def _solve(
+        self, detection: Detection, asv: Transform, depth_m: float, attitude: Array
+    ) -> tuple[Array, Array | None] | str:
+        """(position, covariance) of one candidate, or why it is no fix."""
+        if self.method.geometry == "paper":
+            position = paper_fix(
+                sonar_pose=asv.compose(self.mount),
+                range_m=detection.range_m,
+                azimuth_rad=detection.azimuth_rad,
+                depth_m=depth_m,
+            )
+            return "no_intersection" if position is None else (position, None)
         result = solve_fix(
             asv_pose=asv,
             sonar_mount=self.mount,
-            range_m=best.range_m,
-            azimuth_rad=best.azimuth_rad,
-            rov_z_m=z,
+            range_m=detection.range_m,
+            azimuth_rad=detection.azimuth_rad,
+            rov_z_m=rov_centre_z(depth_m, quat_to_matrix(attitude), self.lever_arm),
             vertical_aperture_rad=self.aperture_rad,
             beam_model=self.config.sonar.beam_model,
             max_conditioning=self.config.max_conditioning,
             uncertainty=FixUncertainty(
-                range_sigma_m=max(best.range_sigma_m, 1e-4),
-                azimuth_sigma_rad=max(best.azimuth_sigma_rad, 1e-5),
+                range_sigma_m=max(detection.range_sigma_m, 1e-4),
+                azimuth_sigma_rad=max(detection.azimuth_sigma_rad, 1e-5),
                 rov_z_sigma_m=self.depth_sigma_m,
                 asv_pose_covariance=self.pose_cov,
             ),
         )
-        finite_conditioning = (
-            result.conditioning
-            if result.conditioning is not None and math.isfinite(result.conditioning)
-            else None
-        )
         if result.position_m is None or result.covariance_m2 is None:
+            return result.reason or "no_fix"
+        return result.position_m, result.covariance_m2
+
+    def locate(self, detections: SonarDetections, *, seq: int) -> RovFix:
+        """The fix for one ping, tracked; an invalid RovFix says why there is none."""
+        stamp = detections.stamp_ns
+        out = RovFix(stamp_ns=stamp, seq=seq, method=self.label, quality="invalid")
+        candidates = [
+            d for d in detections.detections if d.confidence >= self.config.min_confidence
+        ]
+        pose = self._lookup(self.poses, stamp)
+        depth = self._lookup(self.depths, stamp)
+        attitude = self._lookup(self.attitudes, stamp)
+        out = msgspec.structs.replace(
+            out,
+            candidates=len(candidates),
+            asv_pose_stamp_ns=pose.stamp_ns,
+            depth_stamp_ns=depth.stamp_ns,
+            attitude_stamp_ns=attitude.stamp_ns,
+        )
+        reasons: list[str] = []
+        fixes: list[tuple[Array, Array | None, Detection]] = []
+        if not candidates:
+            reasons.append("no_detection")
+        for name, lookup in (("asv_pose", pose), ("depth", depth), ("attitude", attitude)):
+            if lookup.failure is not None:
+                reasons.append(f"{name}_{lookup.failure}")
+        if pose.value is not None and depth.value is not None and attitude.value is not None:
+            asv = Transform(quat_to_matrix(pose.value[1]), pose.value[0])
+            for detection in candidates:
+                solved = self._solve(detection, asv, depth.value, attitude.value)
+                if isinstance(solved, str):
+                    reasons.append(solved)
+                elif self.config.tank is not None and not self.config.tank.contains(solved[0]):
+                    reasons.append("outside_tank")
+                else:
+                    fixes.append((solved[0], solved[1], detection))
+        return self._finish(out, stamp, fixes, reasons)
+
+    def _finish(
+        self,
+        out: RovFix,
+        stamp: int,
+        fixes: list[tuple[Array, Array | None, Detection]],
+        reasons: list[str],
+    ) -> RovFix:
+        reason = ",".join(sorted(set(reasons))) or None
+        if self.method.tracking == "per_frame":
+            if not fixes:
+                return msgspec.structs.replace(out, no_fix_reason=reason)
+            position, covariance, _ = max(fixes, key=lambda f: f[2].confidence)
             return msgspec.structs.replace(
-                refused, no_fix_reason=result.reason, conditioning=finite_conditioning
+                out,
+                quality="good",
+                raw_position_m=_vec3(position),
+                raw_covariance_m2=None if covariance is None else _flat(covariance),
             )
-        x, y, z = (float(v) for v in result.position_m)
+        usable = [(p, c) for p, c, _ in fixes if c is not None]
+        association = self.tracker.update(stamp, usable)
+        estimate = self.tracker.estimate()
+        raw = usable[association.index] if association.index is not None else None
+        if raw is None and usable:
+            reason = "outside_gate"
+        if raw is not None:
+            out = msgspec.structs.replace(
+                out, raw_position_m=_vec3(raw[0]), raw_covariance_m2=_flat(raw[1])
+            )
+        out = msgspec.structs.replace(
+            out,
+            no_fix_reason=None if raw is not None else reason,
+            track_state=estimate.state,
+            track_resets=estimate.resets,
+        )
+        if estimate.position_m is None or estimate.covariance_m2 is None:
+            return out
+        assert estimate.velocity_m_s is not None
+        # Only a measured, gated update is "good"; a coasted prediction is honest but "unsure".
+        quality: Literal["good", "unsure"] = (
+            "good" if estimate.state == "tracking" and raw is not None else "unsure"
+        )
         return msgspec.structs.replace(
-            refused,
-            quality="good",
-            raw_position_m=(x, y, z),
-            raw_covariance_m2=tuple(float(v) for v in result.covariance_m2.ravel()),
-            conditioning=finite_conditioning,
+            out,
+            quality=quality,
+            position_m=_vec3(estimate.position_m),
+            velocity_m_s=_vec3(estimate.velocity_m_s),
+            covariance_m2=_flat(estimate.covariance_m2),
         )
 
 
@@ -167,5 +331,6 @@ def main(config: Config) -> int:
         runner.subscribe(topics.ROV_DEPTH, locator.on_depth, vehicle=rov)
         runner.subscribe(topics.ROV_ATTITUDE, locator.on_attitude, vehicle=rov)
         runner.subscribe(topics.SONAR_DETECTIONS, on_detections, vehicle=asv)
+        logger.info("locator ready", extra={"fields": {"method": locator.label}})
         runner.run()
     return 0

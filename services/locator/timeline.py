@@ -54,6 +54,13 @@ class Timeline(Generic[T]):
             if len(self._stamps) > self._capacity:
                 del self._stamps[0], self._values[0]
 
+    def latest(self) -> Lookup[T]:
+        """The newest sample as it is, whatever its age (the paper's input matching)."""
+        with self._lock:
+            if not self._stamps:
+                return Lookup(None, None, "no_samples")
+            return Lookup(self._values[-1], self._stamps[-1])
+
     def at(self, stamp_ns: int) -> Lookup[T]:
         with self._lock:
             n = len(self._stamps)

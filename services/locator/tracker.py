@@ -1,0 +1,189 @@
+"""Constant-velocity Kalman tracker of the ROV in the world frame, with gating and coasting.
+
+State x = (p, v) in W. Process model: white acceleration with spectral density q per axis
+(m^2/s^3), so over dt the covariance grows by q [[dt^3/3, dt^2/2], [dt^2/2, dt]] per axis.
+Measurements are CAP-SD fixes (position, 3 x 3 covariance) and, when available, the ROV's own
+velocity. A fix is accepted only inside a Mahalanobis gate (chi-square, 3 dof); among several
+candidates the one with the smallest distance wins. Without accepted fixes the track coasts with
+growing covariance and is declared lost after `lost_after_s`. A run of consistent fixes outside
+the gate re-initialises the track (a relocalisation, counted in `resets`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from capsd.geometry import Array
+
+TrackState = Literal["none", "tracking", "coasting", "lost"]
+
+
+@dataclass(frozen=True)
+class TrackerSettings:
+    """Tuning of the tracker; see the module docstring for the model."""
+
+    accel_density_xy: float = 0.02  # m^2/s^3: a BlueROV2 changes speed gently in a tank
+    accel_density_z: float = 0.01
+    initial_speed_sigma_m_s: float = 0.5
+    gate_chi2: float = 16.27  # chi-square 3 dof, p = 0.999
+    lost_after_s: float = 2.0
+    reinit_after: int = 5  # consecutive out-of-gate fixes that start a new track
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """The tracker's state at one instant."""
+
+    state: TrackState
+    stamp_ns: int
+    position_m: Array | None
+    velocity_m_s: Array | None
+    covariance_m2: Array | None  # position block only
+    resets: int
+
+
+@dataclass(frozen=True)
+class Association:
+    """Which candidate the tracker took, and its squared Mahalanobis distance."""
+
+    index: int | None
+    distance2: float | None
+    reinitialised: bool
+
+
+class Tracker:
+    """One ROV track; feed it time-ordered fixes through `update` and `coast`."""
+
+    def __init__(self, settings: TrackerSettings):
+        self.settings = settings
+        self.x = np.zeros(6)
+        self.P = np.eye(6)
+        self.stamp_ns: int | None = None
+        self.last_update_ns: int | None = None
+        self.state: TrackState = "none"
+        self.resets = 0
+        self._outside = 0
+        self._outside_last: Array | None = None
+
+    # ------------------------------------------------------------------ model
+
+    def _predict(self, stamp_ns: int) -> tuple[Array, Array]:
+        assert self.stamp_ns is not None
+        dt = max(0.0, (stamp_ns - self.stamp_ns) / 1e9)
+        f = np.eye(6)
+        f[0:3, 3:6] = dt * np.eye(3)
+        q = np.zeros((6, 6))
+        s = self.settings
+        for axis, density in (
+            (0, s.accel_density_xy),
+            (1, s.accel_density_xy),
+            (2, s.accel_density_z),
+        ):
+            q[axis, axis] = density * dt**3 / 3.0
+            q[axis, axis + 3] = q[axis + 3, axis] = density * dt**2 / 2.0
+            q[axis + 3, axis + 3] = density * dt
+        return f @ self.x, f @ self.P @ f.T + q
+
+    def _start(self, stamp_ns: int, position: Array, covariance: Array) -> None:
+        self.x = np.concatenate([position, np.zeros(3)])
+        self.P = np.zeros((6, 6))
+        self.P[0:3, 0:3] = covariance
+        self.P[3:6, 3:6] = np.eye(3) * self.settings.initial_speed_sigma_m_s**2
+        self.stamp_ns = self.last_update_ns = stamp_ns
+        self.state = "tracking"
+        self._outside = 0
+        self._outside_last = None
+
+    # ------------------------------------------------------------------ inputs
+
+    def update(self, stamp_ns: int, fixes: list[tuple[Array, Array]]) -> Association:
+        """Fuse the best gated fix among `fixes` (position, covariance) taken at `stamp_ns`."""
+        self._expire(stamp_ns)
+        if not fixes:
+            self.coast(stamp_ns)
+            return Association(None, None, reinitialised=False)
+        if self.state in ("none", "lost") or self.stamp_ns is None:
+            # No track: start on the most certain candidate.
+            best = min(range(len(fixes)), key=lambda i: float(np.trace(fixes[i][1])))
+            self._start(stamp_ns, *fixes[best])
+            return Association(best, None, reinitialised=True)
+        if stamp_ns < self.stamp_ns:
+            return Association(None, None, reinitialised=False)  # older than the track: ignore
+        x_pred, p_pred = self._predict(stamp_ns)
+        h = np.hstack([np.eye(3), np.zeros((3, 3))])
+        scored = []
+        for i, (z, r) in enumerate(fixes):
+            innovation = z - x_pred[0:3]
+            s = p_pred[0:3, 0:3] + r
+            scored.append((float(innovation @ np.linalg.solve(s, innovation)), i))
+        distance2, index = min(scored)
+        if distance2 > self.settings.gate_chi2:
+            self.x, self.P, self.stamp_ns = x_pred, p_pred, stamp_ns
+            self.state = "coasting"
+            if self._consistent_outside(fixes[index][0]):
+                self.resets += 1
+                self._start(stamp_ns, *fixes[index])
+                return Association(index, distance2, reinitialised=True)
+            return Association(None, distance2, reinitialised=False)
+        z, r = fixes[index]
+        s = h @ p_pred @ h.T + r
+        gain = p_pred @ h.T @ np.linalg.inv(s)
+        self.x = x_pred + gain @ (z - x_pred[0:3])
+        joseph = np.eye(6) - gain @ h
+        self.P = joseph @ p_pred @ joseph.T + gain @ r @ gain.T
+        self.stamp_ns = self.last_update_ns = stamp_ns
+        self.state = "tracking"
+        self._outside = 0
+        return Association(index, distance2, reinitialised=False)
+
+    def update_velocity(self, stamp_ns: int, velocity: Array, covariance: Array) -> None:
+        """Fuse the ROV's own velocity in W (e.g. from a DVL or its EKF)."""
+        if self.state in ("none", "lost") or self.stamp_ns is None or stamp_ns < self.stamp_ns:
+            return
+        x_pred, p_pred = self._predict(stamp_ns)
+        h = np.hstack([np.zeros((3, 3)), np.eye(3)])
+        s = h @ p_pred @ h.T + covariance
+        gain = p_pred @ h.T @ np.linalg.inv(s)
+        self.x = x_pred + gain @ (velocity - x_pred[3:6])
+        joseph = np.eye(6) - gain @ h
+        self.P = joseph @ p_pred @ joseph.T + gain @ covariance @ gain.T
+        self.stamp_ns = stamp_ns
+
+    def coast(self, stamp_ns: int) -> None:
+        """Advance without a measurement: the covariance grows; lost after `lost_after_s`."""
+        self._expire(stamp_ns)
+        if self.state in ("tracking", "coasting") and self.stamp_ns is not None:
+            if stamp_ns >= self.stamp_ns:
+                self.x, self.P = self._predict(stamp_ns)
+                self.stamp_ns = stamp_ns
+            self.state = "coasting"
+
+    def _expire(self, stamp_ns: int) -> None:
+        if (
+            self.state in ("tracking", "coasting")
+            and self.last_update_ns is not None
+            and (stamp_ns - self.last_update_ns) / 1e9 > self.settings.lost_after_s
+        ):
+            self.state = "lost"
+
+    def _consistent_outside(self, position: Array) -> bool:
+        """Count consecutive out-of-gate fixes that agree with each other (within 1 m)."""
+        if self._outside_last is not None and np.linalg.norm(position - self._outside_last) < 1.0:
+            self._outside += 1
+        else:
+            self._outside = 1
+        self._outside_last = position
+        return self._outside >= self.settings.reinit_after
+
+    # ------------------------------------------------------------------ output
+
+    def estimate(self) -> Estimate:
+        if self.state in ("none", "lost") or self.stamp_ns is None:
+            return Estimate(self.state, self.stamp_ns or 0, None, None, None, self.resets)
+        cov = 0.5 * (self.P[0:3, 0:3] + self.P[0:3, 0:3].T)
+        return Estimate(
+            self.state, self.stamp_ns, self.x[0:3].copy(), self.x[3:6].copy(), cov, self.resets
+        )

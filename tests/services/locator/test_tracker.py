@@ -1,0 +1,137 @@
+"""Tracker: consistency (NEES), gating, association, coasting, loss, relocalisation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from services.locator.tracker import Tracker, TrackerSettings
+from tests.services.locator.nees import mean_nees_bounds
+
+SECOND = 1_000_000_000
+
+
+def _simulate(
+    rng: np.random.Generator, settings: TrackerSettings, steps: int, dt: float, r_sigma: float
+) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Truth from the filter's own motion model, so NEES tests the filter, not the model."""
+    q = np.array([settings.accel_density_xy, settings.accel_density_xy, settings.accel_density_z])
+    cov_block = np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]])
+    x = np.concatenate([rng.normal(0, 5, 3), rng.normal(0, 0.3, 3)])
+    truths, meas = [], []
+    for _ in range(steps):
+        for axis in range(3):
+            w = rng.multivariate_normal(np.zeros(2), q[axis] * cov_block)
+            x[axis] += dt * x[axis + 3] + w[0]
+            x[axis + 3] += w[1]
+        truths.append(x.copy())
+        meas.append(x[:3] + rng.normal(0, r_sigma, 3))
+    return truths, meas
+
+
+def test_filter_nees_within_95_percent_chi_square_bounds() -> None:
+    settings = TrackerSettings(initial_speed_sigma_m_s=0.5)
+    rng = np.random.default_rng(11)
+    runs, steps, dt, r_sigma = 50, 60, 0.1, 0.03
+    r = np.eye(3) * r_sigma**2
+    nees = np.zeros(steps)
+    for _ in range(runs):
+        truths, meas = _simulate(rng, settings, steps, dt, r_sigma)
+        tracker = Tracker(settings)
+        for k, (truth, z) in enumerate(zip(truths, meas, strict=True)):
+            tracker.update(int(k * dt * SECOND), [(z, r)])
+            est = tracker.estimate()
+            assert est.position_m is not None
+            assert est.covariance_m2 is not None
+            err = est.position_m - truth[:3]
+            nees[k] += float(err @ np.linalg.solve(est.covariance_m2, err))
+    lo, hi = mean_nees_bounds(dim=3, count=runs)
+    inside = np.mean((nees / runs >= lo) & (nees / runs <= hi))
+    assert inside >= 0.9, f"only {inside:.0%} of steps inside [{lo:.2f}, {hi:.2f}]"
+    overall = nees[5:].sum() / (runs * (steps - 5))
+    total_lo, total_hi = mean_nees_bounds(dim=3, count=runs * (steps - 5))
+    assert total_lo <= overall <= total_hi
+
+
+def test_filter_beats_raw_measurements() -> None:
+    settings = TrackerSettings()
+    rng = np.random.default_rng(3)
+    truths, meas = _simulate(rng, settings, 200, 0.1, 0.05)
+    tracker = Tracker(settings)
+    raw_err, filt_err = [], []
+    for k, (truth, z) in enumerate(zip(truths, meas, strict=True)):
+        tracker.update(int(k * 0.1 * SECOND), [(z, np.eye(3) * 0.05**2)])
+        est = tracker.estimate()
+        assert est.position_m is not None
+        if k >= 10:
+            raw_err.append(np.linalg.norm(z - truth[:3]))
+            filt_err.append(np.linalg.norm(est.position_m - truth[:3]))
+    assert np.mean(filt_err) < 0.8 * np.mean(raw_err)
+
+
+def _tracking(at: np.ndarray) -> Tracker:
+    tracker = Tracker(TrackerSettings())
+    for k in range(10):
+        tracker.update(k * SECOND // 10, [(at, np.eye(3) * 1e-4)])
+    return tracker
+
+
+def test_picks_the_candidate_consistent_with_the_track() -> None:
+    tracker = _tracking(np.array([5.0, 5.0, -2.0]))
+    ghost = (np.array([8.0, 5.0, -2.0]), np.eye(3) * 1e-4)
+    real = (np.array([5.01, 5.0, -2.0]), np.eye(3) * 1e-4)
+    association = tracker.update(SECOND, [ghost, real])
+    assert association.index == 1
+    assert association.distance2 is not None
+    assert association.distance2 < tracker.settings.gate_chi2
+
+
+def test_outlier_is_gated_and_coasting_grows_covariance() -> None:
+    tracker = _tracking(np.array([5.0, 5.0, -2.0]))
+    before = tracker.estimate().covariance_m2
+    association = tracker.update(SECOND, [(np.array([9.0, 5.0, -2.0]), np.eye(3) * 1e-4)])
+    assert association.index is None
+    after = tracker.estimate()
+    assert after.state == "coasting"
+    assert before is not None
+    assert after.covariance_m2 is not None
+    assert np.trace(after.covariance_m2) > np.trace(before)
+    tracker.coast(SECOND + SECOND // 2)
+    later = tracker.estimate().covariance_m2
+    assert later is not None
+    assert np.trace(later) > np.trace(after.covariance_m2)
+
+
+def test_lost_after_the_configured_time_then_restarts() -> None:
+    tracker = _tracking(np.array([5.0, 5.0, -2.0]))
+    last = int(0.9 * SECOND)
+    tracker.coast(last + int(1.9 * SECOND))
+    assert tracker.estimate().state == "coasting"
+    tracker.coast(last + int(2.1 * SECOND))
+    lost = tracker.estimate()
+    assert lost.state == "lost"
+    assert lost.position_m is None
+    tracker.update(last + 3 * SECOND, [(np.array([1.0, 1.0, -1.0]), np.eye(3) * 1e-4)])
+    assert tracker.estimate().state == "tracking"
+
+
+def test_consistent_jump_reinitialises_and_counts_a_reset() -> None:
+    settings = TrackerSettings(reinit_after=3)
+    tracker = Tracker(settings)
+    for k in range(10):
+        tracker.update(k * SECOND // 10, [(np.array([5.0, 5.0, -2.0]), np.eye(3) * 1e-4)])
+    moved = np.array([7.0, 5.0, -2.0])
+    for k in range(10, 13):
+        tracker.update(k * SECOND // 10, [(moved, np.eye(3) * 1e-4)])
+    est = tracker.estimate()
+    assert est.resets == 1
+    assert est.position_m is not None
+    assert np.allclose(est.position_m, moved)
+
+
+def test_velocity_input_sharpens_the_velocity() -> None:
+    with_velocity, without = _tracking(np.zeros(3)), _tracking(np.zeros(3))
+    with_velocity.update_velocity(SECOND, np.array([0.2, 0.0, 0.0]), np.eye(3) * 1e-4)
+    without.coast(SECOND)
+    assert with_velocity.x[3] == pytest.approx(0.2, abs=0.01)
+    assert np.trace(with_velocity.P[3:, 3:]) < np.trace(without.P[3:, 3:])
