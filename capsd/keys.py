@@ -22,6 +22,7 @@ class Subject(StrEnum):
     SONAR_DETECTIONS = "sonar/detections"
     ROV_DEPTH = "rov/depth"
     ROV_ATTITUDE = "rov/attitude"
+    ROV_VELOCITY = "rov/velocity"
     ROV_STATUS = "rov/status"
     ROV_FIX = "locator/fix"
     SIM_TRUTH = "sim/truth"

@@ -276,6 +276,17 @@ class RovAttitude(Payload, frozen=True, kw_only=True):
         _check_quaternion("orientation_xyzw", self.orientation_xyzw)
 
 
+class RovVelocity(Payload, frozen=True, kw_only=True):
+    """The ROV's own velocity in the world frame W (e.g. from a DVL), with its covariance."""
+
+    velocity_m_s: Vec3
+    covariance_m2_s2: Cov3
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check_covariance("covariance_m2_s2", self.covariance_m2_s2)
+
+
 class RovStatus(Payload, frozen=True, kw_only=True):
     """The autopilot's state as the bridge sees it."""
 
@@ -354,6 +365,7 @@ ALL_PAYLOADS: tuple[type[Payload], ...] = (
     SonarDetections,
     RovDepth,
     RovAttitude,
+    RovVelocity,
     RovStatus,
     RovFix,
     GroundTruth,

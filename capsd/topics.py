@@ -29,11 +29,12 @@ SONAR_FRAME = Topic(Subject.SONAR_FRAME, pl.SonarFrame)
 SONAR_DETECTIONS = Topic(Subject.SONAR_DETECTIONS, pl.SonarDetections)
 ROV_DEPTH = Topic(Subject.ROV_DEPTH, pl.RovDepth)
 ROV_ATTITUDE = Topic(Subject.ROV_ATTITUDE, pl.RovAttitude)
+ROV_VELOCITY = Topic(Subject.ROV_VELOCITY, pl.RovVelocity)
 ROV_STATUS = Topic(Subject.ROV_STATUS, pl.RovStatus)
 ROV_FIX = Topic(Subject.ROV_FIX, pl.RovFix)
 SIM_TRUTH = Topic(Subject.SIM_TRUTH, pl.GroundTruth)
 
 ALL_TOPICS: tuple[Topic[Any], ...] = (
     ASV_POSE, ASV_IMU, ASV_SCAN, SONAR_FRAME, SONAR_DETECTIONS,
-    ROV_DEPTH, ROV_ATTITUDE, ROV_STATUS, ROV_FIX, SIM_TRUTH,
+    ROV_DEPTH, ROV_ATTITUDE, ROV_VELOCITY, ROV_STATUS, ROV_FIX, SIM_TRUTH,
 )  # fmt: skip

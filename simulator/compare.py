@@ -30,7 +30,8 @@ class Comparison:
         self.lock = threading.Lock()
         self.truth: dict[int, GroundTruth] = {}
         self.pending: dict[int, RovFix] = {}
-        self.errors_m: list[float] = []
+        self.errors_m: list[float] = []  # tracked estimate (what goes to the autopilot)
+        self.raw_errors_m: list[float] = []  # single-ping fix
         self.fixes = 0
         self.good = 0
 
@@ -53,13 +54,18 @@ class Comparison:
                 self._score(fix, truth)
 
     def _score(self, fix: RovFix, truth: GroundTruth) -> None:
-        if fix.quality == "good" and fix.raw_position_m is not None:
-            self.good += 1
-            self.errors_m.append(math.dist(fix.raw_position_m, truth.rov_position_m))
+        if fix.quality != "good":
+            return
+        self.good += 1
+        if fix.raw_position_m is not None:
+            self.raw_errors_m.append(math.dist(fix.raw_position_m, truth.rov_position_m))
+        estimate = fix.position_m or fix.raw_position_m  # per-frame methods have no track
+        if estimate is not None:
+            self.errors_m.append(math.dist(estimate, truth.rov_position_m))
 
     def line(self) -> str:
         with self.lock:
-            errors = list(self.errors_m)
+            errors, raw = list(self.errors_m), list(self.raw_errors_m)
             fixes, good = self.fixes, self.good
         if not errors:
             return f"fixes {fixes:5d}  good {good:5d}"
@@ -69,6 +75,7 @@ class Comparison:
             f"fixes {fixes:5d}  good {good:5d} ({100.0 * good / max(fixes, 1):5.1f}%)  "
             f"error vs truth: mean {1000 * statistics.fmean(errors):6.1f} mm  "
             f"median {1000 * statistics.median(errors):6.1f} mm  p95 {1000 * p95:6.1f} mm"
+            + (f"  (single-ping mean {1000 * statistics.fmean(raw):6.1f} mm)" if raw else "")
         )
 
 

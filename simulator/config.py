@@ -19,6 +19,8 @@ class Rates(ConfigSection, frozen=True, kw_only=True):
     sonar_hz: Rate = 10.0
     depth_hz: Rate = 10.0
     attitude_hz: Rate = 20.0
+    # A DVL-like velocity of the ROV in W; 0 turns it off (a BlueROV2 often has none).
+    velocity_hz: Annotated[float, msgspec.Meta(ge=0.0, le=200.0)] = 0.0
 
 
 class Noise(ConfigSection, frozen=True, kw_only=True):
@@ -26,6 +28,7 @@ class Noise(ConfigSection, frozen=True, kw_only=True):
     range_sigma_m: Sigma = 0.02
     azimuth_sigma_deg: Sigma = 0.3
     depth_sigma_m: Sigma = 0.01
+    velocity_sigma_m_s: Sigma = 0.02
 
 
 class Config(ServiceConfig, frozen=True, kw_only=True):

@@ -23,6 +23,7 @@ from capsd.payloads import (
     Payload,
     RovAttitude,
     RovDepth,
+    RovVelocity,
     SonarDetections,
 )
 from capsd.sonar_geometry import to_polar
@@ -43,6 +44,10 @@ class Event:
 
 def _vec3(v: Array) -> tuple[float, float, float]:
     return (float(v[0]), float(v[1]), float(v[2]))
+
+
+def _flat(m: Array) -> tuple[float, ...]:
+    return tuple(float(v) for v in m.ravel())
 
 
 def _quat(m: Array) -> tuple[float, float, float, float]:
@@ -136,7 +141,10 @@ class Simulation:
             "attitude": 1.0 / cfg.rates.attitude_hz,
             "sonar": 1.0 / cfg.rates.sonar_hz,
         }
-        order = {name: i for i, name in enumerate(periods)}  # same-time ties: sonar last
+        if cfg.rates.velocity_hz > 0.0:
+            periods["velocity"] = 1.0 / cfg.rates.velocity_hz
+        # Same-time ties: the sonar (and its truth) last, after the inputs it needs.
+        order = {name: (9 if name == "sonar" else i) for i, name in enumerate(periods)}
         due = [(0.0, order[name], name) for name in periods]
         heapq.heapify(due)
         pose_var = noise.pose_sigma_m**2
@@ -180,6 +188,12 @@ class Simulation:
                         sigma_m=max(noise.depth_sigma_m, 1e-4),
                     ),
                 )
+            elif name == "velocity":
+                sigma = noise.velocity_sigma_m_s
+                measured = rov.velocity_m_s + self.rng.normal(0.0, sigma, 3)
+                yield Event(t, topics.ROV_VELOCITY, cfg.rov_vehicle, RovVelocity(
+                    stamp_ns=stamp, seq=self._next_seq(name), velocity_m_s=_vec3(measured),
+                    covariance_m2_s2=_flat(np.eye(3) * max(sigma, 1e-4) ** 2)))  # fmt: skip
             elif name == "attitude":
                 yield Event(
                     t,

@@ -12,6 +12,7 @@ from capsd.payloads import (
     RovAttitude,
     RovDepth,
     RovFix,
+    RovVelocity,
     SonarDetections,
 )
 from services.locator.service import Config, Locator
@@ -40,6 +41,8 @@ def run_offline(config: Config, payloads: Iterable[Payload]) -> Iterator[Scored]
             locator.on_depth(payload)
         elif isinstance(payload, RovAttitude):
             locator.on_attitude(payload)
+        elif isinstance(payload, RovVelocity):
+            locator.on_velocity(payload)
         elif isinstance(payload, SonarDetections):
             if waiting is not None:
                 yield Scored(waiting, None)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import math
+import threading
 from typing import Annotated, Literal, TypeVar
 
 import msgspec
@@ -28,6 +29,7 @@ from capsd.payloads import (
     RovAttitude,
     RovDepth,
     RovFix,
+    RovVelocity,
     SonarDetections,
 )
 from capsd.runner import Publisher, ServiceRunner
@@ -182,6 +184,10 @@ class Locator:
         self.pose_cov: Array = np.eye(6) * 1e-4
         self.depth_sigma_m = 0.01
         self.tracker = Tracker(config.tracking.settings())
+        # Velocities wait here until the ping they precede, so the tracker sees time in order.
+        self._velocities: list[tuple[int, Array, Array]] = []
+        # Zenoh may run different subscribers' callbacks on different threads at once.
+        self._lock = threading.Lock()
 
     def on_pose(self, pose: AsvPose) -> None:
         if pose.status == "lost":
@@ -195,6 +201,22 @@ class Locator:
 
     def on_attitude(self, attitude: RovAttitude) -> None:
         self.attitudes.add(attitude.stamp_ns, np.array(attitude.orientation_xyzw))
+
+    def on_velocity(self, velocity: RovVelocity) -> None:
+        sample = (
+            velocity.stamp_ns,
+            np.array(velocity.velocity_m_s),
+            np.array(velocity.covariance_m2_s2).reshape(3, 3),
+        )
+        with self._lock:
+            if len(self._velocities) < 1000:  # bounded: without pings nothing drains it
+                self._velocities.append(sample)
+
+    def _fuse_velocities_until(self, stamp_ns: int) -> None:
+        self._velocities.sort(key=lambda v: v[0])
+        while self._velocities and self._velocities[0][0] <= stamp_ns:
+            stamp, velocity, covariance = self._velocities.pop(0)
+            self.tracker.update_velocity(stamp, velocity, covariance)
 
     def _lookup(self, line: Timeline[T], stamp_ns: int) -> Lookup[T]:
         return line.latest() if self.method.matching == "latest" else line.at(stamp_ns)
@@ -233,6 +255,10 @@ class Locator:
 
     def locate(self, detections: SonarDetections, *, seq: int) -> RovFix:
         """The fix for one ping, tracked; an invalid RovFix says why there is none."""
+        with self._lock:
+            return self._locate(detections, seq=seq)
+
+    def _locate(self, detections: SonarDetections, *, seq: int) -> RovFix:
         stamp = detections.stamp_ns
         out = RovFix(stamp_ns=stamp, seq=seq, method=self.label, quality="invalid")
         candidates = [
@@ -286,6 +312,7 @@ class Locator:
                 raw_covariance_m2=None if covariance is None else _flat(covariance),
             )
         usable = [(p, c) for p, c, _ in fixes if c is not None]
+        self._fuse_velocities_until(stamp)
         association = self.tracker.update(stamp, usable)
         estimate = self.tracker.estimate()
         raw = usable[association.index] if association.index is not None else None
@@ -330,6 +357,7 @@ def main(config: Config) -> int:
         runner.subscribe(topics.ASV_POSE, locator.on_pose, vehicle=asv)
         runner.subscribe(topics.ROV_DEPTH, locator.on_depth, vehicle=rov)
         runner.subscribe(topics.ROV_ATTITUDE, locator.on_attitude, vehicle=rov)
+        runner.subscribe(topics.ROV_VELOCITY, locator.on_velocity, vehicle=rov)
         runner.subscribe(topics.SONAR_DETECTIONS, on_detections, vehicle=asv)
         logger.info("locator ready", extra={"fields": {"method": locator.label}})
         runner.run()

@@ -92,6 +92,6 @@ def test_shipped_example_configs_load(path: Path) -> None:
     from capsd.cli import RouterConfig
     from capsd.registry import SERVICES
 
-    name = path.stem
+    name = path.name.split(".")[0]
     cls = RouterConfig if name == "router" else SERVICES[name].load()[0]
     load_config(path, cls)

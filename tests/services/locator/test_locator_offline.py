@@ -8,6 +8,7 @@ from capsd.mounts import SonarMountConfig
 from services.locator.offline import Scored, run_offline
 from services.locator.service import Config, MethodConfig, TrackingConfig
 from simulator.config import Config as SimConfig
+from simulator.config import Rates
 from simulator.sim import Simulation
 
 START_NS = 1_800_000_000_000_000_000
@@ -63,3 +64,11 @@ def test_paper_baseline_is_selectable() -> None:
     errors = _errors(scored, filtered=False)
     assert len(errors) > 150
     assert np.mean(errors) < 0.2  # a working baseline, not a broken one
+
+
+def test_rov_velocity_input_helps_the_filter() -> None:
+    with_dvl = SimConfig(seed=8, rates=Rates(velocity_hz=5.0))
+    without = SimConfig(seed=8)
+    err_with = _errors(_run(with_dvl, Config(), duration_s=60), filtered=True)
+    err_without = _errors(_run(without, Config(), duration_s=60), filtered=True)
+    assert np.mean(err_with) < np.mean(err_without)
