@@ -32,6 +32,8 @@ NoFixReason = Literal[
 ]
 
 _APERTURE_TOLERANCE_RAD = 1e-9
+# Roots closer than this are one (double) root: the depth plane grazes the range circle.
+_DOUBLE_ROOT_RAD = 1e-4
 
 
 @dataclass(frozen=True)
@@ -185,7 +187,10 @@ def solve_fix(
         )
         return FixResult(candidates, None, None, why, None, None)
     if len(valid) > 1:
-        return FixResult(candidates, None, None, "ambiguous", None, None)
+        # Two roots a hair apart are the tangent case: precision, not choice, is the problem.
+        spread = abs(valid[0].elevation_rad - valid[1].elevation_rad)
+        why = "ill_conditioned" if spread < _DOUBLE_ROOT_RAD else "ambiguous"
+        return FixResult(candidates, None, None, why, None, None)
     chosen = valid[0]
     conditioning = _horizontal_conditioning(
         sonar_pose, range_m, azimuth_rad, chosen.elevation_rad, beam_model, de_dz

@@ -1,0 +1,107 @@
+"""The Locator class: input timing reasons, ghosts, association among several detections."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from capsd.geometry import Transform
+from capsd.payloads import AsvPose, Detection, RovAttitude, RovDepth, SonarDetections
+from capsd.sonar_geometry import to_polar
+from services.locator.service import Config, Locator, TankBounds
+
+SECOND = 1_000_000_000
+IDENTITY_Q = (0.0, 0.0, 0.0, 1.0)
+COV6 = tuple(float(i == j) * 1e-6 for i in range(6) for j in range(6))
+ROV = np.array([8.0, 5.0, -2.0])
+ASV = np.array([4.0, 5.0, 0.0])
+
+
+def _feed_inputs(locator: Locator, *, until_s: float) -> None:
+    steps = int(until_s * 50)
+    for k in range(steps + 1):
+        stamp = k * SECOND // 50
+        locator.on_pose(
+            AsvPose(
+                stamp_ns=stamp,
+                seq=k,
+                position_m=tuple(ASV),
+                orientation_xyzw=IDENTITY_Q,
+                covariance=COV6,
+            )
+        )
+        locator.on_attitude(RovAttitude(stamp_ns=stamp, seq=k, orientation_xyzw=IDENTITY_Q))
+        locator.on_depth(RovDepth(stamp_ns=stamp, seq=k, depth_m=-float(ROV[2]), sigma_m=0.005))
+
+
+def _detection_of(locator: Locator, point: np.ndarray, confidence: float = 0.9) -> Detection:
+    sonar = Transform(np.eye(3), ASV).compose(locator.mount)
+    r, azimuth, _ = to_polar(locator.config.sonar.beam_model, sonar.inverse().apply(point))
+    return Detection(
+        range_m=r,
+        azimuth_rad=azimuth,
+        range_sigma_m=0.01,
+        azimuth_sigma_rad=math.radians(0.2),
+        confidence=confidence,
+    )
+
+
+def _ping(stamp_ns: int, *detections: Detection) -> SonarDetections:
+    return SonarDetections(stamp_ns=stamp_ns, seq=0, ping_id=0, detector="t", detections=detections)
+
+
+def _locator(**changes: object) -> Locator:
+    # Zero lever arm: the test's ROV is level, its depth is the centre's.
+    config = Config(**changes)  # type: ignore[arg-type]
+    return Locator(config)
+
+
+def test_fix_at_the_true_position() -> None:
+    locator = _locator()
+    _feed_inputs(locator, until_s=1.0)
+    fix = locator.locate(_ping(SECOND // 2, _detection_of(locator, ROV)), seq=0)
+    assert fix.quality == "good"
+    assert fix.raw_position_m is not None
+    assert np.allclose(fix.raw_position_m, ROV, atol=1e-6)
+    assert fix.asv_pose_stamp_ns == SECOND // 2
+
+
+def test_stale_and_missing_inputs_give_reasons_not_fixes() -> None:
+    empty = _locator()
+    fix = empty.locate(_ping(SECOND, _detection_of(empty, ROV)), seq=0)
+    assert fix.quality == "invalid"
+    assert fix.no_fix_reason is not None
+    assert "asv_pose_no_samples" in fix.no_fix_reason
+
+    locator = _locator()
+    _feed_inputs(locator, until_s=1.0)
+    late = locator.locate(_ping(2 * SECOND, _detection_of(locator, ROV)), seq=1)
+    assert late.quality == "invalid"
+    assert late.no_fix_reason is not None
+    assert "asv_pose_too_new" in late.no_fix_reason
+    early = locator.locate(_ping(-SECOND, _detection_of(locator, ROV)), seq=2)
+    assert early.no_fix_reason is not None
+    assert "too_old" in early.no_fix_reason
+
+
+def test_ghost_outside_the_tank_is_dropped() -> None:
+    locator = _locator(tank=TankBounds(length_m=6.0, width_m=16.0, depth_m=8.0, margin_m=0.1))
+    _feed_inputs(locator, until_s=1.0)
+    fix = locator.locate(_ping(SECOND // 2, _detection_of(locator, ROV)), seq=0)
+    assert fix.quality == "invalid"
+    assert fix.no_fix_reason == "outside_tank"
+
+
+def test_association_prefers_the_track_over_a_more_confident_ghost() -> None:
+    locator = _locator()
+    _feed_inputs(locator, until_s=3.0)
+    for k in range(10):
+        locator.locate(_ping(k * SECOND // 10, _detection_of(locator, ROV)), seq=k)
+    ghost = _detection_of(locator, ROV + np.array([2.5, 1.0, 0.0]), confidence=0.99)
+    real = _detection_of(locator, ROV, confidence=0.6)
+    fix = locator.locate(_ping(SECOND + SECOND // 10, ghost, real), seq=11)
+    assert fix.candidates == 2
+    assert fix.quality == "good"
+    assert fix.raw_position_m is not None
+    assert np.allclose(fix.raw_position_m, ROV, atol=1e-6)
