@@ -111,6 +111,8 @@ class Health(Payload, frozen=True, kw_only=True):
     dropped: NonNegInt = 0
     last_error: str | None = None
     last_error_stamp_ns: NonNegInt | None = None
+    # Service-specific decision counts, e.g. the bridge's {"sent": 812, "stale": 3}.
+    counters: dict[str, NonNegInt] = msgspec.field(default_factory=dict)
 
 
 class FoxgloveTime(msgspec.Struct, frozen=True, kw_only=True):

@@ -32,6 +32,11 @@ SERVICES: dict[str, ServiceEntry] = {
             "CAP-SD fix from detections, ASV pose and ROV depth",
         ),
         ServiceEntry(
+            "mav_bridge",
+            "services.mav_bridge.service",
+            "ArduSub telemetry onto the bus, gated estimates into ArduSub",
+        ),
+        ServiceEntry(
             "sim",
             "simulator.service",
             "simulated tank: ASV pose, ROV depth/attitude, detections, truth",

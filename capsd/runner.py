@@ -22,7 +22,7 @@ import socket
 import threading
 import time
 import types
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Generic, Self, TypeVar
 
 import zenoh
@@ -153,6 +153,7 @@ class ServiceRunner:
         self._log_handler: BusLogHandler | None = None
         self._main_tick = time.monotonic()
         self._old_handlers: dict[int, object] = {}
+        self._counter_sources: list[Callable[[], Mapping[str, int]]] = []
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -325,6 +326,11 @@ class ServiceRunner:
 
     # ------------------------------------------------------------------ state and health
 
+    def add_counters(self, source: Callable[[], Mapping[str, int]]) -> None:
+        """Report `source()`'s counts in every Health (called on the health thread)."""
+        with self._lock:
+            self._counter_sources.append(source)
+
     def set_state(self, state: HealthState, reason: str | None = None) -> None:
         """Declare the service's own state ("ok", "degraded", "error") for its Health."""
         with self._lock:
@@ -350,6 +356,9 @@ class ServiceRunner:
             outputs = tuple(c.snapshot() for c in self._outputs)
             state = self._state
             last_error, last_error_stamp = self._last_error, self._last_error_stamp_ns
+            counters: dict[str, int] = {}
+            for source in self._counter_sources:
+                counters.update(source())
         assert self._health_pub is not None
         return Health(
             stamp_ns=time.time_ns(),
@@ -366,6 +375,7 @@ class ServiceRunner:
             dropped=sum(s.dropped for s in inputs),
             last_error=last_error,
             last_error_stamp_ns=last_error_stamp,
+            counters=counters,
         )
 
     def _publish_health(self) -> None:

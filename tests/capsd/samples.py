@@ -37,6 +37,7 @@ SAMPLES: tuple[Payload, ...] = (
                             last_stamp_ns=STAMP),),
         outputs=(StreamStats(key="cap/t/topside/locator/fix", count=2, rate_hz=10.0),),
         decode_errors=1, dropped=0, last_error="bad payload", last_error_stamp_ns=STAMP,
+        counters={"sent": 10, "stale": 1},
     ),
     Log(
         stamp_ns=STAMP, seq=0, timestamp=FoxgloveTime(sec=STAMP // 10**9, nsec=STAMP % 10**9),

@@ -1,0 +1,85 @@
+"""The safety gate: which locator estimates may reach the autopilot, and why others may not.
+
+An estimate passes only if it is "good", carries a position and covariance, is younger than
+`max_age_s` (by this computer's clock, from its measurement stamp), its largest horizontal
+standard deviation is within `max_sigma_m`, at least 1 / `max_rate_hz` after the last one sent,
+and its time (usec) is later than the last one sent. Every decision is counted by reason.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from capsd.geometry import Array
+from capsd.payloads import RovFix
+
+Decision = Literal[
+    "sent", "not_good", "no_position", "stale", "from_future", "uncertain", "rate_limited",
+    "not_monotonic",
+]  # fmt: skip
+
+# Clocks are chrony-synced; a stamp further ahead than this is a clock fault, not a fix.
+_MAX_FUTURE_NS = 200_000_000
+
+
+@dataclass(frozen=True)
+class GateSettings:
+    max_age_s: float = 0.3
+    max_sigma_m: float = 0.5
+    max_rate_hz: float = 50.0
+
+
+@dataclass(frozen=True)
+class Passed:
+    """An estimate cleared to send."""
+
+    usec: int
+    position_w: Array
+    covariance_w: Array
+    reset_counter: int
+
+
+class SafetyGate:
+    """Stateful: remembers the last estimate sent (rate limit, monotonic usec)."""
+
+    def __init__(self, settings: GateSettings):
+        self.settings = settings
+        self.counts: Counter[Decision] = Counter()
+        self._last_sent_ns: int | None = None
+        self._last_usec = 0
+
+    def check(self, fix: RovFix, *, now_ns: int) -> Passed | Decision:
+        decision = self._decide(fix, now_ns=now_ns)
+        self.counts["sent" if isinstance(decision, Passed) else decision] += 1
+        return decision
+
+    def _decide(self, fix: RovFix, *, now_ns: int) -> Passed | Decision:
+        s = self.settings
+        if fix.quality != "good":
+            return "not_good"
+        position = fix.position_m if fix.position_m is not None else fix.raw_position_m
+        covariance = fix.covariance_m2 if fix.position_m is not None else fix.raw_covariance_m2
+        if position is None or covariance is None:
+            return "no_position"
+        age_ns = now_ns - fix.stamp_ns
+        if age_ns > s.max_age_s * 1e9:
+            return "stale"
+        if age_ns < -_MAX_FUTURE_NS:
+            return "from_future"
+        cov = np.array(covariance).reshape(3, 3)
+        horizontal = np.linalg.eigvalsh(cov[:2, :2])
+        if not math.sqrt(max(float(horizontal[-1]), 0.0)) <= s.max_sigma_m:
+            return "uncertain"
+        if self._last_sent_ns is not None and now_ns - self._last_sent_ns < 1e9 / s.max_rate_hz:
+            return "rate_limited"
+        usec = fix.stamp_ns // 1000
+        if usec <= self._last_usec:
+            return "not_monotonic"
+        self._last_sent_ns = now_ns
+        self._last_usec = usec
+        return Passed(usec, np.array(position), cov, fix.track_resets)

@@ -1,0 +1,490 @@
+"""The one typed adapter around pymavlink: MAVLink 2 links, typed messages in, typed sends out.
+
+Nothing else in the project imports pymavlink. Both sides of a link are here: the companion
+side (the bridge: heartbeats, VISION_POSITION_ESTIMATE, GPS_INPUT, parameters, commands) and the
+vehicle side used by the autopilot stand-in of tests and the demo (ATTITUDE, SCALED_PRESSURE2,
+PARAM_VALUE, COMMAND_ACK...). Connection strings: `tcp:HOST:PORT`, `tcpin:HOST:PORT`,
+`udpin:HOST:PORT`, `udpout:HOST:PORT`, `serial:DEVICE:BAUD`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import re
+import time
+from dataclasses import dataclass
+from typing import Any, Self
+
+# MAVLink 2 (extension fields: covariance, reset_counter) must be chosen before the import.
+os.environ["MAVLINK20"] = "1"
+
+from pymavlink import mavutil
+
+from capsd.errors import ConfigError
+
+MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY = 197
+MAV_CMD_SET_MESSAGE_INTERVAL = 511
+MAV_CMD_REQUEST_MESSAGE = 512
+MAV_RESULT_ACCEPTED = 0
+MAV_SEVERITY = {"emergency": 0, "alert": 1, "critical": 2, "error": 3, "warning": 4,
+                "notice": 5, "info": 6, "debug": 7}  # fmt: skip
+_ARMED_FLAG = 128  # MAV_MODE_FLAG_SAFETY_ARMED
+_CONNECTION = re.compile(r"^(tcp|tcpin|udpin|udpout):[^:]+:\d{1,5}$|^serial:[^:]+:\d+$")
+
+# GPS_INPUT ignore flags: we send no velocity.
+GPS_INPUT_IGNORE_VELOCITY = 8 | 16 | 32  # VEL_HORIZ | VEL_VERT | SPEED_ACCURACY
+
+
+def check_connection(connection: str) -> str:
+    """Validate a connection string, or raise ConfigError naming it."""
+    if not _CONNECTION.fullmatch(connection):
+        raise ConfigError(
+            "mavlink",
+            "connect",
+            f"'{connection}' is not tcp:HOST:PORT, tcpin:, udpin:, udpout: or serial:DEVICE:BAUD",
+        )
+    return connection
+
+
+# ------------------------------------------------------------------------- messages in
+
+
+@dataclass(frozen=True)
+class Heartbeat:
+    system_id: int
+    component_id: int
+    mav_type: int
+    autopilot: int
+    base_mode: int
+    custom_mode: int
+
+    @property
+    def armed(self) -> bool:
+        return bool(self.base_mode & _ARMED_FLAG)
+
+
+@dataclass(frozen=True)
+class Attitude:
+    """ATTITUDE: the vehicle's body FRD in local NED (rad, rad/s)."""
+
+    time_boot_ms: int
+    roll: float
+    pitch: float
+    yaw: float
+    rollspeed: float
+    pitchspeed: float
+    yawspeed: float
+
+
+@dataclass(frozen=True)
+class ScaledPressure:
+    """SCALED_PRESSUREn: `instance` 1, 2 or 3 (BlueROV2's Bar30 is 2); pressure in hPa."""
+
+    instance: int
+    time_boot_ms: int
+    press_abs_hpa: float
+    temperature_c: float
+
+
+@dataclass(frozen=True)
+class SystemTime:
+    time_unix_usec: int
+    time_boot_ms: int
+
+
+@dataclass(frozen=True)
+class EkfStatus:
+    flags: int
+
+
+@dataclass(frozen=True)
+class ParamValue:
+    name: str
+    value: float
+    index: int
+    count: int
+
+
+@dataclass(frozen=True)
+class CommandAck:
+    command: int
+    result: int
+
+
+@dataclass(frozen=True)
+class CommandLong:
+    command: int
+    params: tuple[float, float, float, float, float, float, float]
+
+
+@dataclass(frozen=True)
+class StatusText:
+    severity: int
+    text: str
+
+
+@dataclass(frozen=True)
+class VisionPositionEstimate:
+    usec: int
+    x: float
+    y: float
+    z: float
+    roll: float
+    pitch: float
+    yaw: float
+    covariance: tuple[float, ...]
+    reset_counter: int
+
+
+@dataclass(frozen=True)
+class GpsInput:
+    time_usec: int
+    lat_e7: int
+    lon_e7: int
+    alt_m: float
+    horiz_accuracy_m: float
+    fix_type: int
+
+
+@dataclass(frozen=True)
+class GlobalOrigin:
+    lat_e7: int
+    lon_e7: int
+    alt_mm: int
+
+
+@dataclass(frozen=True)
+class ParamSet:
+    name: str
+    value: float
+
+
+@dataclass(frozen=True)
+class ParamRequest:
+    """PARAM_REQUEST_READ (name) or PARAM_REQUEST_LIST (name None)."""
+
+    name: str | None
+
+
+Message = (
+    Heartbeat | Attitude | ScaledPressure | SystemTime | EkfStatus | ParamValue | CommandAck
+    | CommandLong | StatusText | VisionPositionEstimate | GpsInput | GlobalOrigin | ParamSet
+    | ParamRequest
+)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Received:
+    """A typed message and who sent it."""
+
+    message: Message
+    system_id: int
+    component_id: int
+
+
+def _text(value: Any) -> str:
+    return value.decode(errors="replace") if isinstance(value, bytes) else str(value)
+
+
+def _convert(msg: Any) -> Message | None:
+    kind = msg.get_type()
+    if kind == "HEARTBEAT":
+        return Heartbeat(
+            msg.get_srcSystem(),
+            msg.get_srcComponent(),
+            msg.type,
+            msg.autopilot,
+            msg.base_mode,
+            msg.custom_mode,
+        )
+    if kind == "ATTITUDE":
+        return Attitude(
+            msg.time_boot_ms,
+            msg.roll,
+            msg.pitch,
+            msg.yaw,
+            msg.rollspeed,
+            msg.pitchspeed,
+            msg.yawspeed,
+        )
+    if kind in ("SCALED_PRESSURE", "SCALED_PRESSURE2", "SCALED_PRESSURE3"):
+        instance = {"SCALED_PRESSURE": 1, "SCALED_PRESSURE2": 2, "SCALED_PRESSURE3": 3}[kind]
+        return ScaledPressure(instance, msg.time_boot_ms, msg.press_abs, msg.temperature / 100.0)
+    if kind == "SYSTEM_TIME":
+        return SystemTime(msg.time_unix_usec, msg.time_boot_ms)
+    if kind == "EKF_STATUS_REPORT":
+        return EkfStatus(msg.flags)
+    if kind == "PARAM_VALUE":
+        return ParamValue(
+            _text(msg.param_id).rstrip("\0"),
+            float(msg.param_value),
+            msg.param_index,
+            msg.param_count,
+        )
+    if kind == "COMMAND_ACK":
+        return CommandAck(msg.command, msg.result)
+    if kind == "COMMAND_LONG":
+        return CommandLong(
+            msg.command,
+            (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7),
+        )
+    if kind == "STATUSTEXT":
+        return StatusText(msg.severity, _text(msg.text).rstrip("\0"))
+    if kind == "VISION_POSITION_ESTIMATE":
+        return VisionPositionEstimate(
+            msg.usec,
+            msg.x,
+            msg.y,
+            msg.z,
+            msg.roll,
+            msg.pitch,
+            msg.yaw,
+            tuple(float(c) for c in msg.covariance),
+            msg.reset_counter,
+        )
+    if kind == "GPS_INPUT":
+        return GpsInput(msg.time_usec, msg.lat, msg.lon, msg.alt, msg.horiz_accuracy, msg.fix_type)
+    if kind == "SET_GPS_GLOBAL_ORIGIN":
+        return GlobalOrigin(msg.latitude, msg.longitude, msg.altitude)
+    if kind == "PARAM_SET":
+        return ParamSet(_text(msg.param_id).rstrip("\0"), float(msg.param_value))
+    if kind == "PARAM_REQUEST_READ":
+        return ParamRequest(_text(msg.param_id).rstrip("\0"))
+    if kind == "PARAM_REQUEST_LIST":
+        return ParamRequest(None)
+    return None
+
+
+# ------------------------------------------------------------------------- the link
+
+
+class MavLink:
+    """One MAVLink 2 connection; a context manager; not thread-safe (callers hold a lock)."""
+
+    def __init__(self, connection: str, *, system_id: int, component_id: int):
+        self.connection = check_connection(connection)
+        self.system_id = system_id
+        self.component_id = component_id
+        self._conn: Any = None
+
+    def __enter__(self) -> Self:
+        self.open()
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
+
+    def open(self) -> None:
+        kind, _, rest = self.connection.partition(":")
+        kwargs: dict[str, Any] = {
+            "source_system": self.system_id,
+            "source_component": self.component_id,
+            "dialect": "ardupilotmega",
+        }
+        if kind == "serial":
+            device, baud = rest.rsplit(":", 1)
+            self._conn = mavutil.mavlink_connection(device, baud=int(baud), **kwargs)
+        elif kind == "tcp":
+            # retries: the first connect fails fast when the autopilot is not up; we retry.
+            self._conn = mavutil.mavlink_connection(
+                self.connection, autoreconnect=True, retries=1, **kwargs
+            )
+        else:
+            self._conn = mavutil.mavlink_connection(self.connection, **kwargs)
+        self._conn.mav.srcSystem = self.system_id
+        self._conn.mav.srcComponent = self.component_id
+
+    def close(self) -> None:
+        if self._conn is not None:
+            with contextlib.suppress(OSError):
+                self._conn.close()
+            self._conn = None
+
+    @property
+    def is_open(self) -> bool:
+        return self._conn is not None
+
+    @property
+    def _mav(self) -> Any:
+        if self._conn is None:
+            raise ConnectionError(f"MAVLink link {self.connection} is closed")
+        return self._conn.mav
+
+    def recv(self, *, timeout_s: float = 0.0) -> Received | None:
+        """The next known message, or None if none came within `timeout_s`."""
+        if self._conn is None:
+            return None
+        deadline = time.monotonic() + timeout_s
+        while True:
+            remaining = deadline - time.monotonic()
+            # pymavlink checks a timeout before reading: a non-blocking read needs None.
+            if remaining > 0:
+                msg = self._conn.recv_match(blocking=True, timeout=remaining)
+            else:
+                msg = self._conn.recv_match(blocking=False, timeout=None)
+            if msg is None:
+                return None
+            converted = _convert(msg) if msg.get_type() != "BAD_DATA" else None
+            if converted is not None:
+                return Received(converted, msg.get_srcSystem(), msg.get_srcComponent())
+            if time.monotonic() >= deadline:
+                return None
+
+    # ------------------------------------------------------------ companion side
+
+    def send_heartbeat_onboard(self) -> None:
+        mav = mavutil.mavlink
+        self._mav.heartbeat_send(
+            mav.MAV_TYPE_ONBOARD_CONTROLLER, mav.MAV_AUTOPILOT_INVALID, 0, 0, mav.MAV_STATE_ACTIVE
+        )
+
+    def send_vision_position_estimate(
+        self,
+        *,
+        usec: int,
+        x: float,
+        y: float,
+        z: float,
+        roll: float,
+        pitch: float,
+        yaw: float,
+        covariance: tuple[float, ...],
+        reset_counter: int,
+    ) -> None:
+        if len(covariance) != 21:
+            raise ValueError("VISION_POSITION_ESTIMATE covariance has 21 entries")
+        self._mav.vision_position_estimate_send(
+            usec, x, y, z, roll, pitch, yaw, list(covariance), reset_counter % 256
+        )
+
+    def send_gps_input(
+        self,
+        *,
+        time_usec: int,
+        gps_week: int,
+        gps_week_ms: int,
+        lat_e7: int,
+        lon_e7: int,
+        alt_m: float,
+        horiz_accuracy_m: float,
+        vert_accuracy_m: float,
+        yaw_cdeg: int = 0,
+    ) -> None:
+        self._mav.gps_input_send(
+            time_usec,
+            0,
+            GPS_INPUT_IGNORE_VELOCITY,
+            gps_week_ms,
+            gps_week,
+            3,
+            lat_e7,
+            lon_e7,
+            alt_m,
+            1.0,
+            1.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            horiz_accuracy_m,
+            vert_accuracy_m,
+            10,
+            yaw_cdeg,
+        )
+
+    def send_statustext(self, severity: str, text: str) -> None:
+        self._mav.statustext_send(MAV_SEVERITY[severity], text.encode()[:50])
+
+    def send_set_message_interval(
+        self, *, target_system: int, message_id: int, rate_hz: float
+    ) -> None:
+        interval_us = -1 if rate_hz <= 0 else int(1e6 / rate_hz)
+        self._mav.command_long_send(
+            target_system,
+            1,
+            MAV_CMD_SET_MESSAGE_INTERVAL,
+            0,
+            message_id,
+            interval_us,
+            0,
+            0,
+            0,
+            0,
+            0,
+        )
+
+    def send_set_gps_global_origin(
+        self, *, target_system: int, lat_e7: int, lon_e7: int, alt_mm: int
+    ) -> None:
+        self._mav.set_gps_global_origin_send(
+            target_system, lat_e7, lon_e7, alt_mm, int(time.time() * 1e6)
+        )
+
+    def send_param_request_read(self, *, target_system: int, name: str) -> None:
+        self._mav.param_request_read_send(target_system, 1, name.encode(), -1)
+
+    def send_param_set(self, *, target_system: int, name: str, value: float) -> None:
+        self._mav.param_set_send(
+            target_system, 1, name.encode(), float(value), mavutil.mavlink.MAV_PARAM_TYPE_REAL32
+        )
+
+    # ------------------------------------------------------------ vehicle side (stand-in)
+
+    def send_heartbeat_vehicle(self, *, armed: bool, custom_mode: int) -> None:
+        mav = mavutil.mavlink
+        base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (_ARMED_FLAG if armed else 0)
+        self._mav.heartbeat_send(
+            mav.MAV_TYPE_SUBMARINE,
+            mav.MAV_AUTOPILOT_ARDUPILOTMEGA,
+            base,
+            custom_mode,
+            mav.MAV_STATE_ACTIVE,
+        )
+
+    def send_attitude(self, attitude: Attitude) -> None:
+        a = attitude
+        self._mav.attitude_send(
+            a.time_boot_ms, a.roll, a.pitch, a.yaw, a.rollspeed, a.pitchspeed, a.yawspeed
+        )
+
+    def send_scaled_pressure2(
+        self, *, time_boot_ms: int, press_abs_hpa: float, temperature_c: float
+    ) -> None:
+        self._mav.scaled_pressure2_send(
+            time_boot_ms, press_abs_hpa, 0.0, round(temperature_c * 100)
+        )
+
+    def send_system_time(self, *, time_unix_usec: int, time_boot_ms: int) -> None:
+        self._mav.system_time_send(time_unix_usec, time_boot_ms)
+
+    def send_param_value(self, *, name: str, value: float, index: int, count: int) -> None:
+        self._mav.param_value_send(
+            name.encode(), float(value), mavutil.mavlink.MAV_PARAM_TYPE_REAL32, count, index
+        )
+
+    def send_command_ack(self, *, command: int, result: int) -> None:
+        self._mav.command_ack_send(command, result)
+
+
+def mode_name(custom_mode: int) -> str:
+    """ArduSub's name for a HEARTBEAT custom_mode (e.g. 16 -> POSHOLD)."""
+    return str(mavutil.mode_mapping_sub.get(custom_mode, f"MODE{custom_mode}"))
+
+
+def mode_number(name: str) -> int:
+    """ArduSub's custom_mode for a mode name (e.g. POSHOLD -> 16)."""
+    for number, known in mavutil.mode_mapping_sub.items():
+        if known == name:
+            return int(number)
+    raise KeyError(f"ArduSub has no mode '{name}'")
+
+
+def message_id(name: str) -> int:
+    """The MAVLink message id of e.g. "ATTITUDE" (for SET_MESSAGE_INTERVAL)."""
+    return int(getattr(mavutil.mavlink, f"MAVLINK_MSG_ID_{name}"))
+
+
+def is_finite(*values: float) -> bool:
+    return all(math.isfinite(v) for v in values)

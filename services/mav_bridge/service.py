@@ -1,0 +1,466 @@
+"""The MAVLink bridge: ArduSub telemetry onto the bus, gated locator estimates into ArduSub.
+
+Vehicle to bus (stamps from the autopilot's boot clock mapped to Unix time):
+- depth from SCALED_PRESSURE2, the Bar30's raw absolute pressure (baro instance 1 on a
+  BlueROV2): depth = (p - p_surface) / (rho g). Raw pressure, not VFR_HUD.alt or the EKF's
+  LOCAL_POSITION_NED.z, because those are filtered by the EKF that our own positions feed (a
+  loop) and VFR_HUD.alt needs an origin. p_surface is the vehicle's BARO2_GND_PRESS unless
+  configured; rho is 1000 kg/m^3 x the vehicle's BARO_SPEC_GRAV unless configured.
+- attitude from ATTITUDE (FRD in NED, converted to FLU in the tank frame W);
+- armed state and mode from HEARTBEAT, EKF flags from EKF_STATUS_REPORT.
+Bus to vehicle: RovFix estimates through the safety gate (services.mav_bridge.gate), converted
+to NED, as VISION_POSITION_ESTIMATE (or GPS_INPUT), usec = the estimate's measurement time.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections import Counter
+from typing import Annotated, Literal
+
+import msgspec
+import numpy as np
+
+from capsd import topics
+from capsd.config import ConfigSection, ServiceConfig
+from capsd.errors import ConfigError
+from capsd.geometry import matrix_to_quat
+from capsd.keys import check_name
+from capsd.payloads import RovAttitude, RovDepth, RovFix, RovStatus
+from capsd.runner import Publisher, ServiceRunner
+from services.mav_bridge.clock import BootClock
+from services.mav_bridge.gate import GateSettings, Passed, SafetyGate
+from services.mav_bridge.mavlink import (
+    MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY,
+    Attitude,
+    EkfStatus,
+    Heartbeat,
+    MavLink,
+    ParamValue,
+    ScaledPressure,
+    SystemTime,
+    check_connection,
+    message_id,
+    mode_name,
+)
+from services.mav_bridge.ned import TankToNed, upper_triangle
+
+logger = logging.getLogger(__name__)
+
+G = 9.80665
+_AUTOPILOT_COMPONENT = 1
+
+
+class MavlinkConfig(ConfigSection, frozen=True, kw_only=True):
+    """The link to the autopilot."""
+
+    connect: str = "tcp:127.0.0.1:5777"  # BlueOS's MAVLink router, internal TCP
+    system_id: Annotated[int, msgspec.Meta(ge=1, le=255)] = 1
+    component_id: Annotated[int, msgspec.Meta(ge=1, le=255)] = MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY
+    target_system: Annotated[int, msgspec.Meta(ge=1, le=255)] = 1
+    # No HEARTBEAT from the autopilot for this long: the link is reopened.
+    link_timeout_s: Annotated[float, msgspec.Meta(gt=0.0, le=60.0)] = 2.0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        try:
+            check_connection(self.connect)
+        except ConfigError as exc:
+            raise ValueError(f"`connect`: {exc.reason}") from None
+
+
+class NedConfig(ConfigSection, frozen=True, kw_only=True):
+    """Where the tank frame W sits in the EKF's local NED frame."""
+
+    heading_deg: Annotated[float, msgspec.Meta(ge=-360.0, le=360.0)] = 0.0  # W's x, cw from north
+    origin_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def tank_to_ned(self) -> TankToNed:
+        return TankToNed(math.radians(self.heading_deg), np.array(self.origin_ned_m))
+
+
+class OriginConfig(ConfigSection, frozen=True, kw_only=True):
+    """The EKF origin (SET_GPS_GLOBAL_ORIGIN, once per boot); needed for GPS_INPUT."""
+
+    lat_deg: Annotated[float, msgspec.Meta(ge=-90.0, le=90.0)]
+    lon_deg: Annotated[float, msgspec.Meta(ge=-180.0, le=180.0)]
+    alt_m: float = 0.0
+
+
+class DepthConfig(ConfigSection, frozen=True, kw_only=True):
+    """How pressure becomes depth; None means "read it from the vehicle"."""
+
+    surface_pressure_pa: Annotated[float, msgspec.Meta(gt=50_000.0, lt=150_000.0)] | None = None
+    water_density_kg_m3: Annotated[float, msgspec.Meta(gt=900.0, lt=1100.0)] | None = None
+    sigma_m: Annotated[float, msgspec.Meta(gt=0.0, le=1.0)] = 0.01
+
+
+class GateConfig(ConfigSection, frozen=True, kw_only=True):
+    """The safety gate (services.mav_bridge.gate)."""
+
+    max_age_s: Annotated[float, msgspec.Meta(gt=0.0, le=0.5)] = 0.3
+    max_sigma_m: Annotated[float, msgspec.Meta(gt=0.0, le=5.0)] = 0.5
+    # The EKF drops samples closer than 20 ms: more than 50 Hz is waste.
+    max_rate_hz: Annotated[float, msgspec.Meta(gt=0.0, le=50.0)] = 50.0
+
+
+class RatesConfig(ConfigSection, frozen=True, kw_only=True):
+    """Message rates requested with MAV_CMD_SET_MESSAGE_INTERVAL."""
+
+    attitude_hz: Annotated[float, msgspec.Meta(gt=0.0, le=100.0)] = 20.0
+    pressure_hz: Annotated[float, msgspec.Meta(gt=0.0, le=100.0)] = 20.0
+    ekf_status_hz: Annotated[float, msgspec.Meta(gt=0.0, le=10.0)] = 2.0
+    system_time_hz: Annotated[float, msgspec.Meta(gt=0.0, le=10.0)] = 1.0
+
+
+class Config(ServiceConfig, frozen=True, kw_only=True):
+    """MAVLink bridge configuration."""
+
+    vehicle: str = "rov"
+    locator_vehicle: str = "topside"
+    mavlink: MavlinkConfig = MavlinkConfig()
+    ned: NedConfig = NedConfig()
+    output: Literal["vision_position_estimate", "gps_input", "off"] = "vision_position_estimate"
+    gate: GateConfig = GateConfig()
+    ekf_origin: OriginConfig | None = None
+    depth: DepthConfig = DepthConfig()
+    rates: RatesConfig = RatesConfig()
+    attitude_sigma_deg: Annotated[float, msgspec.Meta(gt=0.0, le=90.0)] = 3.0
+    # After this long without a sendable estimate, the pilot is told (STATUSTEXT).
+    outage_warning_s: Annotated[float, msgspec.Meta(gt=0.0, le=60.0)] = 1.0
+    statustext_interval_s: Annotated[float, msgspec.Meta(ge=1.0, le=600.0)] = 5.0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        try:
+            check_name("vehicle", self.locator_vehicle)
+        except ValueError as exc:
+            raise ValueError(f"`locator_vehicle`: {exc}") from None
+        if self.output == "gps_input" and self.ekf_origin is None:
+            raise ValueError("`ekf_origin`: GPS_INPUT output needs the EKF origin (lat/lon)")
+
+
+class Bridge:
+    """Link state, telemetry conversion and the estimate path; MAVLink I/O under one lock."""
+
+    def __init__(self, config: Config, runner: ServiceRunner):
+        self.config = config
+        self.runner = runner
+        self.ned = config.ned.tank_to_ned()
+        self.gate = SafetyGate(
+            GateSettings(config.gate.max_age_s, config.gate.max_sigma_m, config.gate.max_rate_hz)
+        )
+        self.link = MavLink(
+            config.mavlink.connect,
+            system_id=config.mavlink.system_id,
+            component_id=config.mavlink.component_id,
+        )
+        self.lock = threading.Lock()
+        self.clock = BootClock()
+        self.counts: Counter[str] = Counter()
+        self.attitude: Attitude | None = None
+        self.ekf_flags = 0
+        self.surface_pressure_pa = config.depth.surface_pressure_pa
+        self.density = config.depth.water_density_kg_m3
+        self._last_vehicle_heartbeat = 0.0
+        self._last_heartbeat_sent = 0.0
+        self._last_open_attempt = 0.0
+        self._configured_boot = 0
+        self._last_param_request = 0.0
+        self._last_sent_mono: float | None = None
+        self._outage_reasons: Counter[str] = Counter()
+        self._announced: str | None = None
+        self._last_statustext: dict[str, float] = {}
+        rov = config.vehicle
+        self.depth_pub: Publisher[RovDepth] = runner.publisher(topics.ROV_DEPTH, vehicle=rov)
+        self.attitude_pub: Publisher[RovAttitude] = runner.publisher(
+            topics.ROV_ATTITUDE, vehicle=rov
+        )
+        self.status_pub: Publisher[RovStatus] = runner.publisher(topics.ROV_STATUS, vehicle=rov)
+
+    # ------------------------------------------------------------------ link upkeep
+
+    def step(self) -> None:
+        """One pass of the main loop: keep the link, drain messages, heartbeat, announce."""
+        now = time.monotonic()
+        with self.lock:
+            if not self.link.is_open:
+                if now - self._last_open_attempt < 1.0:
+                    return
+                self._last_open_attempt = now
+                try:
+                    self.link.open()
+                    self._last_vehicle_heartbeat = now
+                    logger.info(
+                        "MAVLink link open", extra={"fields": {"connect": self.link.connection}}
+                    )
+                except OSError as exc:
+                    self.counts["link_open_failed"] += 1
+                    self.runner.set_state("degraded", f"no MAVLink link: {exc}")
+                    return
+            try:
+                for _ in range(200):
+                    received = self.link.recv(timeout_s=0.0)
+                    if received is None:
+                        break
+                    self._handle(received.message, received.component_id)
+                if now - self._last_heartbeat_sent >= 1.0:
+                    self._last_heartbeat_sent = now
+                    self.link.send_heartbeat_onboard()
+            except OSError as exc:
+                self._drop_link(f"MAVLink I/O error: {exc}")
+                return
+            if now - self._last_vehicle_heartbeat > self.config.mavlink.link_timeout_s:
+                self._drop_link("no HEARTBEAT from the autopilot")
+                return
+            self._configure_vehicle(now)
+        self._announce(now)
+
+    def _drop_link(self, why: str) -> None:
+        self.counts["link_lost"] += 1
+        self.runner.set_state("degraded", why)
+        logger.warning("MAVLink link lost, reopening", extra={"fields": {"reason": why}})
+        self.link.close()
+        self._last_open_attempt = 0.0
+        self.attitude = None  # an old attitude must not go out with a new position
+
+    def _configure_vehicle(self, now: float) -> None:
+        """Once per autopilot boot: message rates, EKF origin; depth references until known."""
+        if self.clock.boots == 0:
+            return
+        cfg, target = self.config, self.config.mavlink.target_system
+        if self._configured_boot != self.clock.boots:
+            self._configured_boot = self.clock.boots
+            for name, hz in (
+                ("ATTITUDE", cfg.rates.attitude_hz),
+                ("SCALED_PRESSURE2", cfg.rates.pressure_hz),
+                ("EKF_STATUS_REPORT", cfg.rates.ekf_status_hz),
+                ("SYSTEM_TIME", cfg.rates.system_time_hz),
+            ):
+                self.link.send_set_message_interval(
+                    target_system=target, message_id=message_id(name), rate_hz=hz
+                )
+            if cfg.ekf_origin is not None:
+                o = cfg.ekf_origin
+                self.link.send_set_gps_global_origin(
+                    target_system=target,
+                    lat_e7=round(o.lat_deg * 1e7),
+                    lon_e7=round(o.lon_deg * 1e7),
+                    alt_mm=round(o.alt_m * 1000),
+                )
+                self.counts["origin_sent"] += 1
+            self.runner.set_state("ok")
+            logger.info("autopilot configured", extra={"fields": {"boot": self.clock.boots}})
+        missing = [
+            name
+            for name, value in (
+                ("BARO2_GND_PRESS", self.surface_pressure_pa),
+                ("BARO_SPEC_GRAV", self.density),
+            )
+            if value is None
+        ]
+        if missing and now - self._last_param_request > 2.0:
+            self._last_param_request = now
+            for name in missing:
+                self.link.send_param_request_read(target_system=target, name=name)
+
+    # ------------------------------------------------------------------ vehicle to bus
+
+    def _handle(self, message: object, component_id: int) -> None:
+        if component_id != _AUTOPILOT_COMPONENT:
+            return
+        arrival_ns = time.time_ns()
+        if isinstance(message, Heartbeat):
+            self._last_vehicle_heartbeat = time.monotonic()
+            self.status_pub.put(
+                RovStatus(
+                    stamp_ns=arrival_ns,
+                    seq=self.status_pub.next_seq(),
+                    armed=message.armed,
+                    mode=mode_name(message.custom_mode),
+                    ekf_flags=self.ekf_flags,
+                )
+            )
+        elif isinstance(message, Attitude):
+            if not self._observe(message.time_boot_ms, arrival_ns):
+                return
+            self.attitude = message
+            r_w_r = self.ned.attitude_to_tank(message.roll, message.pitch, message.yaw)
+            q = matrix_to_quat(r_w_r)
+            rates = self.ned.body_rates_to_flu(
+                message.rollspeed, message.pitchspeed, message.yawspeed
+            )
+            self.attitude_pub.put(
+                RovAttitude(
+                    stamp_ns=self.clock.to_unix_ns(message.time_boot_ms),
+                    seq=self.attitude_pub.next_seq(),
+                    orientation_xyzw=(float(q[0]), float(q[1]), float(q[2]), float(q[3])),
+                    angular_velocity_rad_s=rates,
+                )
+            )
+        elif isinstance(message, ScaledPressure) and message.instance == 2:
+            if not self._observe(message.time_boot_ms, arrival_ns):
+                return
+            self._publish_depth(message)
+        elif isinstance(message, SystemTime):
+            self._observe(message.time_boot_ms, arrival_ns)
+        elif isinstance(message, EkfStatus):
+            self.ekf_flags = message.flags
+        elif isinstance(message, ParamValue):
+            if message.name == "BARO2_GND_PRESS" and self.surface_pressure_pa is None:
+                self.surface_pressure_pa = message.value
+            elif message.name == "BARO_SPEC_GRAV" and self.density is None:
+                self.density = 1000.0 * message.value
+
+    def _observe(self, time_boot_ms: int, arrival_ns: int) -> bool:
+        """Feed the boot clock; a message from before a detected reboot is dropped."""
+        if self.clock.observe(time_boot_ms, arrival_ns):
+            self.counts["vehicle_reboots"] += 1
+            logger.warning("autopilot rebooted", extra={"fields": {"boots": self.clock.boots}})
+        return self.clock.ready
+
+    def _publish_depth(self, message: ScaledPressure) -> None:
+        if self.surface_pressure_pa is None or self.density is None:
+            self.counts["depth_waiting_reference"] += 1
+            return
+        pressure_pa = message.press_abs_hpa * 100.0
+        if not math.isfinite(pressure_pa) or pressure_pa <= 0.0:
+            self.counts["depth_bad_pressure"] += 1
+            return
+        depth = (pressure_pa - self.surface_pressure_pa) / (self.density * G)
+        self.depth_pub.put(
+            RovDepth(
+                stamp_ns=self.clock.to_unix_ns(message.time_boot_ms),
+                seq=self.depth_pub.next_seq(),
+                depth_m=depth,
+                pressure_pa=pressure_pa,
+                temperature_c=message.temperature_c,
+                sigma_m=self.config.depth.sigma_m,
+            )
+        )
+
+    # ------------------------------------------------------------------ bus to vehicle
+
+    def on_fix(self, fix: RovFix) -> None:
+        """Gate one estimate and, if it passes, send it to the autopilot."""
+        if self.config.output == "off":
+            return
+        with self.lock:
+            attitude = self.attitude
+            if attitude is None or not self.link.is_open:
+                self.counts["no_link_or_attitude"] += 1
+                self._outage_reasons["no_link_or_attitude"] += 1
+                return
+            decision = self.gate.check(fix, now_ns=time.time_ns())
+            if not isinstance(decision, Passed):
+                self._outage_reasons[decision] += 1
+                return
+            try:
+                self._send(decision, attitude)
+            except OSError as exc:
+                self.counts["send_failed"] += 1
+                logger.warning("estimate not sent", extra={"fields": {"error": str(exc)}})
+                return
+            self._last_sent_mono = time.monotonic()
+            self._outage_reasons.clear()
+
+    def _send(self, passed: Passed, attitude: Attitude) -> None:
+        p = self.ned.position(passed.position_w)
+        cov6 = np.zeros((6, 6))
+        cov6[:3, :3] = self.ned.covariance(passed.covariance_w)
+        att_var = math.radians(self.config.attitude_sigma_deg) ** 2
+        cov6[3, 3] = cov6[4, 4] = cov6[5, 5] = att_var
+        if self.config.output == "vision_position_estimate":
+            self.link.send_vision_position_estimate(
+                usec=passed.usec,
+                x=float(p[0]),
+                y=float(p[1]),
+                z=float(p[2]),
+                roll=attitude.roll,
+                pitch=attitude.pitch,
+                yaw=attitude.yaw,
+                covariance=upper_triangle(cov6),
+                reset_counter=passed.reset_counter,
+            )
+        else:
+            self._send_gps_input(passed, p, cov6)
+
+    def _send_gps_input(self, passed: Passed, p_ned: np.ndarray, cov6: np.ndarray) -> None:
+        origin = self.config.ekf_origin
+        assert origin is not None  # Config refuses gps_input without it
+        earth_radius = 6_378_137.0
+        lat = origin.lat_deg + math.degrees(float(p_ned[0]) / earth_radius)
+        lon = origin.lon_deg + math.degrees(
+            float(p_ned[1]) / (earth_radius * math.cos(math.radians(origin.lat_deg)))
+        )
+        # GPS time: weeks since 1980-01-06, 18 leap seconds ahead of Unix time.
+        gps_s = passed.usec / 1e6 - 315_964_800 + 18
+        week = int(gps_s // 604_800)
+        self.link.send_gps_input(
+            time_usec=passed.usec,
+            gps_week=week,
+            gps_week_ms=int((gps_s - week * 604_800) * 1000),
+            lat_e7=round(lat * 1e7),
+            lon_e7=round(lon * 1e7),
+            alt_m=origin.alt_m - float(p_ned[2]),
+            horiz_accuracy_m=math.sqrt(max(cov6[0, 0], cov6[1, 1])),
+            vert_accuracy_m=math.sqrt(cov6[2, 2]),
+        )
+
+    # ------------------------------------------------------------------ the pilot
+
+    def _announce(self, now: float) -> None:
+        """STATUSTEXT on a change the pilot must know: positioning OK, or lost (and why)."""
+        if self.config.output == "off":
+            return
+        if (
+            self._last_sent_mono is not None
+            and now - self._last_sent_mono <= self.config.outage_warning_s
+        ):
+            self._say("ok", "info", "CAP-SD: position OK")
+        elif self._announced == "ok":
+            reason = (
+                self._outage_reasons.most_common(1)[0][0] if self._outage_reasons else "no input"
+            )
+            self._say("lost", "warning", f"CAP-SD: position lost ({reason})")
+
+    def _say(self, state: str, severity: str, text: str) -> None:
+        now = time.monotonic()
+        if self._announced == state:
+            return
+        if now - self._last_statustext.get(state, -math.inf) < self.config.statustext_interval_s:
+            return
+        with self.lock:
+            if not self.link.is_open:
+                return
+            try:
+                self.link.send_statustext(severity, text)
+            except OSError:
+                return
+        self._announced = state
+        self._last_statustext[state] = now
+        self.counts[f"statustext_{state}"] += 1
+        logger.info("told the pilot", extra={"fields": {"text": text}})
+
+    def counters(self) -> dict[str, int]:
+        with self.lock:
+            merged = {f"gate_{k}": v for k, v in self.gate.counts.items()}
+            merged.update(self.counts)
+        return merged
+
+
+def main(config: Config) -> int:
+    """Run the bridge until stopped."""
+    with ServiceRunner("mav_bridge", config) as runner:
+        bridge = Bridge(config, runner)
+        runner.add_counters(bridge.counters)
+        runner.subscribe(topics.ROV_FIX, bridge.on_fix, vehicle=config.locator_vehicle)
+        try:
+            runner.run(bridge.step, period_s=0.01)
+        finally:
+            with bridge.lock:
+                bridge.link.close()
+    return 0

@@ -1,0 +1,204 @@
+"""An ArduSub stand-in on a loopback MAVLink link: telemetry out, parameters, and a recorder.
+
+It listens (`tcpin:`), sends HEARTBEAT (1 Hz), ATTITUDE, SCALED_PRESSURE2 and SYSTEM_TIME at
+the rates the bridge asks for (MAV_CMD_SET_MESSAGE_INTERVAL, acknowledged), serves parameters
+(PARAM_REQUEST_READ/LIST, PARAM_SET echoes PARAM_VALUE), and records what it receives:
+VISION_POSITION_ESTIMATE, GPS_INPUT, STATUSTEXT, SET_GPS_GLOBAL_ORIGIN. The vehicle's attitude
+and depth come from a callable, so a simulator can drive it. For tests and the demo only.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Self
+
+from services.mav_bridge.mavlink import (
+    MAV_CMD_SET_MESSAGE_INTERVAL,
+    MAV_RESULT_ACCEPTED,
+    Attitude,
+    CommandLong,
+    GlobalOrigin,
+    GpsInput,
+    Heartbeat,
+    MavLink,
+    ParamRequest,
+    ParamSet,
+    StatusText,
+    VisionPositionEstimate,
+    message_id,
+    mode_number,
+)
+
+# A fresh ArduSub as far as external position is concerned (what `capsd mav check` fixes).
+DEFAULT_PARAMS: dict[str, float] = {
+    "VISO_TYPE": 0.0,
+    "EK3_SRC1_POSXY": 3.0,
+    "EK3_SRC1_VELXY": 3.0,
+    "EK3_SRC1_POSZ": 1.0,
+    "EK3_SRC1_YAW": 1.0,
+    "GPS1_TYPE": 1.0,
+    "VISO_POS_M_NSE": 0.2,
+    "VISO_DELAY_MS": 10.0,
+    "BARO2_GND_PRESS": 101_325.0,
+    "BARO_SPEC_GRAV": 1.0,
+}
+
+RHO_G = 1000.0 * 9.80665
+
+
+@dataclass(frozen=True)
+class VehicleState:
+    """What the stand-in reports: FRD attitude in NED (rad) and the Bar30's depth (m)."""
+
+    roll: float = 0.0
+    pitch: float = 0.0
+    yaw: float = 0.0
+    depth_m: float = 1.0
+
+
+@dataclass
+class Recorded:
+    """Everything the stand-in received that a test may check, with arrival times."""
+
+    estimates: list[tuple[float, VisionPositionEstimate]] = field(default_factory=list)
+    gps_inputs: list[tuple[float, GpsInput]] = field(default_factory=list)
+    statustexts: list[StatusText] = field(default_factory=list)
+    origins: list[GlobalOrigin] = field(default_factory=list)
+    heartbeats: int = 0
+
+
+class AutopilotStandIn:
+    """Run with `with AutopilotStandIn(port) as ap:`; `restart()` cuts and restores the link."""
+
+    def __init__(
+        self,
+        port: int,
+        *,
+        state: Callable[[float], VehicleState] = lambda _t: VehicleState(),
+        params: dict[str, float] | None = None,
+        armed: bool = True,
+        mode: str = "POSHOLD",
+    ):
+        self.port = port
+        self.state = state
+        self.params = dict(DEFAULT_PARAMS if params is None else params)
+        self.armed = armed
+        self.mode = mode
+        self.recorded = Recorded()
+        self.lock = threading.Lock()
+        self._rates_hz = {
+            message_id("ATTITUDE"): 10.0,
+            message_id("SCALED_PRESSURE2"): 5.0,
+            message_id("SYSTEM_TIME"): 1.0,
+        }
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._booted = time.monotonic()
+        self._paused = threading.Event()
+
+    def __enter__(self) -> Self:
+        self._thread = threading.Thread(target=self._run, name="autopilot-stand-in", daemon=True)
+        self._thread.start()
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+
+    def restart(self, *, down_s: float) -> None:
+        """Close the link for `down_s` seconds (the bridge sees the autopilot vanish)."""
+        self._paused.set()
+        time.sleep(down_s)
+        self._paused.clear()
+
+    def time_boot_ms(self) -> int:
+        return int((time.monotonic() - self._booted) * 1000)
+
+    # ------------------------------------------------------------------ loop
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            with MavLink(f"tcpin:127.0.0.1:{self.port}", system_id=1, component_id=1) as link:
+                self._serve(link)
+            while self._paused.is_set() and not self._stop.is_set():
+                time.sleep(0.02)
+
+    def _serve(self, link: MavLink) -> None:
+        next_due: dict[int | str, float] = {"heartbeat": 0.0}
+        while not self._stop.is_set() and not self._paused.is_set():
+            received = link.recv(timeout_s=0.005)
+            if received is not None:
+                self._handle(link, received.message)
+            now = time.monotonic()
+            try:
+                if now >= next_due["heartbeat"]:
+                    next_due["heartbeat"] = now + 1.0
+                    link.send_heartbeat_vehicle(
+                        armed=self.armed, custom_mode=mode_number(self.mode)
+                    )
+                for msg, hz in list(self._rates_hz.items()):
+                    if hz > 0 and now >= next_due.get(msg, 0.0):
+                        next_due[msg] = now + 1.0 / hz
+                        self._send_stream(link, msg)
+            except OSError:
+                return  # the client went away; listen again
+
+    def _send_stream(self, link: MavLink, msg: int) -> None:
+        boot_ms = self.time_boot_ms()
+        state = self.state(time.time())
+        if msg == message_id("ATTITUDE"):
+            link.send_attitude(Attitude(boot_ms, state.roll, state.pitch, state.yaw, 0.0, 0.0, 0.0))
+        elif msg == message_id("SCALED_PRESSURE2"):
+            pressure_pa = (
+                self.params["BARO2_GND_PRESS"]
+                + state.depth_m * RHO_G * self.params["BARO_SPEC_GRAV"]
+            )
+            link.send_scaled_pressure2(
+                time_boot_ms=boot_ms, press_abs_hpa=pressure_pa / 100.0, temperature_c=18.0
+            )
+        elif msg == message_id("SYSTEM_TIME"):
+            link.send_system_time(time_unix_usec=0, time_boot_ms=boot_ms)
+
+    def _handle(self, link: MavLink, message: object) -> None:
+        now = time.time()
+        with self.lock:
+            if isinstance(message, VisionPositionEstimate):
+                self.recorded.estimates.append((now, message))
+            elif isinstance(message, GpsInput):
+                self.recorded.gps_inputs.append((now, message))
+            elif isinstance(message, StatusText):
+                self.recorded.statustexts.append(message)
+            elif isinstance(message, GlobalOrigin):
+                self.recorded.origins.append(message)
+            elif isinstance(message, Heartbeat):
+                self.recorded.heartbeats += 1
+        if isinstance(message, CommandLong) and message.command == MAV_CMD_SET_MESSAGE_INTERVAL:
+            interval_us = message.params[1]
+            self._rates_hz[int(message.params[0])] = (
+                0.0 if interval_us < 0 else 1e6 / max(interval_us, 1.0)
+            )
+            link.send_command_ack(command=message.command, result=MAV_RESULT_ACCEPTED)
+        elif isinstance(message, ParamRequest):
+            names = sorted(self.params) if message.name is None else [message.name]
+            for name in names:
+                if name in self.params:
+                    link.send_param_value(
+                        name=name,
+                        value=self.params[name],
+                        index=sorted(self.params).index(name),
+                        count=len(self.params),
+                    )
+        elif isinstance(message, ParamSet) and message.name in self.params:
+            if math.isfinite(message.value):
+                self.params[message.name] = message.value
+            link.send_param_value(
+                name=message.name,
+                value=self.params[message.name],
+                index=sorted(self.params).index(message.name),
+                count=len(self.params),
+            )
