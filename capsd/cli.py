@@ -232,6 +232,43 @@ def _cmd_list(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+# ---------------------------------------------------------------------------- mav
+
+
+def _cmd_mav_check(args: argparse.Namespace) -> int:
+    try:
+        from services.mav_bridge.check import run_check
+        from services.mav_bridge.mavlink import check_connection
+    except ImportError as exc:  # the base install has no pymavlink: it comes with [rov]
+        return _fail(
+            f"`capsd mav` needs the rov extra (pip install 'capsd[rov]'): {exc}", EXIT_FAILURE
+        )
+    try:
+        check_connection(args.connect)
+    except ConfigError as exc:
+        return _fail(str(exc), EXIT_CONFIG)
+    try:
+        return run_check(
+            args.connect,
+            apply=args.apply,
+            yaw_source=args.yaw_source,
+            position_noise_m=args.position_noise_m,
+            delay_ms=args.delay_ms,
+            timeout_s=args.timeout,
+        )
+    except OSError as exc:
+        return _fail(f"MAVLink link {args.connect}: {exc}", EXIT_FAILURE)
+
+
+# ---------------------------------------------------------------------------- bench
+
+
+def _cmd_bench_footprint(args: argparse.Namespace) -> int:
+    from capsd.bench import footprint
+
+    return footprint.bridge(runs=args.runs, settle_s=args.settle)
+
+
 # ---------------------------------------------------------------------------- parser
 
 
@@ -298,6 +335,56 @@ def build_parser() -> argparse.ArgumentParser:
     lst.add_argument("--json", action="store_true", help="one JSON object per service")
     add_bus_flags(lst)
     lst.set_defaults(func=_cmd_list)
+
+    mav = sub.add_parser(
+        "mav",
+        help="ArduSub set-up tools",
+        description="Tools that talk to the autopilot over MAVLink.",
+    )
+    mav_sub = mav.add_subparsers(dest="mav_command", required=True, metavar="TOOL")
+    check = mav_sub.add_parser(
+        "check",
+        help="check (and --apply) ArduSub parameters for external position",
+        description="Read the autopilot's parameters, print what is wrong for CAP-SD's "
+        "external position and the values to set; --apply sets them.",
+    )
+    check.add_argument(
+        "--connect",
+        default="tcp:127.0.0.1:5777",
+        help="MAVLink connection (default: BlueOS's tcp:127.0.0.1:5777)",
+    )
+    check.add_argument("--apply", action="store_true", help="set the wrong parameters")
+    check.add_argument(
+        "--yaw-source",
+        choices=["compass", "vision"],
+        default="compass",
+        help="EK3 yaw source: the compass (1) or the yaw CAP-SD sends (6)",
+    )
+    check.add_argument(
+        "--position-noise-m",
+        type=float,
+        default=0.05,
+        help="VISO_POS_M_NSE should be at most this (metres)",
+    )
+    check.add_argument("--delay-ms", type=float, default=50.0, help="wanted VISO_DELAY_MS")
+    check.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for answers")
+    check.set_defaults(func=_cmd_mav_check)
+
+    bench = sub.add_parser(
+        "bench",
+        help="benchmarks that print measured figures",
+        description="Benchmarks: each prints figures measured in one run.",
+    )
+    bench_sub = bench.add_subparsers(dest="bench_command", required=True, metavar="BENCH")
+    foot = bench_sub.add_parser(
+        "footprint",
+        help="start-up time and resident memory of the MAVLink bridge",
+        description="Start the bridge against a local router and the autopilot stand-in; "
+        "print start-up time to READY=1, resident memory and heavy libraries.",
+    )
+    foot.add_argument("--runs", type=int, default=5, help="repetitions (median reported)")
+    foot.add_argument("--settle", type=float, default=3.0, help="seconds running before RSS")
+    foot.set_defaults(func=_cmd_bench_footprint)
     return parser
 
 

@@ -10,4 +10,18 @@ command -v "$PY" >/dev/null 2>&1 || PY=python3
 echo "== ruff"; .venv/bin/ruff check .
 echo "== ruff format"; .venv/bin/ruff format --check .
 echo "== mypy"; .venv/bin/mypy
+echo "== rov role: install capsd[rov] alone and start the bridge's code without torch/scipy/cv2"
+rm -rf .venv-rov && "$PY" -m venv .venv-rov
+.venv-rov/bin/python -m pip install --quiet --disable-pip-version-check '.[rov]' 2> >(grep -v "^WARNING: Location" >&2)
+.venv-rov/bin/python - <<'PY'
+import contextlib, importlib.util, io
+for heavy in ("torch", "scipy", "cv2"):
+    assert importlib.util.find_spec(heavy) is None, f"{heavy} is installed in the rov role"
+import services.mav_bridge.service  # noqa: F401
+from capsd.cli import main
+with contextlib.redirect_stdout(io.StringIO()):
+    assert main(["run", "mav_bridge", "--print-config"]) == 0
+print("rov role: bridge imports and configures without torch, scipy or OpenCV")
+PY
+rm -rf .venv-rov
 echo "== pytest"; .venv/bin/pytest "$@"

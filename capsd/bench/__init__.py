@@ -1,0 +1,1 @@
+"""Benchmark commands (`capsd bench ...`): each prints figures measured in one run."""

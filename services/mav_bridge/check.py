@@ -1,0 +1,163 @@
+"""`capsd mav check`: read ArduSub's parameters, say what is wrong for external position, fix it.
+
+The values (FIELD-NOTES, ArduSub 4.5-4.7): VISO_TYPE=1 (MAVLink; takes effect after a reboot),
+EK3_SRC1_POSXY=6 (ExternalNav), EK3_SRC1_VELXY=0, EK3_SRC1_POSZ=1 (baro: the Bar30),
+EK3_SRC1_YAW=1 (compass) or 6 (the yaw we send), GPS1_TYPE=0 (GPS_TYPE before 4.6),
+VISO_POS_M_NSE at most our position noise (it is a floor), VISO_DELAY_MS near our latency.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass
+from typing import Literal, TextIO
+
+from services.mav_bridge.mavlink import Heartbeat, MavLink, ParamValue
+
+YawSource = Literal["compass", "vision"]
+
+_GCS_SYSTEM = 255
+_GCS_COMPONENT = 190  # MAV_COMP_ID_MISSIONPLANNER: a ground-station identity
+
+
+@dataclass(frozen=True)
+class Rule:
+    """One parameter, the value it should have, and why; `tolerance` allows a band."""
+
+    names: tuple[str, ...]  # the first one the vehicle has is used (renamed across versions)
+    wanted: float
+    why: str
+    tolerance: float = 0.0
+    at_most: bool = False  # the value may also be lower
+
+
+@dataclass(frozen=True)
+class Finding:
+    name: str
+    current: float | None
+    wanted: float
+    ok: bool
+    why: str
+
+
+def rules(*, yaw_source: YawSource, position_noise_m: float, delay_ms: float) -> list[Rule]:
+    return [
+        Rule(("VISO_TYPE",), 1, "external position over MAVLink (reboot needed)"),
+        Rule(("EK3_SRC1_POSXY",), 6, "horizontal position from ExternalNav (CAP-SD)"),
+        Rule(("EK3_SRC1_VELXY",), 0, "no horizontal velocity source: CAP-SD sends positions"),
+        Rule(("EK3_SRC1_POSZ",), 1, "depth from the barometer (the Bar30)"),
+        Rule(
+            ("EK3_SRC1_YAW",),
+            1 if yaw_source == "compass" else 6,
+            "yaw from the compass" if yaw_source == "compass" else "yaw from the estimates",
+        ),
+        Rule(("GPS1_TYPE", "GPS_TYPE"), 0, "no GPS underwater"),
+        Rule(
+            ("VISO_POS_M_NSE",),
+            position_noise_m,
+            "the EKF's floor on position noise: at most CAP-SD's",
+            at_most=True,
+        ),
+        Rule(("VISO_DELAY_MS",), delay_ms, "measurement latency", tolerance=20.0),
+    ]
+
+
+def _read(link: MavLink, target: int, names: list[str], timeout_s: float) -> dict[str, float]:
+    """Ask for each parameter by name (twice at most); return those the vehicle answered."""
+    values: dict[str, float] = {}
+    for _attempt in range(2):
+        for name in names:
+            if name not in values:
+                link.send_param_request_read(target_system=target, name=name)
+        deadline = time.monotonic() + timeout_s / 2
+        while time.monotonic() < deadline and len(values) < len(names):
+            received = link.recv(timeout_s=0.1)
+            if received is not None and isinstance(received.message, ParamValue):
+                values[received.message.name] = received.message.value
+        if len(values) == len(names):
+            break
+    return values
+
+
+def _wait_heartbeat(link: MavLink, timeout_s: float) -> int | None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        received = link.recv(timeout_s=0.2)
+        if (
+            received is not None
+            and isinstance(received.message, Heartbeat)
+            and (received.component_id == 1)
+        ):
+            return received.system_id
+    return None
+
+
+def evaluate(values: dict[str, float], checks: list[Rule]) -> list[Finding]:
+    findings = []
+    for rule in checks:
+        name = next((n for n in rule.names if n in values), rule.names[0])
+        current = values.get(name)
+        if current is None:
+            ok = False
+        elif rule.at_most:
+            ok = current <= rule.wanted + 1e-6
+        else:
+            ok = abs(current - rule.wanted) <= rule.tolerance + 1e-6
+        findings.append(Finding(name, current, rule.wanted, ok, rule.why))
+    return findings
+
+
+def run_check(
+    connection: str,
+    *,
+    apply: bool,
+    yaw_source: YawSource = "compass",
+    position_noise_m: float = 0.05,
+    delay_ms: float = 50.0,
+    timeout_s: float = 5.0,
+    out: TextIO = sys.stdout,
+) -> int:
+    """Print the findings (and fix them with `apply`); 0 when all is right at the end."""
+    checks = rules(yaw_source=yaw_source, position_noise_m=position_noise_m, delay_ms=delay_ms)
+    names = [n for rule in checks for n in rule.names]
+    with MavLink(connection, system_id=_GCS_SYSTEM, component_id=_GCS_COMPONENT) as link:
+        link.send_heartbeat_onboard()
+        target = _wait_heartbeat(link, timeout_s)
+        if target is None:
+            print(f"no autopilot HEARTBEAT on {connection} within {timeout_s:.0f} s", file=out)
+            return 1
+        values = _read(link, target, names, timeout_s)
+        findings = evaluate(values, checks)
+        _print(findings, out)
+        wrong = [f for f in findings if not f.ok]
+        if not wrong:
+            print("ArduSub is set up for CAP-SD external position.", file=out)
+            return 0
+        if not apply:
+            print(
+                f"{len(wrong)} parameter(s) to change; run again with --apply to set them.",
+                file=out,
+            )
+            return 1
+        for finding in wrong:
+            link.send_param_set(target_system=target, name=finding.name, value=finding.wanted)
+        after = evaluate(_read(link, target, names, timeout_s), checks)
+        still = [f for f in after if not f.ok]
+        print("after --apply:", file=out)
+        _print(after, out)
+        if still:
+            print(f"{len(still)} parameter(s) could not be set.", file=out)
+            return 1
+        print(
+            "Parameters set. Reboot the autopilot: VISO_TYPE takes effect after a reboot.", file=out
+        )
+        return 0
+
+
+def _print(findings: list[Finding], out: TextIO) -> None:
+    print(f"{'PARAMETER':<16} {'NOW':>8} {'WANTED':>8}  STATUS   WHY", file=out)
+    for f in findings:
+        now = "absent" if f.current is None else f"{f.current:g}"
+        status = "ok" if f.ok else "CHANGE"
+        print(f"{f.name:<16} {now:>8} {f.wanted:>8g}  {status:<7}  {f.why}", file=out)

@@ -1,0 +1,343 @@
+"""The bridge process against an ArduSub stand-in on loopback TCP, with a real router."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+
+from capsd import topics
+from capsd.bench.footprint import _heavy_mapped
+from capsd.codec import Codec
+from capsd.keys import health_key, is_concrete
+from capsd.payloads import Health, RovAttitude, RovDepth, RovFix
+from services.mav_bridge.ned import TankToNed
+from simulator.autopilot import AutopilotStandIn, VehicleState
+from tests.conftest import REPO, Proc, free_port, wait_for
+
+pytestmark = pytest.mark.integration
+
+STATE = VehicleState(roll=0.05, pitch=-0.1, yaw=1.0, depth_m=2.5)
+COV_W = np.array([[0.010, 0.002, 0.0], [0.002, 0.020, 0.0], [0.0, 0.0, 0.030]])
+
+
+@pytest.fixture
+def autopilot() -> Iterator[AutopilotStandIn]:
+    with AutopilotStandIn(free_port(), state=lambda _t: STATE) as stand_in:
+        yield stand_in
+
+
+def _start_bridge(
+    spawn: Callable[..., Proc],
+    tmp_path: Path,
+    endpoint: str,
+    autopilot: AutopilotStandIn,
+    *,
+    heading_deg: float,
+) -> Proc:
+    config = tmp_path / "mav_bridge.yaml"
+    config.write_text(
+        f"site: tank\nvehicle: rov\nbus:\n  connect: [{endpoint}]\n"
+        f"mavlink:\n  connect: tcp:127.0.0.1:{autopilot.port}\n"
+        f"ned:\n  heading_deg: {heading_deg}\n  origin_ned_m: [10.0, -5.0, 0.0]\n"
+        "ekf_origin:\n  lat_deg: 54.42\n  lon_deg: -3.5\n  alt_m: 0.0\n"
+    )
+    return spawn("run", "mav_bridge", "--config", str(config))
+
+
+class FixSender:
+    """Publishes RovFix payloads like the locator does."""
+
+    def __init__(self, session: zenoh.Session):
+        self.codec = Codec(RovFix)
+        self.publisher = session.declare_publisher(
+            topics.ROV_FIX.key("tank", "topside"), encoding=zenoh.Encoding(self.codec.encoding)
+        )
+        self.seq = 0
+
+    def send(
+        self,
+        *,
+        stamp_ns: int | None = None,
+        position: tuple[float, float, float] = (1.0, 2.0, -3.0),
+        cov: np.ndarray = COV_W,
+        quality: str = "good",
+        resets: int = 3,
+    ) -> RovFix:
+        fix = RovFix(
+            stamp_ns=time.time_ns() if stamp_ns is None else stamp_ns,
+            seq=self.seq,
+            method="capsd",
+            quality=quality,  # type: ignore[arg-type]
+            position_m=position,
+            velocity_m_s=(0.0, 0.0, 0.0),
+            covariance_m2=tuple(float(v) for v in cov.ravel()),
+            track_state="tracking",
+            track_resets=resets,
+        )
+        self.seq += 1
+        self.publisher.put(self.codec.encode(fix))
+        return fix
+
+
+def _wait_ready(autopilot: AutopilotStandIn, sender: FixSender) -> None:
+    """Until the bridge has a link and an attitude, estimates are (correctly) held back."""
+
+    def one_through() -> bool:
+        sender.send()
+        time.sleep(0.05)
+        return len(autopilot.recorded.estimates) > 0
+
+    wait_for(one_through, timeout_s=20, what="the first estimate at the autopilot")
+
+
+def _health(client: zenoh.Session) -> Health:
+    codec = Codec(Health)
+    for reply in client.get(health_key("tank", "rov", "mav_bridge"), timeout=2.0):
+        if reply.ok is not None:
+            return codec.decode(
+                reply.ok.payload.to_bytes(), encoding=str(reply.ok.encoding), key_expr="h"
+            )
+    raise AssertionError("no health from the bridge")
+
+
+@pytest.mark.parametrize("heading_deg", [0.0, 90.0, -135.0])
+def test_estimates_arrive_with_exact_fields(
+    spawn: Callable[..., Proc],
+    client: zenoh.Session,
+    endpoint: str,
+    tmp_path: Path,
+    autopilot: AutopilotStandIn,
+    heading_deg: float,
+) -> None:
+    _start_bridge(spawn, tmp_path, endpoint, autopilot, heading_deg=heading_deg)
+    sender = FixSender(client)
+    _wait_ready(autopilot, sender)
+    before = len(autopilot.recorded.estimates)
+    sent = []
+    for k in range(15):
+        sent.append(sender.send(position=(1.0 + 0.1 * k, 2.0, -3.0), resets=4))
+        time.sleep(0.05)
+    wait_for(
+        lambda: len(autopilot.recorded.estimates) >= before + 15, timeout_s=5, what="15 estimates"
+    )
+    got = [e for _, e in autopilot.recorded.estimates[before:]]
+    ned = TankToNed(math.radians(heading_deg), np.array([10.0, -5.0, 0.0]))
+    by_usec = {fix.stamp_ns // 1000: fix for fix in sent}
+    cov_ned = ned.covariance(COV_W)
+    for estimate in got:
+        fix = by_usec[estimate.usec]  # usec is the estimate's measurement time
+        assert fix.position_m is not None
+        expected = ned.position(np.array(fix.position_m))
+        assert (estimate.x, estimate.y, estimate.z) == pytest.approx(tuple(expected), abs=1e-5)
+        assert (estimate.roll, estimate.pitch, estimate.yaw) == pytest.approx(
+            (STATE.roll, STATE.pitch, STATE.yaw), abs=1e-6
+        )
+        cov = estimate.covariance
+        assert [cov[0], cov[1], cov[2], cov[6], cov[7], cov[11]] == pytest.approx(
+            [
+                cov_ned[0, 0],
+                cov_ned[0, 1],
+                cov_ned[0, 2],
+                cov_ned[1, 1],
+                cov_ned[1, 2],
+                cov_ned[2, 2],
+            ],
+            abs=1e-7,
+        )
+        assert cov[15] == pytest.approx(math.radians(3.0) ** 2, rel=1e-5)
+        assert estimate.reset_counter == 4
+    usecs = [e.usec for e in got]
+    assert usecs == sorted(usecs)
+    assert len(set(usecs)) == len(usecs)
+    assert autopilot.recorded.origins, "the EKF origin is set once per boot"
+    origin = autopilot.recorded.origins[0]
+    assert (origin.lat_e7, origin.lon_e7) == (544_200_000, -35_000_000)
+
+
+def test_gate_rate_limit_and_silence(
+    spawn: Callable[..., Proc],
+    client: zenoh.Session,
+    endpoint: str,
+    tmp_path: Path,
+    autopilot: AutopilotStandIn,
+) -> None:
+    _start_bridge(spawn, tmp_path, endpoint, autopilot, heading_deg=0.0)
+    sender = FixSender(client)
+    _wait_ready(autopilot, sender)
+
+    def count() -> int:
+        return len(autopilot.recorded.estimates)
+
+    # Refused: stale, not good, too uncertain.
+    before = count()
+    sender.send(stamp_ns=time.time_ns() - 1_000_000_000)
+    sender.send(quality="unsure")
+    sender.send(cov=np.diag([1.0, 1.0, 1.0]))
+    time.sleep(0.5)
+    assert count() == before, "stale, unsure or uncertain estimates must never be sent"
+
+    # 200 Hz in, at most 50 Hz out.
+    start, before = time.monotonic(), count()
+    while time.monotonic() - start < 1.0:
+        sender.send()
+        time.sleep(0.005)
+    time.sleep(0.3)
+    arrived = [t for t, _ in autopilot.recorded.estimates[before:]]
+    assert 20 <= len(arrived) <= 52
+    gaps = np.diff(arrived)
+    assert np.median(gaps) >= 0.018
+
+    # Input stops: output stops, and the pilot is told.
+    time.sleep(0.3)
+    silent_from = count()
+    time.sleep(1.5)
+    assert count() == silent_from
+    wait_for(
+        lambda: any("lost" in s.text for s in autopilot.recorded.statustexts),
+        timeout_s=5,
+        what="a 'position lost' STATUSTEXT",
+    )
+    assert any("OK" in s.text for s in autopilot.recorded.statustexts)
+
+    counters = _health(client).counters
+    for reason in (
+        "gate_stale",
+        "gate_not_good",
+        "gate_uncertain",
+        "gate_rate_limited",
+        "gate_sent",
+    ):
+        assert counters.get(reason, 0) >= 1, counters
+
+
+def test_telemetry_reaches_the_bus(
+    spawn: Callable[..., Proc],
+    client: zenoh.Session,
+    endpoint: str,
+    tmp_path: Path,
+    autopilot: AutopilotStandIn,
+) -> None:
+    depths: list[RovDepth] = []
+    attitudes: list[RovAttitude] = []
+    depth_codec, attitude_codec = Codec(RovDepth), Codec(RovAttitude)
+
+    def on_depth(sample: zenoh.Sample) -> None:
+        if is_concrete(str(sample.key_expr)):
+            depths.append(
+                depth_codec.decode(
+                    sample.payload.to_bytes(), encoding=str(sample.encoding), key_expr="d"
+                )
+            )
+
+    def on_attitude(sample: zenoh.Sample) -> None:
+        if is_concrete(str(sample.key_expr)):
+            attitudes.append(
+                attitude_codec.decode(
+                    sample.payload.to_bytes(), encoding=str(sample.encoding), key_expr="a"
+                )
+            )
+
+    subs = [
+        client.declare_subscriber(topics.ROV_DEPTH.key("tank", "rov"), on_depth),
+        client.declare_subscriber(topics.ROV_ATTITUDE.key("tank", "rov"), on_attitude),
+    ]
+    bridge = _start_bridge(spawn, tmp_path, endpoint, autopilot, heading_deg=90.0)
+    wait_for(
+        lambda: len(depths) >= 10 and len(attitudes) >= 10,
+        timeout_s=20,
+        what="depth and attitude on the bus",
+    )
+    # The ROV's Pi install has no torch, scipy or OpenCV: the bridge must not load them.
+    assert _heavy_mapped(bridge.popen.pid) == ()
+    now = time.time_ns()
+    assert depths[-1].depth_m == pytest.approx(STATE.depth_m, abs=1e-3)
+    assert depths[-1].pressure_pa == pytest.approx(101_325.0 + 2.5 * 1000.0 * 9.80665, abs=1.0)
+    for series in (depths, attitudes):
+        stamps = [p.stamp_ns for p in series]
+        assert stamps == sorted(stamps)
+        assert 0 <= now - stamps[-1] < 500_000_000  # measurement time, mapped from boot time
+    ned = TankToNed(math.radians(90.0), np.zeros(3))
+    expected = ned.attitude_to_tank(STATE.roll, STATE.pitch, STATE.yaw)
+    from capsd.geometry import quat_to_matrix
+
+    assert np.allclose(
+        quat_to_matrix(np.array(attitudes[-1].orientation_xyzw)), expected, atol=1e-6
+    )
+    for sub in subs:
+        sub.undeclare()
+
+
+def test_link_loss_and_return(
+    spawn: Callable[..., Proc],
+    client: zenoh.Session,
+    endpoint: str,
+    tmp_path: Path,
+    autopilot: AutopilotStandIn,
+) -> None:
+    bridge = _start_bridge(spawn, tmp_path, endpoint, autopilot, heading_deg=0.0)
+    sender = FixSender(client)
+    _wait_ready(autopilot, sender)
+    import threading
+
+    stop = threading.Event()
+
+    def keep_sending() -> None:
+        while not stop.is_set():
+            sender.send()
+            time.sleep(0.05)
+
+    thread = threading.Thread(target=keep_sending, daemon=True)
+    thread.start()
+    try:
+        autopilot.restart(down_s=2.5)
+        back = time.monotonic()
+        before = len(autopilot.recorded.estimates)
+        wait_for(
+            lambda: len(autopilot.recorded.estimates) > before,
+            timeout_s=3.0,
+            what="estimates after the link returned",
+        )
+        recovery_s = time.monotonic() - back
+    finally:
+        stop.set()
+        thread.join()
+    print(f"link recovery {recovery_s:.2f} s")
+    assert recovery_s < 3.0
+    assert bridge.popen.poll() is None, "the bridge recovers without a restart"
+    assert _health(client).counters.get("link_lost", 0) >= 1
+
+
+def test_mav_check_reports_and_apply_fixes(autopilot: AutopilotStandIn) -> None:
+    connect = f"tcp:127.0.0.1:{autopilot.port}"
+
+    def check(*extra: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            [sys.executable, "-m", "capsd", "mav", "check", "--connect", connect, *extra],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            cwd=REPO,
+        )
+
+    first = check()
+    assert first.returncode == 1
+    assert "VISO_TYPE" in first.stdout
+    assert "CHANGE" in first.stdout
+    assert "--apply" in first.stdout
+    applied = check("--apply")
+    assert applied.returncode == 0, applied.stdout
+    assert "Reboot the autopilot" in applied.stdout
+    assert autopilot.params["VISO_TYPE"] == 1.0
+    assert autopilot.params["EK3_SRC1_POSXY"] == 6.0
+    assert autopilot.params["GPS1_TYPE"] == 0.0
+    again = check()
+    assert again.returncode == 0
+    assert "CHANGE" not in again.stdout
