@@ -116,6 +116,10 @@ class AutopilotStandIn:
         time.sleep(down_s)
         self._paused.clear()
 
+    def rates_hz(self) -> dict[int, float]:
+        """The stream rates now in force, by message id (as set by SET_MESSAGE_INTERVAL)."""
+        return dict(self._rates_hz)
+
     def time_boot_ms(self) -> int:
         return int((time.monotonic() - self._booted) * 1000)
 

@@ -41,6 +41,7 @@ def _start_bridge(
     autopilot: AutopilotStandIn,
     *,
     heading_deg: float,
+    output: str = "vision_position_estimate",
 ) -> Proc:
     config = tmp_path / "mav_bridge.yaml"
     config.write_text(
@@ -48,6 +49,7 @@ def _start_bridge(
         f"mavlink:\n  connect: tcp:127.0.0.1:{autopilot.port}\n"
         f"ned:\n  heading_deg: {heading_deg}\n  origin_ned_m: [10.0, -5.0, 0.0]\n"
         "ekf_origin:\n  lat_deg: 54.42\n  lon_deg: -3.5\n  alt_m: 0.0\n"
+        f"output: {output}\n"
     )
     return spawn("run", "mav_bridge", "--config", str(config))
 
@@ -341,3 +343,37 @@ def test_mav_check_reports_and_apply_fixes(autopilot: AutopilotStandIn) -> None:
     again = check()
     assert again.returncode == 0
     assert "CHANGE" not in again.stdout
+
+
+def test_gps_input_output_and_requested_rates(
+    spawn: Callable[..., Proc],
+    client: zenoh.Session,
+    endpoint: str,
+    tmp_path: Path,
+    autopilot: AutopilotStandIn,
+) -> None:
+    _start_bridge(spawn, tmp_path, endpoint, autopilot, heading_deg=0.0, output="gps_input")
+    sender = FixSender(client)
+
+    def one_through() -> bool:
+        sender.send(position=(100.0, 0.0, -2.0))
+        time.sleep(0.05)
+        return len(autopilot.recorded.gps_inputs) > 0
+
+    wait_for(one_through, timeout_s=20, what="a GPS_INPUT at the autopilot")
+    assert autopilot.recorded.estimates == []
+    _, gps = autopilot.recorded.gps_inputs[-1]
+    # Heading 0: W x is north; origin_ned_m puts W's origin 10 m north, 5 m west of the EKF origin.
+    north_m, east_m = 100.0 + 10.0, -5.0
+    lat = 54.42 + math.degrees(north_m / 6_378_137.0)
+    lon = -3.5 + math.degrees(east_m / (6_378_137.0 * math.cos(math.radians(54.42))))
+    assert gps.lat_e7 == pytest.approx(lat * 1e7, abs=2)
+    assert gps.lon_e7 == pytest.approx(lon * 1e7, abs=2)
+    assert gps.alt_m == pytest.approx(-2.0, abs=1e-4)
+    assert gps.fix_type == 3
+    assert gps.horiz_accuracy_m == pytest.approx(math.sqrt(0.020), rel=1e-3)
+    # The bridge asked for its message rates (MAV_CMD_SET_MESSAGE_INTERVAL) and got them.
+    from services.mav_bridge.mavlink import message_id
+
+    assert autopilot.rates_hz()[message_id("ATTITUDE")] == pytest.approx(20.0)
+    assert autopilot.rates_hz()[message_id("SCALED_PRESSURE2")] == pytest.approx(20.0)
