@@ -94,3 +94,20 @@ def test_boot_clock_takes_the_minimum_latency_and_detects_reboots() -> None:
     assert clock.observe(200, NOW + 10_000 * MS)  # boot time went back: a reboot
     assert clock.boots == 2
     assert clock.to_unix_ns(200) == NOW + 10_000 * MS
+
+
+def test_serial_link_writes_mavlink2_to_a_pseudo_terminal() -> None:
+    import os
+
+    from services.mav_bridge.mavlink import MavLink
+
+    master, slave = os.openpty()
+    try:
+        with MavLink(f"serial:{os.ttyname(slave)}:115200", system_id=1, component_id=197) as link:
+            link.send_heartbeat_onboard()
+            data = os.read(master, 1024)
+        assert data[:1] == b"\xfd"  # MAVLink 2 start byte
+        assert data[7:10] == b"\x00\x00\x00"  # message id 0: HEARTBEAT
+    finally:
+        os.close(master)
+        os.close(slave)
