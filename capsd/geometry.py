@@ -13,6 +13,8 @@ import numpy as np
 import numpy.typing as npt
 
 Array = npt.NDArray[np.float64]
+IndexArray = npt.NDArray[np.intp]
+MaskArray = npt.NDArray[np.bool_]
 
 
 def quat_normalize(q: Array) -> Array:

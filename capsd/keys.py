@@ -26,6 +26,7 @@ class Subject(StrEnum):
     ROV_STATUS = "rov/status"
     ROV_FIX = "locator/fix"
     SIM_TRUTH = "sim/truth"
+    SIM_LABEL = "sim/label"
 
 
 def check_name(kind: str, name: str) -> str:

@@ -357,6 +357,35 @@ class GroundTruth(Payload, frozen=True, kw_only=True):
         _check_quaternion("rov_orientation_xyzw", self.rov_orientation_xyzw)
 
 
+class GhostEcho(msgspec.Struct, frozen=True, kw_only=True):
+    """Where a multipath image of the ROV appears in the polar image."""
+
+    range_m: NonNegFloat
+    azimuth_rad: float
+
+
+class SonarLabel(Payload, frozen=True, kw_only=True):
+    """The simulator's truth for one sonar ping (`stamp_ns` and `ping_id` as the frame's).
+
+    `range_m`/`azimuth_rad`/`elevation_rad` locate the ROV centre in the sonar frame (the beam
+    model of the simulated sonar); the footprint is the extent of the rays that hit the ROV
+    (None when it is not visible); `overlap` says other echoes share its footprint.
+    """
+
+    ping_id: NonNegInt
+    visible: bool
+    range_m: NonNegFloat
+    azimuth_rad: float
+    elevation_rad: float
+    range_min_m: NonNegFloat | None = None
+    range_max_m: NonNegFloat | None = None
+    azimuth_min_rad: float | None = None
+    azimuth_max_rad: float | None = None
+    overlap: bool = False
+    ghosts: tuple[GhostEcho, ...] = ()
+    rov_position_m: Vec3
+
+
 ALL_PAYLOADS: tuple[type[Payload], ...] = (
     Health,
     Log,
@@ -371,4 +400,5 @@ ALL_PAYLOADS: tuple[type[Payload], ...] = (
     RovStatus,
     RovFix,
     GroundTruth,
+    SonarLabel,
 )

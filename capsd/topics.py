@@ -33,8 +33,9 @@ ROV_VELOCITY = Topic(Subject.ROV_VELOCITY, pl.RovVelocity)
 ROV_STATUS = Topic(Subject.ROV_STATUS, pl.RovStatus)
 ROV_FIX = Topic(Subject.ROV_FIX, pl.RovFix)
 SIM_TRUTH = Topic(Subject.SIM_TRUTH, pl.GroundTruth)
+SIM_LABEL = Topic(Subject.SIM_LABEL, pl.SonarLabel)
 
 ALL_TOPICS: tuple[Topic[Any], ...] = (
     ASV_POSE, ASV_IMU, ASV_SCAN, SONAR_FRAME, SONAR_DETECTIONS,
-    ROV_DEPTH, ROV_ATTITUDE, ROV_VELOCITY, ROV_STATUS, ROV_FIX, SIM_TRUTH,
+    ROV_DEPTH, ROV_ATTITUDE, ROV_VELOCITY, ROV_STATUS, ROV_FIX, SIM_TRUTH, SIM_LABEL,
 )  # fmt: skip

@@ -20,22 +20,22 @@ from capsd.config import BusConfig
 from capsd.errors import BusError, ConfigError, PayloadError
 from capsd.keys import is_concrete
 from capsd.launch import add_bus_flags, bus_from_args
-from capsd.payloads import GroundTruth, RovFix
+from capsd.payloads import RovFix, SonarLabel
 
 
 class Comparison:
-    """Pairs each fix with the truth of the same ping stamp and keeps the errors."""
+    """Pairs each fix with the label of the same ping (same stamp) and keeps the errors."""
 
     def __init__(self) -> None:
         self.lock = threading.Lock()
-        self.truth: dict[int, GroundTruth] = {}
+        self.truth: dict[int, SonarLabel] = {}
         self.pending: dict[int, RovFix] = {}
         self.errors_m: list[float] = []  # tracked estimate (what goes to the autopilot)
         self.raw_errors_m: list[float] = []  # single-ping fix
         self.fixes = 0
         self.good = 0
 
-    def add_truth(self, truth: GroundTruth) -> None:
+    def add_label(self, truth: SonarLabel) -> None:
         with self.lock:
             self.truth[truth.stamp_ns] = truth
             fix = self.pending.pop(truth.stamp_ns, None)
@@ -53,7 +53,7 @@ class Comparison:
             else:
                 self._score(fix, truth)
 
-    def _score(self, fix: RovFix, truth: GroundTruth) -> None:
+    def _score(self, fix: RovFix, truth: SonarLabel) -> None:
         if fix.quality != "good":
             return
         self.good += 1
@@ -96,7 +96,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"compare: {exc}", file=sys.stderr)
         return 2
     comparison = Comparison()
-    fix_codec, truth_codec = Codec(RovFix), Codec(GroundTruth)
+    fix_codec, truth_codec = Codec(RovFix), Codec(SonarLabel)
 
     def decoding(codec: Codec[Any], sink: Callable[[Any], None]) -> Callable[[zenoh.Sample], None]:
         def on_sample(sample: zenoh.Sample) -> None:
@@ -121,8 +121,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 decoding(fix_codec, comparison.add_fix),
             )
             truth_sub = session.declare_subscriber(
-                topics.SIM_TRUTH.key(args.site, args.sim_vehicle),
-                decoding(truth_codec, comparison.add_truth),
+                topics.SIM_LABEL.key(args.site, args.sim_vehicle),
+                decoding(truth_codec, comparison.add_label),
             )
             end = time.monotonic() + args.duration
             try:

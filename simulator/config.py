@@ -1,22 +1,95 @@
-"""Simulator configuration: tank, trajectory, sonar mount, rates, noise and dropouts."""
+"""Simulator configuration: tank, motion, sensors, noise, clocks, what to publish."""
 
 from __future__ import annotations
 
-from typing import Annotated
+import math
+from typing import Annotated, Literal
 
 import msgspec
 
 from capsd.config import ConfigSection, ServiceConfig
+from capsd.geometry import Transform
 from capsd.mounts import RovConfig, SonarMountConfig
-from simulator.world import TankName, TrajectoryName
+from simulator.clock import ClockModel
+from simulator.imu import ImuModel
+from simulator.lidar import LidarModel
+from simulator.sonar import SonarModel
+from simulator.world import TankName, TrajectoryName, Waves
 
-Rate = Annotated[float, msgspec.Meta(gt=0.0, le=200.0)]
+Rate = Annotated[float, msgspec.Meta(gt=0.0, le=400.0)]
 Sigma = Annotated[float, msgspec.Meta(ge=0.0, le=10.0)]
+OnOff = Literal["on", "off"]
+Vec3 = tuple[float, float, float]
+
+# 2026-01-01T00:00:00Z: offline datasets are stamped from here, so they are reproducible.
+OFFLINE_START_NS = 1_767_225_600_000_000_000
+
+
+class WavesConfig(ConfigSection, frozen=True, kw_only=True):
+    roll_deg: Annotated[float, msgspec.Meta(ge=0.0, le=20.0)] = 1.5
+    pitch_deg: Annotated[float, msgspec.Meta(ge=0.0, le=20.0)] = 1.0
+    heave_m: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.02
+    roll_period_s: Annotated[float, msgspec.Meta(gt=0.5, le=60.0)] = 3.7
+    pitch_period_s: Annotated[float, msgspec.Meta(gt=0.5, le=60.0)] = 4.3
+    heave_period_s: Annotated[float, msgspec.Meta(gt=0.5, le=60.0)] = 5.1
+
+    def waves(self) -> Waves:
+        return Waves(
+            self.roll_deg,
+            self.pitch_deg,
+            self.heave_m,
+            self.roll_period_s,
+            self.pitch_period_s,
+            self.heave_period_s,
+        )
+
+
+class SonarImageConfig(ConfigSection, frozen=True, kw_only=True):
+    """The imaging sonar (Oculus M3000d, 1.2 MHz mode) and its image formation."""
+
+    n_beams: Annotated[int, msgspec.Meta(ge=16, le=1024)] = 512
+    horizontal_fov_deg: Annotated[float, msgspec.Meta(gt=0.0, le=180.0)] = 130.0
+    range_max_m: Annotated[float, msgspec.Meta(gt=0.5, le=120.0)] | None = None  # per tank
+    n_ranges: Annotated[int, msgspec.Meta(ge=16, le=4000)] | None = None  # per tank
+    elevation_rays: Annotated[int, msgspec.Meta(ge=1, le=128)] = 16
+    gain_percent: Annotated[float, msgspec.Meta(ge=0.0, le=100.0)] = 50.0
+    noise_level: Sigma = 0.0004
+    ghost_gain: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.12
+
+
+class LidarConfig(ConfigSection, frozen=True, kw_only=True):
+    position_m: Vec3 = (0.0, 0.0, 0.4)  # on a mast above the ASV's centre
+    rate_hz: Rate = 15.0
+    sigma_m: Sigma = 0.02
+    dropout: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.01
+
+
+class ImuConfig(ConfigSection, frozen=True, kw_only=True):
+    rate_hz: Rate = 200.0
+    mount_rpy_deg: Vec3 = (0.0, 0.0, 0.0)
+    gyro_sigma_rad_s: Sigma = 0.002
+    accel_sigma_m_s2: Sigma = 0.02
+    gyro_bias_sigma_rad_s: Sigma = 0.001
+    accel_bias_sigma_m_s2: Sigma = 0.02
+
+
+class ClockConfig(ConfigSection, frozen=True, kw_only=True):
+    offset_s: Annotated[float, msgspec.Meta(ge=-10.0, le=10.0)] = 0.0
+    drift_ppm: Annotated[float, msgspec.Meta(ge=-1000.0, le=1000.0)] = 0.0
+    jitter_s: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.0
+
+    def model(self) -> ClockModel:
+        return ClockModel(self.offset_s, self.drift_ppm, self.jitter_s)
+
+
+class Clocks(ConfigSection, frozen=True, kw_only=True):
+    asv: ClockConfig = ClockConfig()
+    rov: ClockConfig = ClockConfig(offset_s=0.0, drift_ppm=0.0, jitter_s=0.0)
 
 
 class Rates(ConfigSection, frozen=True, kw_only=True):
+    sonar_hz: Annotated[float, msgspec.Meta(gt=0.0, le=40.0)] = 20.0
     asv_pose_hz: Rate = 50.0
-    sonar_hz: Rate = 10.0
     depth_hz: Rate = 10.0
     attitude_hz: Rate = 20.0
     # A DVL-like velocity of the ROV in W; 0 turns it off (a BlueROV2 often has none).
@@ -27,8 +100,22 @@ class Noise(ConfigSection, frozen=True, kw_only=True):
     pose_sigma_m: Sigma = 0.01
     range_sigma_m: Sigma = 0.02
     azimuth_sigma_deg: Sigma = 0.3
-    depth_sigma_m: Sigma = 0.01
+    depth_sigma_m: Sigma = 0.01  # a Bar30 is about 2 mm rms; a real tank adds waves and drift
     velocity_sigma_m_s: Sigma = 0.02
+
+
+class Streams(ConfigSection, frozen=True, kw_only=True):
+    """What to publish.
+
+    The `*_truth_noise` streams stand in for services not yet running: the ASV pose and the
+    detections are the truth plus the `noise` section's errors.
+    """
+
+    sonar_frames: OnOff = "on"
+    lidar: OnOff = "on"
+    imu: OnOff = "on"
+    asv_pose_truth_noise: OnOff = "on"
+    detections_truth_noise: OnOff = "on"
 
 
 class Config(ServiceConfig, frozen=True, kw_only=True):
@@ -38,19 +125,29 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     asv_vehicle: str = "asv"
     rov_vehicle: str = "rov"
     tank: TankName = "nfp"
+    clutter: OnOff = "on"
     trajectory: TrajectoryName = "square"
     rov_speed_m_s: Annotated[float, msgspec.Meta(gt=0.0, le=0.5)] = 0.3
     seed: int = 0
+    asv_mode: Literal["follow", "stationary"] = "follow"
+    # How far behind the ROV (along W's x) the following ASV keeps; None puts the ROV on the
+    # sonar's boresight at the upper flight level.
+    asv_standoff_m: Annotated[float, msgspec.Meta(ge=0.0, le=50.0)] | None = None
+    asv_start_xy: tuple[float, float] | None = None
+    waves: WavesConfig = WavesConfig()
     sonar: SonarMountConfig = SonarMountConfig()
+    sonar_image: SonarImageConfig = SonarImageConfig()
+    lidar: LidarConfig = LidarConfig()
+    imu: ImuConfig = ImuConfig()
     rov: RovConfig = RovConfig()
-    sonar_max_range_m: Annotated[float, msgspec.Meta(gt=0.1, le=120.0)] = 30.0
-    sonar_half_fov_deg: Annotated[float, msgspec.Meta(gt=0.0, le=90.0)] = 65.0
-    # The ASV keeps station so the ROV sits near the sonar's boresight (it "follows").
-    asv_follow_lag_s: Annotated[float, msgspec.Meta(gt=0.0, le=60.0)] = 2.0
     rates: Rates = Rates()
     noise: Noise = Noise()
+    clocks: Clocks = Clocks()
+    streams: Streams = Streams()
     # Sim-time windows [start_s, end_s] in which the sonar sees nothing (the ROV out of view).
     sonar_dropouts_s: tuple[tuple[float, float], ...] = ()
+    # Real-time runs precompute this much motion, then repeat it.
+    motion_horizon_s: Annotated[float, msgspec.Meta(ge=10.0, le=86_400.0)] = 1800.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -59,3 +156,49 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
                 raise ValueError(
                     f"`sonar_dropouts_s[{i}]` must be [start, end] with 0 <= start < end"
                 )
+
+    def sonar_model(self) -> SonarModel:
+        img = self.sonar_image
+        range_max = img.range_max_m or (20.0 if self.tank == "nfp" else 8.0)
+        n_ranges = img.n_ranges or (1000 if self.tank == "nfp" else 800)
+        return SonarModel(
+            n_beams=img.n_beams,
+            half_fov_rad=math.radians(img.horizontal_fov_deg / 2),
+            vertical_aperture_rad=math.radians(self.sonar.vertical_aperture_deg),
+            beam_model=self.sonar.beam_model,
+            range_max_m=range_max,
+            n_ranges=n_ranges,
+            elevation_rays=img.elevation_rays,
+            gain_percent=img.gain_percent,
+            noise_level=img.noise_level,
+            ghost_gain=img.ghost_gain,
+        )
+
+    def lidar_model(self) -> LidarModel:
+        return LidarModel(
+            sigma_m=self.lidar.sigma_m,
+            dropout=self.lidar.dropout,
+            scan_time_s=1.0 / self.lidar.rate_hz,
+        )
+
+    def lidar_mount(self) -> Transform:
+        return Transform.from_euler_zyx(
+            self.lidar.position_m, yaw_rad=0.0, pitch_rad=0.0, roll_rad=0.0
+        )
+
+    def imu_model(self) -> ImuModel:
+        i = self.imu
+        return ImuModel(
+            i.rate_hz,
+            i.gyro_sigma_rad_s,
+            i.accel_sigma_m_s2,
+            i.gyro_bias_sigma_rad_s,
+            i.accel_bias_sigma_m_s2,
+        )
+
+    def imu_mounting(self) -> Transform:
+        """R_I_B as a Transform (the IMU's axes expressed from the body's)."""
+        r, p, y = (math.radians(v) for v in self.imu.mount_rpy_deg)
+        return Transform.from_euler_zyx(
+            (0.0, 0.0, 0.0), yaw_rad=y, pitch_rad=p, roll_rad=r
+        ).inverse()

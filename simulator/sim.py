@@ -1,7 +1,13 @@
-"""The simulation: world state and sensor models as one time-ordered stream of bus payloads.
+"""The simulation: world and sensors as one time-ordered stream of bus payloads.
 
-The same stream feeds the real-time service (paced by the wall clock) and offline runs (as fast
-as the CPU allows), so both paths produce the same measurements for the same seed.
+The same stream feeds the real-time service (paced by the wall clock) and offline datasets (as
+fast as the CPU allows): for one seed both produce the same measurements. Every sensor draws
+from its own random stream (spawned from the seed), so turning one stream off does not change
+the others.
+
+Stamps: sensor payloads carry their vehicle's clock (ASV: IMU, LiDAR, sonar, ASV pose; ROV:
+depth, attitude, velocity); ground truth carries true time; a ping's label carries the frame's
+stamp and ping id, so it joins the frame, its detections and the locator's fix.
 """
 
 from __future__ import annotations
@@ -15,26 +21,36 @@ from typing import Any
 import numpy as np
 
 from capsd import topics
-from capsd.geometry import Array, Transform, euler_zyx_to_matrix, matrix_to_quat
+from capsd.geometry import Array, Transform, matrix_to_quat
 from capsd.payloads import (
     AsvPose,
     Detection,
+    GhostEcho,
     GroundTruth,
+    ImuSample,
+    LidarScan,
     Payload,
     RovAttitude,
     RovDepth,
     RovVelocity,
     SonarDetections,
+    SonarFrame,
+    SonarLabel,
 )
 from capsd.sonar_geometry import to_polar
 from capsd.topics import Topic
+from simulator.clock import VehicleClock
 from simulator.config import Config
-from simulator.world import TANKS, RovState, Trajectory
+from simulator.imu import Imu
+from simulator.lidar import scan
+from simulator.scene import BLUEROV2_SEMI_AXES, Ellipsoid
+from simulator.sonar import Label, SonarRenderer
+from simulator.world import AsvMotion, RovMotion, RovState, asv_motion, make_tank, rov_motion
 
 
 @dataclass(frozen=True)
 class Event:
-    """One measurement (or truth) at sim time `t_s`, for `topic` under `vehicle`."""
+    """One payload at sim time `t_s`, for `topic` under `vehicle`."""
 
     t_s: float
     topic: Topic[Any]
@@ -46,111 +62,108 @@ def _vec3(v: Array) -> tuple[float, float, float]:
     return (float(v[0]), float(v[1]), float(v[2]))
 
 
-def _flat(m: Array) -> tuple[float, ...]:
-    return tuple(float(v) for v in m.ravel())
-
-
 def _quat(m: Array) -> tuple[float, float, float, float]:
     q = matrix_to_quat(m)
     return (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
 
 
-class Simulation:
-    """Deterministic world and sensors for one seed; `events()` yields what the bus would carry."""
+def _flat(m: Array) -> tuple[float, ...]:
+    return tuple(float(v) for v in m.ravel())
 
-    def __init__(self, config: Config):
+
+_STREAMS = ("imu", "lidar", "pose", "depth", "attitude", "velocity", "sonar")
+
+
+class Simulation:
+    """Deterministic world and sensors for one config; `events()` yields what the bus carries."""
+
+    def __init__(self, config: Config, *, horizon_s: float | None = None):
         self.config = config
-        self.rng = np.random.default_rng(config.seed)
-        self.tank = TANKS[config.tank]
-        self.trajectory = Trajectory(self.tank, config.trajectory, speed_m_s=config.rov_speed_m_s)
+        self.horizon_s = horizon_s or config.motion_horizon_s
+        seeds = np.random.SeedSequence(config.seed).spawn(len(_STREAMS) + 3)
+        self.rng = {
+            name: np.random.default_rng(s) for name, s in zip(_STREAMS, seeds, strict=False)
+        }
+        clock_rng = np.random.default_rng(seeds[-1])
+        self.tank = make_tank(config.tank, clutter=config.clutter)
+        self.rov: RovMotion = rov_motion(
+            self.tank,
+            config.trajectory,
+            speed_m_s=config.rov_speed_m_s,
+            duration_s=self.horizon_s,
+            seed=config.seed,
+        )
         self.mount = config.sonar.transform()
+        standoff = config.asv_standoff_m
+        if standoff is None:
+            # Put the ROV on the boresight at its trajectory's mean depth.
+            height = -float(np.mean(self.rov.track.p[:, 2])) + float(-self.mount.translation[2])
+            pitch = max(math.radians(config.sonar.pitch_deg), math.radians(5.0))
+            standoff = height / math.tan(pitch) + float(self.mount.translation[0])
+        self.asv: AsvMotion = asv_motion(
+            self.tank,
+            self.rov,
+            mode=config.asv_mode,
+            standoff_m=standoff,
+            waves=config.waves.waves(),
+            start_xy=config.asv_start_xy,
+        )
+        self.sonar_model = config.sonar_model()
+        self.renderer = (
+            SonarRenderer(self.sonar_model, self.tank)
+            if (config.streams.sonar_frames == "on")
+            else None
+        )
+        self.lidar_model = config.lidar_model()
+        self.lidar_mount = config.lidar_mount()
+        self.imu = Imu(
+            config.imu_model(), config.imu_mounting().rotation, np.random.default_rng(seeds[-2])
+        )
         self.lever_arm = np.array(config.rov.pressure_sensor_m)
-        self.asv_xy = self._asv_target(self.trajectory.state(0.0))
-        self._asv_t = 0.0
+        self._clock_rng = clock_rng
         self._seq: dict[str, int] = {}
 
-    # ------------------------------------------------------------------ world
+    # ------------------------------------------------------------------ state
 
-    def _asv_target(self, rov: RovState) -> Array:
-        # Stand back so the ROV appears on the boresight: horizontal offset = height / tan(pitch).
-        height = -float(rov.position_m[2])
-        pitch = max(math.radians(self.config.sonar.pitch_deg), math.radians(5.0))
-        back = height / math.tan(pitch) + float(self.mount.translation[0])
-        return np.asarray(rov.position_m[:2] - np.array([back, 0.0]))
+    def _wrap(self, t_s: float) -> float:
+        return t_s % self.horizon_s
 
-    def _advance_asv(self, t_s: float) -> None:
-        # First-order follower, integrated in steps so the result does not depend on call rate.
-        step = 0.01
-        while self._asv_t + step <= t_s:
-            self._asv_t += step
-            alpha = step / self.config.asv_follow_lag_s
-            target = self._asv_target(self.trajectory.state(self._asv_t))
-            self.asv_xy = self.asv_xy + alpha * (target - self.asv_xy)
+    def rov_state(self, t_s: float) -> RovState:
+        return self.rov.state(self._wrap(t_s))
 
     def asv_pose(self, t_s: float) -> Transform:
-        self._advance_asv(t_s)
-        roll = math.radians(1.0) * math.sin(2 * math.pi * t_s / 4.0)
-        pitch = math.radians(0.8) * math.sin(2 * math.pi * t_s / 5.0 + 1.0)
-        heave = 0.02 * math.sin(2 * math.pi * t_s / 4.5)
-        return Transform(euler_zyx_to_matrix(0.0, pitch, roll), np.array([*self.asv_xy, heave]))
+        rotation, translation = self.asv.pose(self._wrap(t_s))
+        return Transform(rotation, translation)
 
-    # ------------------------------------------------------------------ sensors
-
-    def detection(self, t_s: float, rov: RovState, asv: Transform) -> Detection | None:
-        cfg = self.config
-        if any(start <= t_s < end for start, end in cfg.sonar_dropouts_s):
-            return None
-        p_s = asv.compose(self.mount).inverse().apply(rov.position_m)
-        r, azimuth, elevation = to_polar(cfg.sonar.beam_model, p_s)
-        if (
-            p_s[0] <= 0.0
-            or r > cfg.sonar_max_range_m
-            or abs(azimuth) > math.radians(cfg.sonar_half_fov_deg)
-            or abs(elevation) > math.radians(cfg.sonar.vertical_aperture_deg) / 2.0
-        ):
-            return None
-        sigma_az = math.radians(cfg.noise.azimuth_sigma_deg)
-        return Detection(
-            range_m=max(0.05, r + float(self.rng.normal(0.0, cfg.noise.range_sigma_m))),
-            azimuth_rad=azimuth + float(self.rng.normal(0.0, sigma_az)),
-            range_sigma_m=cfg.noise.range_sigma_m,
-            azimuth_sigma_rad=sigma_az,
-            confidence=0.95,
-            range_extent_m=0.45,
-            azimuth_extent_rad=0.6 / max(r, 0.6),
-        )
-
-    def depth(self, rov: RovState) -> float:
-        sensor_z = float(rov.position_m[2] + (rov.rotation @ self.lever_arm)[2])
-        return -sensor_z + float(self.rng.normal(0.0, self.config.noise.depth_sigma_m))
-
-    # ------------------------------------------------------------------ stream
+    def _rov_ellipsoid(self, rov: RovState) -> Ellipsoid:
+        return Ellipsoid(rov.position_m, rov.rotation, BLUEROV2_SEMI_AXES)
 
     def _next_seq(self, stream: str) -> int:
         seq = self._seq.get(stream, 0)
         self._seq[stream] = seq + 1
         return seq
 
+    # ------------------------------------------------------------------ the stream
+
     def events(self, *, start_ns: int, duration_s: float | None = None) -> Iterator[Event]:
-        """Every measurement in time order; stamps are `start_ns` + sim time (ns)."""
+        """Every payload in time order from sim time 0; true time is `start_ns` + sim time."""
         cfg = self.config
-        noise = cfg.noise
-        periods = {
-            "pose": 1.0 / cfg.rates.asv_pose_hz,
+        clocks = {
+            "asv": VehicleClock(cfg.clocks.asv.model(), start_ns, self._clock_rng),
+            "rov": VehicleClock(cfg.clocks.rov.model(), start_ns, self._clock_rng),
+        }
+        periods: dict[str, float] = {
+            "pose": 1.0 / cfg.rates.asv_pose_hz if cfg.streams.asv_pose_truth_noise == "on" else 0,
             "depth": 1.0 / cfg.rates.depth_hz,
             "attitude": 1.0 / cfg.rates.attitude_hz,
+            "velocity": 1.0 / cfg.rates.velocity_hz if cfg.rates.velocity_hz > 0 else 0.0,
+            "imu": 1.0 / cfg.imu.rate_hz if cfg.streams.imu == "on" else 0.0,
+            "lidar": 1.0 / cfg.lidar.rate_hz if cfg.streams.lidar == "on" else 0.0,
             "sonar": 1.0 / cfg.rates.sonar_hz,
         }
-        if cfg.rates.velocity_hz > 0.0:
-            periods["velocity"] = 1.0 / cfg.rates.velocity_hz
-        # Same-time ties: the sonar (and its truth) last, after the inputs it needs.
-        order = {name: (9 if name == "sonar" else i) for i, name in enumerate(periods)}
-        due = [(0.0, order[name], name) for name in periods]
+        # Ties at the same instant: inputs first, the ping (which needs them) last.
+        due = [(0.0, rank, name) for rank, name in enumerate(periods) if periods[name] > 0.0]
         heapq.heapify(due)
-        pose_var = noise.pose_sigma_m**2
-        pose_cov = tuple(
-            float(v) for v in np.diag([pose_var] * 3 + [math.radians(0.1) ** 2] * 3).ravel()
-        )
         counts = dict.fromkeys(periods, 0)
         while due:
             t, rank, name = heapq.heappop(due)
@@ -158,70 +171,247 @@ class Simulation:
                 return
             counts[name] += 1
             heapq.heappush(due, (counts[name] * periods[name], rank, name))
-            stamp = start_ns + round(t * 1e9)
-            rov = self.trajectory.state(t)
-            asv = self.asv_pose(t)
-            if name == "pose":
-                noisy = asv.translation + self.rng.normal(0.0, noise.pose_sigma_m, 3)
-                yield Event(
-                    t,
-                    topics.ASV_POSE,
-                    cfg.asv_vehicle,
-                    AsvPose(
-                        stamp_ns=stamp,
-                        seq=self._next_seq(name),
-                        position_m=_vec3(noisy),
-                        orientation_xyzw=_quat(asv.rotation),
-                        covariance=pose_cov,
-                        source="sim",
-                    ),
-                )
-            elif name == "depth":
-                yield Event(
-                    t,
-                    topics.ROV_DEPTH,
-                    cfg.rov_vehicle,
-                    RovDepth(
-                        stamp_ns=stamp,
-                        seq=self._next_seq(name),
-                        depth_m=self.depth(rov),
-                        sigma_m=max(noise.depth_sigma_m, 1e-4),
-                    ),
-                )
-            elif name == "velocity":
-                sigma = noise.velocity_sigma_m_s
-                measured = rov.velocity_m_s + self.rng.normal(0.0, sigma, 3)
-                yield Event(t, topics.ROV_VELOCITY, cfg.rov_vehicle, RovVelocity(
-                    stamp_ns=stamp, seq=self._next_seq(name), velocity_m_s=_vec3(measured),
-                    covariance_m2_s2=_flat(np.eye(3) * max(sigma, 1e-4) ** 2)))  # fmt: skip
-            elif name == "attitude":
-                yield Event(
-                    t,
-                    topics.ROV_ATTITUDE,
-                    cfg.rov_vehicle,
-                    RovAttitude(
-                        stamp_ns=stamp,
-                        seq=self._next_seq(name),
-                        orientation_xyzw=_quat(rov.rotation),
-                    ),
-                )
-            else:
-                found = self.detection(t, rov, asv)
-                ping = self._next_seq(name)
-                yield Event(
-                    t,
-                    topics.SONAR_DETECTIONS,
-                    cfg.asv_vehicle,
-                    SonarDetections(
-                        stamp_ns=stamp,
-                        seq=ping,
-                        ping_id=ping,
-                        detector="sim_truth_noise",
-                        detections=(found,) if found is not None else (),
-                    ),
-                )
-                yield Event(t, topics.SIM_TRUTH, cfg.vehicle, GroundTruth(
-                    stamp_ns=stamp, seq=self._next_seq("truth"),
-                    asv_position_m=_vec3(asv.translation), asv_orientation_xyzw=_quat(asv.rotation),
-                    rov_position_m=_vec3(rov.position_m), rov_orientation_xyzw=_quat(rov.rotation),
-                    rov_velocity_m_s=_vec3(rov.velocity_m_s)))  # fmt: skip
+            true_ns = start_ns + round(t * 1e9)
+            yield from getattr(self, f"_emit_{name}")(t, true_ns, clocks)
+
+    # ------------------------------------------------------------------ sensors
+
+    def _emit_imu(self, t: float, true_ns: int, clocks: dict[str, VehicleClock]) -> Iterator[Event]:
+        gyro, accel = self.imu.sample(
+            self._wrap(t),
+            lambda s: self.asv.pose(s)[0],
+            self.asv.acceleration(self._wrap(t)),
+            self.rng["imu"],
+        )
+        yield Event(
+            t,
+            topics.ASV_IMU,
+            self.config.asv_vehicle,
+            ImuSample(
+                stamp_ns=clocks["asv"].stamp(true_ns),
+                seq=self._next_seq("imu"),
+                angular_velocity_rad_s=_vec3(gyro),
+                linear_acceleration_m_s2=_vec3(accel),
+            ),
+        )
+
+    def _emit_lidar(
+        self, t: float, true_ns: int, clocks: dict[str, VehicleClock]
+    ) -> Iterator[Event]:
+        m = self.lidar_model
+        scanner = self.asv_pose(t).compose(self.lidar_mount)
+        ranges = scan(m, scanner, self.tank, self.rng["lidar"])
+        yield Event(
+            t,
+            topics.ASV_SCAN,
+            self.config.asv_vehicle,
+            LidarScan(
+                stamp_ns=clocks["asv"].stamp(true_ns),
+                seq=self._next_seq("lidar"),
+                angle_min_rad=m.angle_min_rad,
+                angle_increment_rad=m.angle_increment_rad,
+                time_increment_s=m.scan_time_s / 1080.0,
+                range_min_m=m.range_min_m,
+                range_max_m=m.range_max_m,
+                ranges_m=tuple(float(r) for r in ranges),
+            ),
+        )
+
+    def _emit_pose(
+        self, t: float, true_ns: int, clocks: dict[str, VehicleClock]
+    ) -> Iterator[Event]:
+        noise = self.config.noise
+        asv = self.asv_pose(t)
+        noisy = asv.translation + self.rng["pose"].normal(0.0, noise.pose_sigma_m, 3)
+        var = noise.pose_sigma_m**2
+        cov = _flat(np.diag([var, var, var] + [math.radians(0.1) ** 2] * 3))
+        yield Event(
+            t,
+            topics.ASV_POSE,
+            self.config.asv_vehicle,
+            AsvPose(
+                stamp_ns=clocks["asv"].stamp(true_ns),
+                seq=self._next_seq("pose"),
+                position_m=_vec3(noisy),
+                orientation_xyzw=_quat(asv.rotation),
+                covariance=cov,
+                source="sim",
+            ),
+        )
+
+    def _emit_depth(
+        self, t: float, true_ns: int, clocks: dict[str, VehicleClock]
+    ) -> Iterator[Event]:
+        rov = self.rov_state(t)
+        sensor_z = float(rov.position_m[2] + (rov.rotation @ self.lever_arm)[2])
+        sigma = self.config.noise.depth_sigma_m
+        depth = -sensor_z + float(self.rng["depth"].normal(0.0, sigma))
+        yield Event(
+            t,
+            topics.ROV_DEPTH,
+            self.config.rov_vehicle,
+            RovDepth(
+                stamp_ns=clocks["rov"].stamp(true_ns),
+                seq=self._next_seq("depth"),
+                depth_m=depth,
+                pressure_pa=101_325.0 + depth * 1000.0 * 9.80665,
+                sigma_m=max(sigma, 1e-4),
+            ),
+        )
+
+    def _emit_attitude(
+        self, t: float, true_ns: int, clocks: dict[str, VehicleClock]
+    ) -> Iterator[Event]:
+        rov = self.rov_state(t)
+        yield Event(
+            t,
+            topics.ROV_ATTITUDE,
+            self.config.rov_vehicle,
+            RovAttitude(
+                stamp_ns=clocks["rov"].stamp(true_ns),
+                seq=self._next_seq("attitude"),
+                orientation_xyzw=_quat(rov.rotation),
+            ),
+        )
+
+    def _emit_velocity(
+        self, t: float, true_ns: int, clocks: dict[str, VehicleClock]
+    ) -> Iterator[Event]:
+        rov = self.rov_state(t)
+        sigma = self.config.noise.velocity_sigma_m_s
+        measured = rov.velocity_m_s + self.rng["velocity"].normal(0.0, sigma, 3)
+        yield Event(
+            t,
+            topics.ROV_VELOCITY,
+            self.config.rov_vehicle,
+            RovVelocity(
+                stamp_ns=clocks["rov"].stamp(true_ns),
+                seq=self._next_seq("velocity"),
+                velocity_m_s=_vec3(measured),
+                covariance_m2_s2=_flat(np.eye(3) * max(sigma, 1e-4) ** 2),
+            ),
+        )
+
+    def _emit_sonar(
+        self, t: float, true_ns: int, clocks: dict[str, VehicleClock]
+    ) -> Iterator[Event]:
+        cfg, m = self.config, self.sonar_model
+        rov = self.rov_state(t)
+        asv = self.asv_pose(t)
+        sonar_pose = asv.compose(self.mount)
+        stamp = clocks["asv"].stamp(true_ns)
+        ping = self._next_seq("sonar")
+        dropped = any(start <= t < end for start, end in cfg.sonar_dropouts_s)
+        if self.renderer is not None:
+            rendered = self.renderer.render(
+                sonar_pose, None if dropped else self._rov_ellipsoid(rov), self.rng["sonar"]
+            )
+            label = rendered.label
+            yield Event(
+                t,
+                topics.SONAR_FRAME,
+                cfg.asv_vehicle,
+                SonarFrame(
+                    stamp_ns=stamp,
+                    seq=ping,
+                    ping_id=ping,
+                    n_ranges=m.n_ranges,
+                    n_beams=m.n_beams,
+                    sample_bits=8,
+                    image=rendered.image.tobytes(),
+                    azimuths_rad=tuple(float(a) for a in self.renderer.azimuths),
+                    range_start_m=0.0,
+                    range_resolution_m=m.range_resolution_m,
+                    sound_speed_m_s=m.sound_speed_m_s,
+                    gain_percent=m.gain_percent,
+                    frequency_hz=m.frequency_hz,
+                    vertical_aperture_rad=m.vertical_aperture_rad,
+                ),
+            )
+        else:
+            label = self._geometric_label(sonar_pose, rov, dropped)
+        if dropped and self.renderer is not None:
+            # The ROV was hidden from the image; the label still says where it truly was.
+            label = self._geometric_label(sonar_pose, rov, dropped=True)
+        yield Event(t, topics.SIM_LABEL, cfg.vehicle, self._label_payload(stamp, ping, label, rov))
+        if cfg.streams.detections_truth_noise == "on":
+            found = self._truth_detection(label)
+            yield Event(
+                t,
+                topics.SONAR_DETECTIONS,
+                cfg.asv_vehicle,
+                SonarDetections(
+                    stamp_ns=stamp,
+                    seq=ping,
+                    ping_id=ping,
+                    detector="sim_truth_noise",
+                    detections=(found,) if found is not None else (),
+                ),
+            )
+        yield Event(
+            t,
+            topics.SIM_TRUTH,
+            cfg.vehicle,
+            GroundTruth(
+                stamp_ns=true_ns,
+                seq=self._next_seq("truth"),
+                asv_position_m=_vec3(asv.translation),
+                asv_orientation_xyzw=_quat(asv.rotation),
+                rov_position_m=_vec3(rov.position_m),
+                rov_orientation_xyzw=_quat(rov.rotation),
+                rov_velocity_m_s=_vec3(rov.velocity_m_s),
+            ),
+        )
+
+    def _geometric_label(self, sonar_pose: Transform, rov: RovState, dropped: bool) -> Label:
+        """The label without rays: truth polar position; visible when in the fan (and shown)."""
+        m = self.sonar_model
+        p_s = sonar_pose.inverse().apply(rov.position_m)
+        r, azimuth, elevation = to_polar(m.beam_model, p_s)
+        inside = (
+            p_s[0] > 0.0
+            and r < m.range_max_m
+            and abs(azimuth) <= m.half_fov_rad
+            and abs(elevation) <= m.vertical_aperture_rad / 2.0
+        )
+        nan = float("nan")
+        return Label(
+            inside and not dropped, r, azimuth, elevation, nan, nan, nan, nan, 0, False, ()
+        )
+
+    def _truth_detection(self, label: Label) -> Detection | None:
+        if not label.visible:
+            return None
+        noise, rng = self.config.noise, self.rng["sonar"]
+        sigma_az = math.radians(noise.azimuth_sigma_deg)
+        return Detection(
+            range_m=max(0.05, label.range_m + float(rng.normal(0.0, noise.range_sigma_m))),
+            azimuth_rad=label.azimuth_rad + float(rng.normal(0.0, sigma_az)),
+            range_sigma_m=noise.range_sigma_m,
+            azimuth_sigma_rad=sigma_az,
+            confidence=0.95,
+            range_extent_m=0.45,
+            azimuth_extent_rad=0.6 / max(label.range_m, 0.6),
+        )
+
+    @staticmethod
+    def _label_payload(stamp: int, ping: int, label: Label, rov: RovState) -> SonarLabel:
+        def opt(v: float) -> float | None:
+            return None if math.isnan(v) else v
+
+        return SonarLabel(
+            stamp_ns=stamp,
+            seq=ping,
+            ping_id=ping,
+            visible=label.visible,
+            range_m=label.range_m,
+            azimuth_rad=label.azimuth_rad,
+            elevation_rad=label.elevation_rad,
+            range_min_m=opt(label.range_min_m),
+            range_max_m=opt(label.range_max_m),
+            azimuth_min_rad=opt(label.azimuth_min_rad),
+            azimuth_max_rad=opt(label.azimuth_max_rad),
+            overlap=label.overlap,
+            ghosts=tuple(GhostEcho(range_m=r, azimuth_rad=a) for r, a in label.ghosts),
+            rov_position_m=_vec3(rov.position_m),
+        )

@@ -1,9 +1,20 @@
-"""Tanks and trajectories: deterministic ROV and ASV motion in the world frame W (z up)."""
+"""The simulated world: tanks with clutter, the ROV's five trajectories, the ASV on waves.
+
+Frames follow CONVENTIONS.md: W has its origin at a tank corner on the still-water surface,
+x along the long wall, y along the short wall, z up (the floor is at z = -depth). Walls rise
+`freeboard_m` above the water, which is what the ASV's LiDAR sees.
+
+Motion is precomputed on a 10 ms grid and interpolated, deterministically from a seed. The ROV
+tracks a "carrot" that runs along the trajectory's polyline at the commanded speed through a
+critically damped second-order follower, so speed stays <= the commanded speed and velocity and
+acceleration are continuous; its roll and pitch follow what a BlueROV2 in ArduSub does: pitch
+with forward acceleration and vertical speed, roll with lateral acceleration (a few degrees).
+"""
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
@@ -11,70 +22,373 @@ import numpy as np
 from capsd.geometry import Array, euler_zyx_to_matrix
 
 TankName = Literal["nfp", "mockup"]
-TrajectoryName = Literal["square", "lawnmower"]
+TrajectoryName = Literal["square", "lawnmower", "bouncing", "random", "two_floor"]
+TRAJECTORIES: tuple[TrajectoryName, ...] = (
+    "square",
+    "lawnmower",
+    "bouncing",
+    "random",
+    "two_floor",
+)
+
+GRAVITY = 9.80665
+_DT = 0.01
+
+
+@dataclass(frozen=True)
+class Box:
+    """An axis-aligned box (racks, sandbags, wall fixtures); `lo` and `hi` corners in W."""
+
+    lo: tuple[float, float, float]
+    hi: tuple[float, float, float]
+    kind: str
+    reflectivity: float = 0.6
+
+
+@dataclass(frozen=True)
+class Cylinder:
+    """A pipe or post along a world axis: `start` is one end's centre."""
+
+    start: tuple[float, float, float]
+    axis: Literal["x", "y", "z"]
+    length: float
+    radius: float
+    kind: str
+    reflectivity: float = 0.7
 
 
 @dataclass(frozen=True)
 class Tank:
-    """A rectangular tank: x along the long wall, y along the short wall, floor at -depth."""
+    """A rectangular tank with its clutter."""
 
+    name: str
     length_m: float
     width_m: float
     depth_m: float
+    freeboard_m: float
+    boxes: tuple[Box, ...] = ()
+    cylinders: tuple[Cylinder, ...] = ()
+    wall_reflectivity: float = 0.35
+    floor_reflectivity: float = 0.25
+
+    @property
+    def rov_region(self) -> tuple[float, float, float, float]:
+        """x0, x1, y0, y1 the ROV's trajectories keep to (clear of the walls)."""
+        mx = min(0.25 * self.length_m, 4.0)
+        my = min(0.25 * self.width_m, 4.0)
+        return mx, self.length_m - mx, my, self.width_m - my
+
+    @property
+    def rov_depths(self) -> tuple[float, float]:
+        """Upper and lower flight levels (z, negative).
+
+        The lower one passes ~0.6 m over the racks, where their echoes share the ROV's range in
+        the image (the paper's failure case).
+        """
+        return -0.3 * self.depth_m, -0.57 * self.depth_m
 
 
-TANKS: dict[TankName, Tank] = {
-    "nfp": Tank(28.0, 16.0, 8.0),  # the paper's simulated nuclear fuel pool
-    "mockup": Tank(4.8, 3.6, 2.0),  # the paper's real mock-up tank
-}
+def _nfp_clutter(
+    length: float, width: float, depth: float
+) -> tuple[tuple[Box, ...], tuple[Cylinder, ...]]:
+    boxes: list[Box] = []
+    # Fuel racks on the floor, 35% of the depth high, in a grid with aisles.
+    rack_h = 0.35 * depth
+    for i in range(4):
+        for j in range(2):
+            x0 = 4.0 + i * 5.5
+            y0 = 3.0 + j * 6.0
+            boxes.append(Box((x0, y0, -depth), (x0 + 4.0, y0 + 4.0, -depth + rack_h), "rack", 0.8))
+    # Sandbags on the floor in the aisles (the Fukushima storage tanks have hundreds).
+    rng = np.random.default_rng(1234)  # the layout is part of the preset, not of the run's seed
+    for _ in range(24):
+        x = float(rng.uniform(1.0, length - 1.5))
+        y = float(rng.uniform(1.0, width - 1.5))
+        boxes.append(Box((x, y, -depth), (x + 0.6, y + 0.4, -depth + 0.25), "sandbag", 0.5))
+    # Wall fixtures: brackets below water, and handrail posts above it (LiDAR features).
+    for x in (6.0, 14.0, 21.0):
+        boxes.append(Box((x, 0.0, -2.5), (x + 0.4, 0.3, -2.0), "bracket", 0.9))
+    boxes.append(Box((0.0, 5.0, -3.5), (0.3, 5.6, -3.0), "bracket", 0.9))
+    boxes.append(Box((3.0, 0.0, 0.0), (3.3, 0.15, 0.9), "post", 0.9))
+    boxes.append(Box((length - 0.2, 11.0, 0.0), (length, 11.5, 0.7), "post", 0.9))
+    cylinders = (
+        Cylinder((0.5, 0.4, -1.0), "x", length - 1.0, 0.15, "pipe"),
+        Cylinder((length - 0.4, 0.5, -5.0), "y", width - 1.0, 0.2, "pipe"),
+        Cylinder((10.0, width - 0.6, -depth), "z", depth - 1.0, 0.12, "post"),
+    )
+    return tuple(boxes), cylinders
+
+
+def _mockup_clutter(
+    length: float, width: float, depth: float
+) -> tuple[tuple[Box, ...], tuple[Cylinder, ...]]:
+    boxes = (
+        Box((0.6, 0.5, -depth), (1.4, 1.3, -depth + 0.5), "rack", 0.8),
+        Box((3.3, 2.3, -depth), (4.1, 3.1, -depth + 0.5), "rack", 0.8),
+        Box((2.0, 0.0, -0.8), (2.3, 0.15, -0.5), "bracket", 0.9),
+        Box((0.0, 2.6, 0.0), (0.12, 2.9, 0.5), "post", 0.9),
+    )
+    cylinders = (Cylinder((0.3, width - 0.3, -1.2), "x", length - 0.6, 0.05, "pipe"),)
+    return boxes, cylinders
+
+
+def make_tank(name: TankName, *, clutter: Literal["on", "off"] = "on") -> Tank:
+    """A tank preset: `nfp` (the paper's simulated pool) or `mockup` (its real test tank)."""
+    if name == "nfp":
+        dims = (28.0, 16.0, 8.0, 1.0)
+        boxes, cylinders = _nfp_clutter(*dims[:3])
+    else:
+        dims = (4.8, 3.6, 2.0, 0.6)
+        boxes, cylinders = _mockup_clutter(*dims[:3])
+    if clutter == "off":
+        boxes, cylinders = (), ()
+    return Tank(name, *dims, boxes=boxes, cylinders=cylinders)
+
+
+# ------------------------------------------------------------------------ trajectories
+
+
+def _waypoints(tank: Tank, name: TrajectoryName, rng: np.random.Generator) -> Array:
+    """The polyline a trajectory follows (closed for the periodic ones)."""
+    x0, x1, y0, y1 = tank.rov_region
+    z_hi, z_lo = tank.rov_depths
+    if name == "square":
+        pts = [(x0, y0, z_hi), (x1, y0, z_hi), (x1, y1, z_hi), (x0, y1, z_hi)]
+    elif name == "lawnmower":  # a survey over the racks, at the lower level
+        lanes = 5
+        pts = []
+        for i in range(lanes):
+            y = y0 + (y1 - y0) * i / (lanes - 1)
+            xs = (x0, x1) if i % 2 == 0 else (x1, x0)
+            pts.extend([(xs[0], y, z_lo), (xs[1], y, z_lo)])
+    elif name == "bouncing":
+        # A billiard ball in the region: straight legs, reflected at the edges.
+        p = np.array([x0 + 0.3 * (x1 - x0), y0 + 0.2 * (y1 - y0)])
+        d = np.array([math.cos(0.6), math.sin(0.6)])
+        pts = []
+        for _ in range(12):
+            tx = ((x1 if d[0] > 0 else x0) - p[0]) / d[0]
+            ty = ((y1 if d[1] > 0 else y0) - p[1]) / d[1]
+            t = min(tx, ty)
+            p = p + t * d
+            pts.append((float(p[0]), float(p[1]), z_lo))
+            if tx < ty:
+                d[0] = -d[0]
+            else:
+                d[1] = -d[1]
+    elif name == "random":
+        pts = [
+            (float(rng.uniform(x0, x1)), float(rng.uniform(y0, y1)), float(rng.uniform(z_lo, z_hi)))
+            for _ in range(12)
+        ]
+    else:  # two_floor: a loop on the upper level, down, the same loop on the lower level, up
+        loop = [(x0, y0), (x1, y0), (x1, y1), (x0, y1), (x0, y0)]
+        pts = [(x, y, z_hi) for x, y in loop] + [(x, y, z_lo) for x, y in loop]
+    return np.array(pts, dtype=np.float64)
+
+
+@dataclass
+class Track:
+    """Positions, velocities and accelerations on a regular time grid, interpolated."""
+
+    dt: float
+    p: Array
+    v: Array
+    a: Array
+
+    def at(self, t_s: float) -> tuple[Array, Array, Array]:
+        x = min(max(t_s / self.dt, 0.0), len(self.p) - 1.000001)
+        i = int(x)
+        f = x - i
+        return (
+            self.p[i] + f * (self.p[i + 1] - self.p[i]),
+            self.v[i] + f * (self.v[i + 1] - self.v[i]),
+            self.a[i] + f * (self.a[i + 1] - self.a[i]),
+        )
+
+
+def _follow(targets: Array, start: Array, *, omega: float, max_speed: float, dt: float) -> Track:
+    """Critically damped second-order tracking of `targets` (one per grid step)."""
+    n = len(targets)
+    out = np.zeros((3, n, 3))  # p, v, a
+    k2, k1 = omega * omega, 2.0 * omega
+    tx, ty, tz = (targets[:, i].tolist() for i in range(3))
+    px, py, pz = (float(c) for c in start)
+    vx = vy = vz = 0.0
+    rows = []
+    for k in range(n):  # plain floats: ~5x faster than numpy on 3-vectors
+        ax = k2 * (tx[k] - px) - k1 * vx
+        ay = k2 * (ty[k] - py) - k1 * vy
+        az = k2 * (tz[k] - pz) - k1 * vz
+        rows.append((px, py, pz, vx, vy, vz, ax, ay, az))
+        vx, vy, vz = vx + ax * dt, vy + ay * dt, vz + az * dt
+        speed = math.sqrt(vx * vx + vy * vy + vz * vz)
+        if speed > max_speed:
+            scale = max_speed / speed
+            vx, vy, vz = vx * scale, vy * scale, vz * scale
+        px, py, pz = px + vx * dt, py + vy * dt, pz + vz * dt
+    table = np.array(rows)
+    out[0], out[1], out[2] = table[:, 0:3], table[:, 3:6], table[:, 6:9]
+    return Track(dt, out[0], out[1], out[2])
+
+
+def _carrot(points: Array, speed: float, duration_s: float, *, closed: bool, dt: float) -> Array:
+    """The point running along the polyline at `speed`, sampled every `dt` for `duration_s`."""
+    pts = np.vstack([points, points[:1]]) if closed else points
+    seg = np.diff(pts, axis=0)
+    lengths = np.linalg.norm(seg, axis=1)
+    cumulative = np.concatenate([[0.0], np.cumsum(lengths)])
+    total = float(cumulative[-1])
+    s = np.arange(int(duration_s / dt) + 2) * dt * speed
+    # Closed loops repeat; open paths go back and forth.
+    s = np.mod(s, total) if closed else total - np.abs(np.mod(s, 2 * total) - total)
+    idx = np.clip(np.searchsorted(cumulative, s, side="right") - 1, 0, len(seg) - 1)
+    frac = (s - cumulative[idx]) / np.maximum(lengths[idx], 1e-9)
+    return np.asarray(pts[idx] + seg[idx] * frac[:, None], dtype=np.float64)
+
+
+@dataclass
+class RovMotion:
+    """The ROV's trajectory: position, velocity, attitude at any time (deterministic)."""
+
+    track: Track
+    tilt_gain: float = field(default=0.6)
+
+    def state(self, t_s: float) -> RovState:
+        p, v, a = self.track.at(t_s)
+        speed_xy = math.hypot(float(v[0]), float(v[1]))
+        yaw = math.atan2(float(v[1]), float(v[0])) if speed_xy > 0.02 else self._yaw_before(t_s)
+        c, s = math.cos(yaw), math.sin(yaw)
+        a_forward = c * float(a[0]) + s * float(a[1])
+        a_left = -s * float(a[0]) + c * float(a[1])
+        # Positive pitch is nose down (z up, Z-Y-X): it noses down accelerating forward and
+        # while descending; it rolls into lateral acceleration.
+        pitch = self.tilt_gain * math.atan2(a_forward, GRAVITY) + math.radians(25.0) * -float(v[2])
+        roll = -self.tilt_gain * math.atan2(a_left, GRAVITY)
+        return RovState(p, v, a, euler_zyx_to_matrix(yaw, pitch, roll))
+
+    def _yaw_before(self, t_s: float) -> float:
+        # Hovering: keep the last heading it had while moving.
+        for back in np.arange(t_s, max(t_s - 30.0, 0.0), -0.5):
+            _, v, _ = self.track.at(float(back))
+            if math.hypot(float(v[0]), float(v[1])) > 0.02:
+                return math.atan2(float(v[1]), float(v[0]))
+        return 0.0
 
 
 @dataclass(frozen=True)
 class RovState:
-    """The ROV's true state at one instant."""
+    """The ROV's true state at one instant (W frame; rotation is R_W_R)."""
 
     position_m: Array
     velocity_m_s: Array
-    rotation: Array  # R_W_R
+    acceleration_m_s2: Array
+    rotation: Array
 
 
-def _waypoints(tank: Tank, trajectory: TrajectoryName) -> Array:
-    """Closed waypoint loop inside the tank, 20% margin from the walls, at 40% depth."""
-    mx, my = 0.3 * tank.length_m, 0.3 * tank.width_m
-    x0, x1, y0, y1 = mx, tank.length_m - mx, my, tank.width_m - my
-    z = -0.4 * tank.depth_m
-    if trajectory == "square":
-        pts = [(x0, y0), (x1, y0), (x1, y1), (x0, y1)]
-    else:
-        lanes = 4
-        pts = []
-        for i in range(lanes):
-            y = y0 + (y1 - y0) * i / (lanes - 1)
-            pts.extend([(x0, y), (x1, y)] if i % 2 == 0 else [(x1, y), (x0, y)])
-    return np.array([(x, y, z) for x, y in pts])
+def rov_motion(
+    tank: Tank, name: TrajectoryName, *, speed_m_s: float, duration_s: float, seed: int
+) -> RovMotion:
+    """Precompute `duration_s` of trajectory `name` at `speed_m_s` (<= 0.5 m/s)."""
+    rng = np.random.default_rng(seed)
+    points = _waypoints(tank, name, rng)
+    # The lawnmower runs its lanes back and forth; the others loop.
+    closed = name in ("square", "random", "two_floor", "bouncing")
+    targets = _carrot(points, speed_m_s, duration_s + 5.0, closed=closed, dt=_DT)
+    track = _follow(targets, targets[0], omega=1.2, max_speed=min(speed_m_s * 1.05, 0.5), dt=_DT)
+    return RovMotion(track)
 
 
-class Trajectory:
-    """Constant-speed motion along a closed polyline, yaw along the path, small dynamic tilt."""
+# ------------------------------------------------------------------------ the ASV
 
-    def __init__(self, tank: Tank, name: TrajectoryName, *, speed_m_s: float):
-        self.points = _waypoints(tank, name)
-        closed = np.vstack([self.points, self.points[:1]])
-        self.segments = np.diff(closed, axis=0)
-        self.lengths = np.linalg.norm(self.segments, axis=1)
-        self.cumulative = np.concatenate([[0.0], np.cumsum(self.lengths)])
-        self.period_s = float(self.cumulative[-1]) / speed_m_s
-        self.speed = speed_m_s
 
-    def state(self, t_s: float) -> RovState:
-        s = (t_s * self.speed) % self.cumulative[-1]
-        i = int(np.searchsorted(self.cumulative, s, side="right") - 1)
-        i = min(i, len(self.segments) - 1)
-        direction = self.segments[i] / self.lengths[i]
-        position = self.points[i] + direction * (s - self.cumulative[i])
-        yaw = math.atan2(direction[1], direction[0])
-        # A BlueROV2 pitches a few degrees while it drives forward; a slow roll wobble too.
-        rotation = euler_zyx_to_matrix(
-            yaw, math.radians(3.0), math.radians(2.0) * math.sin(0.7 * t_s)
+@dataclass(frozen=True)
+class Waves:
+    """Wave-induced ASV motion: amplitudes (deg, m) and periods (s)."""
+
+    roll_deg: float = 1.5
+    pitch_deg: float = 1.0
+    heave_m: float = 0.02
+    roll_period_s: float = 3.7
+    pitch_period_s: float = 4.3
+    heave_period_s: float = 5.1
+
+
+@dataclass
+class AsvMotion:
+    """The ASV's pose: a horizontal track and heading (stationary or following) plus waves."""
+
+    track: Track
+    yaw: Array  # on the track's grid, unwrapped
+    waves: Waves
+
+    def yaw_at(self, t_s: float) -> float:
+        x = min(max(t_s / self.track.dt, 0.0), len(self.yaw) - 1.000001)
+        i = int(x)
+        return float(self.yaw[i] + (x - i) * (self.yaw[i + 1] - self.yaw[i]))
+
+    def pose(self, t_s: float) -> tuple[Array, Array]:
+        """(R_W_B, t_W_B) at `t_s`."""
+        p, _, _ = self.track.at(t_s)
+        roll, pitch, heave = self._wave(t_s)
+        return euler_zyx_to_matrix(self.yaw_at(t_s), pitch, roll), np.array([p[0], p[1], heave])
+
+    def _wave(self, t_s: float) -> tuple[float, float, float]:
+        w = self.waves
+        return (
+            math.radians(w.roll_deg) * math.sin(2 * math.pi * t_s / w.roll_period_s),
+            math.radians(w.pitch_deg) * math.sin(2 * math.pi * t_s / w.pitch_period_s + 1.0),
+            w.heave_m * math.sin(2 * math.pi * t_s / w.heave_period_s + 2.0),
         )
-        return RovState(position, direction * self.speed, rotation)
+
+    def acceleration(self, t_s: float) -> Array:
+        """World acceleration of the body origin: the track's plus the heave's."""
+        _, _, a = self.track.at(t_s)
+        w = self.waves
+        omega = 2 * math.pi / w.heave_period_s
+        heave_acc = -w.heave_m * omega * omega * math.sin(omega * t_s + 2.0)
+        return np.array([a[0], a[1], heave_acc])
+
+
+def asv_motion(
+    tank: Tank,
+    rov: RovMotion,
+    *,
+    mode: Literal["stationary", "follow"],
+    standoff_m: float,
+    waves: Waves,
+    start_xy: tuple[float, float] | None,
+) -> AsvMotion:
+    """The ASV stays put, or follows the ROV from `standoff_m` away on the tank-centre side.
+
+    MallARD is omnidirectional: it turns to face the ROV (the sonar looks along body x), with
+    its heading following the bearing to the ROV through a first-order lag (tau 2 s).
+    """
+    n = len(rov.track.p)
+    dt = rov.track.dt
+    rov_xy = rov.track.p[:, :2]
+    centre = np.array([tank.length_m / 2.0, tank.width_m / 2.0])
+    margin = min(1.0, 0.2 * tank.width_m)
+    low, high = (
+        np.array([margin, margin]),
+        np.array([tank.length_m - margin, tank.width_m - margin]),
+    )
+    if mode == "stationary":
+        xy = np.array(start_xy) if start_xy is not None else centre
+        targets = np.tile(np.array([xy[0], xy[1], 0.0]), (n, 1))
+    else:
+        away = centre - rov_xy
+        norm = np.linalg.norm(away, axis=1, keepdims=True)
+        # Near the centre the side is arbitrary: keep to -x of the ROV there.
+        direction = np.where(norm > 0.5, away / np.maximum(norm, 1e-9), np.array([-1.0, 0.0]))
+        xy = np.clip(rov_xy + standoff_m * direction, low, high)
+        targets = np.column_stack([xy, np.zeros(n)])
+    track = _follow(targets, targets[0], omega=0.6, max_speed=0.6, dt=dt)
+    bearing = np.arctan2(rov_xy[:, 1] - track.p[:, 1], rov_xy[:, 0] - track.p[:, 0])
+    bearing = np.unwrap(bearing)
+    yaw = np.empty(n)
+    yaw[0] = bearing[0]
+    alpha = dt / 2.0
+    for k in range(1, n):
+        yaw[k] = yaw[k - 1] + alpha * (bearing[k] - yaw[k - 1])
+    return AsvMotion(track, yaw, waves)

@@ -7,33 +7,39 @@ from dataclasses import dataclass
 
 from capsd.payloads import (
     AsvPose,
-    GroundTruth,
     Payload,
     RovAttitude,
     RovDepth,
     RovFix,
     RovVelocity,
     SonarDetections,
+    SonarLabel,
 )
 from services.locator.service import Config, Locator
 
 
 @dataclass(frozen=True)
 class Scored:
-    """A fix and the ground truth of the same ping (None when the stream has no truth)."""
+    """A fix and the simulator's label of the same ping (None when the stream has none)."""
 
     fix: RovFix
-    truth: GroundTruth | None
+    label: SonarLabel | None
+
+    @property
+    def truth_position_m(self) -> tuple[float, float, float] | None:
+        return None if self.label is None else self.label.rov_position_m
 
 
 def run_offline(config: Config, payloads: Iterable[Payload]) -> Iterator[Scored]:
-    """Run one Locator over `payloads` in the given order; pair each fix with its truth.
+    """Run one Locator over `payloads` in the given order; pair each fix with its label.
 
-    The simulator emits a ping's truth right after its detections, with the same stamp.
+    The simulator emits a ping's label with the frame's stamp and ping id, so the pairing holds
+    whatever the vehicles' clock offsets.
     """
     locator = Locator(config)
     seq = 0
-    waiting: RovFix | None = None
+    labels: dict[int, SonarLabel] = {}
+    fixes: list[RovFix] = []
     for payload in payloads:
         if isinstance(payload, AsvPose):
             locator.on_pose(payload)
@@ -44,12 +50,12 @@ def run_offline(config: Config, payloads: Iterable[Payload]) -> Iterator[Scored]
         elif isinstance(payload, RovVelocity):
             locator.on_velocity(payload)
         elif isinstance(payload, SonarDetections):
-            if waiting is not None:
-                yield Scored(waiting, None)
-            waiting = locator.locate(payload, seq=seq)
+            fixes.append(locator.locate(payload, seq=seq))
             seq += 1
-        elif isinstance(payload, GroundTruth) and waiting is not None:
-            yield Scored(waiting, payload if payload.stamp_ns == waiting.stamp_ns else None)
-            waiting = None
-    if waiting is not None:
-        yield Scored(waiting, None)
+        elif isinstance(payload, SonarLabel):
+            labels[payload.stamp_ns] = payload
+        while fixes and (fixes[0].stamp_ns in labels or len(fixes) > 1):
+            fix = fixes.pop(0)
+            yield Scored(fix, labels.pop(fix.stamp_ns, None))
+    for fix in fixes:
+        yield Scored(fix, labels.pop(fix.stamp_ns, None))

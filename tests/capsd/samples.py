@@ -8,6 +8,7 @@ from capsd.payloads import (
     AsvPose,
     Detection,
     FoxgloveTime,
+    GhostEcho,
     GroundTruth,
     Health,
     ImuSample,
@@ -21,6 +22,7 @@ from capsd.payloads import (
     RovVelocity,
     SonarDetections,
     SonarFrame,
+    SonarLabel,
     StreamStats,
 )
 
@@ -64,6 +66,10 @@ SAMPLES: tuple[Payload, ...] = (
            raw_covariance_m2=_COV3, conditioning=0.5, track_state="tracking",
            position_m=(3.0, 4.0, -2.0), velocity_m_s=(0.1, 0.0, 0.0), covariance_m2=_COV3,
            asv_pose_stamp_ns=STAMP, depth_stamp_ns=STAMP, attitude_stamp_ns=STAMP),
+    SonarLabel(stamp_ns=STAMP, seq=7, ping_id=7, visible=True, range_m=5.2, azimuth_rad=0.1,
+               elevation_rad=0.05, range_min_m=5.0, range_max_m=5.4, azimuth_min_rad=0.05,
+               azimuth_max_rad=0.15, overlap=False,
+               ghosts=(GhostEcho(range_m=7.5, azimuth_rad=0.1),), rov_position_m=(3.0, 4.0, -2.0)),
     GroundTruth(stamp_ns=STAMP, seq=1, asv_position_m=(1.0, 1.0, 0.0),
                 asv_orientation_xyzw=_IDENTITY,
                 rov_position_m=(3.0, 4.0, -2.0), rov_orientation_xyzw=_IDENTITY),

@@ -2,20 +2,26 @@
 
 from __future__ import annotations
 
+import msgspec
 import numpy as np
 
 from capsd.mounts import SonarMountConfig
 from services.locator.offline import Scored, run_offline
 from services.locator.service import Config, MethodConfig, TrackingConfig
 from simulator.config import Config as SimConfig
-from simulator.config import Rates
+from simulator.config import Rates, Streams
 from simulator.sim import Simulation
 
 START_NS = 1_800_000_000_000_000_000
+DETECTION_LEVEL = Streams(sonar_frames="off", lidar="off", imu="off")
 
 
 def _run(sim: SimConfig, locator: Config, duration_s: float) -> list[Scored]:
-    events = Simulation(sim).events(start_ns=START_NS, duration_s=duration_s)
+    # Detection level: the locator needs no images, scans or IMU samples.
+    sim = msgspec.structs.replace(sim, streams=DETECTION_LEVEL)
+    events = Simulation(sim, horizon_s=duration_s + 5).events(
+        start_ns=START_NS, duration_s=duration_s
+    )
     return list(run_offline(locator, (e.payload for e in events)))
 
 
@@ -23,8 +29,9 @@ def _errors(scored: list[Scored], *, filtered: bool) -> list[float]:
     out = []
     for s in scored:
         position = s.fix.position_m if filtered else s.fix.raw_position_m
-        if s.truth is not None and position is not None and s.fix.quality == "good":
-            out.append(float(np.linalg.norm(np.subtract(position, s.truth.rov_position_m))))
+        truth = s.truth_position_m
+        if truth is not None and position is not None and s.fix.quality == "good":
+            out.append(float(np.linalg.norm(np.subtract(position, truth))))
     return out
 
 
