@@ -260,6 +260,53 @@ def _cmd_mav_check(args: argparse.Namespace) -> int:
         return _fail(f"MAVLink link {args.connect}: {exc}", EXIT_FAILURE)
 
 
+# ---------------------------------------------------------------------------- sim / render
+
+
+def _sim_config(args: argparse.Namespace) -> Any:
+    from simulator.commands import config_from_args
+
+    return config_from_args(args)
+
+
+def _cmd_sim(args: argparse.Namespace) -> int:
+    from simulator.commands import run_sim
+
+    try:
+        config = _sim_config(args)
+    except ConfigError as exc:
+        return _fail(str(exc), EXIT_CONFIG)
+    setup_stderr_logging("sim", config.log_level)
+    return _guarded(lambda: run_sim(args, config))
+
+
+def _cmd_render_fan(args: argparse.Namespace) -> int:
+    from simulator.commands import render_fan
+
+    return render_fan(args)
+
+
+def _cmd_render_top_view(args: argparse.Namespace) -> int:
+    from simulator.commands import render_top_view
+
+    try:
+        config = _sim_config(args)
+    except ConfigError as exc:
+        return _fail(str(exc), EXIT_CONFIG)
+    return render_top_view(args, config)
+
+
+def _add_world_flags(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", type=Path, help="simulator YAML config (defaults otherwise)")
+    parser.add_argument("--tank", choices=["nfp", "mockup"], help="tank preset")
+    parser.add_argument(
+        "--trajectory",
+        help="square, lawnmower, bouncing, random or two_floor",
+        choices=["square", "lawnmower", "bouncing", "random", "two_floor"],
+    )
+    parser.add_argument("--seed", type=int, help="random seed (the same seed, the same run)")
+
+
 # ---------------------------------------------------------------------------- bench
 
 
@@ -369,6 +416,53 @@ def build_parser() -> argparse.ArgumentParser:
     check.add_argument("--delay-ms", type=float, default=50.0, help="wanted VISO_DELAY_MS")
     check.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for answers")
     check.set_defaults(func=_cmd_mav_check)
+
+    sim = sub.add_parser(
+        "sim",
+        help="the simulated tank: real time on the bus, or an offline dataset",
+        description="Simulate the tank, both vehicles and every sensor. Without --offline it "
+        "publishes in real time on the same keys the real drivers use; with "
+        "--offline DIR it writes a dataset (format in simulator/dataset.py).",
+    )
+    _add_world_flags(sim)
+    sim.add_argument("--offline", metavar="DIR", help="write a dataset here instead")
+    sim.add_argument(
+        "--duration",
+        type=float,
+        default=60.0,
+        help="seconds to simulate with --offline (default 60)",
+    )
+    add_namespace_flags(sim)
+    add_bus_flags(sim)
+    sim.set_defaults(func=_cmd_sim)
+
+    rend = sub.add_parser(
+        "render",
+        help="PNG pictures: a sonar fan, a tank top view",
+        description="Render pictures a person can look at.",
+    )
+    rend_sub = rend.add_subparsers(dest="render_command", required=True, metavar="WHAT")
+    fan = rend_sub.add_parser(
+        "fan",
+        help="one sonar frame of a dataset as a fan, with its truth",
+        description="The frame as a Cartesian fan PNG; truth (green), "
+        "ghosts (yellow) and detections (red) drawn on it.",
+    )
+    fan.add_argument("dataset", help="dataset directory (capsd sim --offline)")
+    fan.add_argument("--ping", type=int, default=0, help="ping id")
+    fan.add_argument("--out", "-o", required=True, help="PNG file to write")
+    fan.set_defaults(func=_cmd_render_fan)
+    top = rend_sub.add_parser(
+        "topview",
+        help="the tank, its clutter and the vehicles' tracks",
+        description="A top-view PNG of the tank with both tracks.",
+    )
+    _add_world_flags(top)
+    top.add_argument("--duration", type=float, default=120.0, help="seconds of track to draw")
+    top.add_argument("--out", "-o", required=True, help="PNG file to write")
+    add_namespace_flags(top)
+    add_bus_flags(top)
+    top.set_defaults(func=_cmd_render_top_view)
 
     bench = sub.add_parser(
         "bench",
