@@ -310,6 +310,14 @@ def _add_world_flags(parser: argparse.ArgumentParser) -> None:
 # ---------------------------------------------------------------------------- bench
 
 
+def _cmd_bench_sim(args: argparse.Namespace) -> int:
+    from capsd.bench import sim
+
+    return sim.run(
+        tank=args.tank, trajectory=args.trajectory, duration_s=args.duration, warmup_s=args.warmup
+    )
+
+
 def _cmd_bench_footprint(args: argparse.Namespace) -> int:
     from capsd.bench import footprint
 
@@ -479,6 +487,21 @@ def build_parser() -> argparse.ArgumentParser:
     foot.add_argument("--runs", type=int, default=5, help="repetitions (median reported)")
     foot.add_argument("--settle", type=float, default=3.0, help="seconds running before RSS")
     foot.set_defaults(func=_cmd_bench_footprint)
+    bsim = bench_sub.add_parser(
+        "sim",
+        help="achieved rate and CPU per stream of the real-time simulator",
+        description="Run `capsd sim` as its own process; print each stream's achieved rate and "
+        "CPU share next to its target, and the process's total CPU.",
+    )
+    bsim.add_argument("--tank", choices=["nfp", "mockup"], default="nfp")
+    bsim.add_argument(
+        "--trajectory",
+        default="lawnmower",
+        choices=["square", "lawnmower", "bouncing", "random", "two_floor"],
+    )
+    bsim.add_argument("--duration", type=float, default=20.0, help="seconds measured")
+    bsim.add_argument("--warmup", type=float, default=4.0, help="seconds before measuring")
+    bsim.set_defaults(func=_cmd_bench_sim)
     return parser
 
 

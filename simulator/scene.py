@@ -78,7 +78,7 @@ def cast(
     ):
         with np.errstate(divide="ignore", invalid="ignore"):
             t = (plane - o[axis]) / d[:, axis]
-        point_z = o[2] + t * d[:, 2]
+            point_z = o[2] + t * d[:, 2]
         t = np.where((point_z >= z_lo) & (point_z <= z_hi) & np.isfinite(t), t, np.inf)
         normal = np.zeros(3)
         normal[axis] = inward

@@ -74,6 +74,20 @@ def test_router_two_services_tap_list_and_sigterm(
     services = {(row["vehicle"], row["service"]): row for row in rows}
     assert ("sim", "sim") in services
     assert ("topside", "locator") in services
+    # The real-time simulator publishes every stream (its Health counts each one).
+    sim_counters = services[("sim", "sim")]["health"]["counters"]
+    for stream in (
+        "sonar/frame@asv",
+        "asv/imu@asv",
+        "asv/scan@asv",
+        "asv/pose@asv",
+        "rov/depth@rov",
+        "rov/attitude@rov",
+        "sim/label@sim",
+        "sim/truth@sim",
+        "sonar/detections@asv",
+    ):
+        assert sim_counters.get(f"{stream}:count", 0) > 0, stream
     locator_health = services[("topside", "locator")]["health"]
     assert locator_health["state"] == "ok"
     assert sum(s["count"] for s in locator_health["inputs"]) > 0
