@@ -1,0 +1,134 @@
+"""The Oculus protocol on real bytes, on every layout, split anywhere and corrupted."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from services.sonar_detect.oculus import (
+    FireSettings,
+    Ping,
+    PingStream,
+    ProtocolError,
+    build_ping_result,
+    parse_ping,
+    simple_fire,
+)
+
+FIXTURES = Path(__file__).resolve().parents[4] / "shared" / "fixtures" / "oculus"
+ONE = (FIXTURES / "one_ping_8bit.raw").read_bytes()
+THREE = (FIXTURES / "three_pings_8bit.raw").read_bytes()
+
+
+def _pings(stream: PingStream, chunks: list[bytes]) -> tuple[list[Ping], list[ProtocolError]]:
+    pings: list[Ping] = []
+    errors: list[ProtocolError] = []
+    for chunk in chunks:
+        for item in stream.feed(chunk):
+            (pings if isinstance(item, Ping) else errors).append(item)
+    return pings, errors
+
+
+def test_real_ping() -> None:
+    ping = parse_ping(ONE)
+    assert ping.version == 1  # msgVersion 0 is read as v1
+    assert (ping.n_ranges, ping.n_beams) == (703, 256)
+    assert ping.image.dtype == np.uint8
+    assert ping.row_gains is None
+    assert ping.bearings_deg[0] == pytest.approx(-30.0)
+    assert ping.bearings_deg[-1] == pytest.approx(30.0)
+    steps = np.diff(ping.bearings_deg)
+    assert steps.min() == pytest.approx(0.22, abs=0.011)  # centre
+    assert steps.max() == pytest.approx(0.26, abs=0.011)  # edges: not even in angle
+    assert ping.range_m == pytest.approx(2.0)
+    assert ping.image.max() > 200
+
+
+def test_three_real_pings_in_a_stream() -> None:
+    pings, errors = _pings(PingStream(), [THREE])
+    assert errors == []
+    assert [p.ping_id for p in pings] == [pings[0].ping_id + i for i in range(3)]
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.integers(min_value=1, max_value=len(THREE) - 1), max_size=40))
+def test_any_split_gives_the_same_pings(cuts: list[int]) -> None:
+    points = sorted(set(cuts))
+    chunks = [THREE[a:b] for a, b in zip([0, *points], [*points, len(THREE)], strict=True)]
+    pings, errors = _pings(PingStream(), chunks)
+    assert errors == []
+    assert len(pings) == 3
+    assert np.array_equal(pings[1].image, parse_ping(THREE[len(ONE) : 2 * len(ONE)]).image)
+
+
+def test_corrupted_message_in_the_middle_is_skipped() -> None:
+    middle = len(ONE)
+    broken = bytearray(THREE)
+    broken[middle + 200 : middle + 260] = b"\xff" * 60  # the second ping's bearing table
+    stream = PingStream()
+    chunks = [bytes(broken[i : i + 997]) for i in range(0, len(broken), 997)]
+    pings, errors = _pings(stream, chunks)
+    first = parse_ping(ONE).ping_id
+    assert [p.ping_id for p in pings] == [first, first + 2]
+    assert any("bearing table" in str(e) for e in errors)
+    assert stream.resyncs >= 1
+    # A wrong nRanges (the image no longer a whole number of rows) is refused too.
+    bad_rows = bytearray(THREE)
+    n_ranges_at = middle + 16 + 37 + 53  # header, v1 fire, then 53 bytes into the result
+    bad_rows[n_ranges_at : n_ranges_at + 2] = (701).to_bytes(2, "little")
+    pings, errors = _pings(PingStream(), [bytes(bad_rows)])
+    assert len(pings) == 2
+    assert any("whole number of" in str(e) for e in errors)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.binary(max_size=3000))
+def test_garbage_never_raises(data: bytes) -> None:
+    stream = PingStream()
+    for item in stream.feed(data + ONE):
+        assert isinstance(item, Ping | ProtocolError)
+
+
+@pytest.mark.parametrize("version", [1, 2])
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.uint32])
+@pytest.mark.parametrize("gains", [False, True])
+def test_every_layout_round_trips(version: Literal[1, 2], dtype: type, gains: bool) -> None:
+    rng = np.random.default_rng(3)
+    image = rng.integers(0, np.iinfo(dtype).max, size=(50, 64), dtype=dtype)
+    bearings = np.round(np.degrees(np.arcsin(np.linspace(-0.9, 0.9, 64))) * 100).astype(np.int16)
+    row_gains = rng.integers(1, 1000, size=50, dtype=np.uint32) if gains else None
+    message = build_ping_result(
+        version=version,
+        ping_id=7,
+        bearings_cdeg=bearings,
+        image=image,  # type: ignore[arg-type]
+        row_gains=row_gains,
+    )
+    ping = parse_ping(message)
+    assert ping.version == version
+    assert ping.image.dtype == np.dtype(dtype)
+    assert np.array_equal(ping.image, image)
+    assert np.allclose(ping.bearings_deg, bearings / 100.0)
+    if gains:
+        assert ping.row_gains is not None
+        assert row_gains is not None
+        assert np.array_equal(ping.row_gains, row_gains)
+    else:
+        assert ping.row_gains is None
+
+
+def test_simple_fire_sizes_and_fields() -> None:
+    v1 = simple_fire(FireSettings(range_m=12.5, gain_percent=40.0), version=1)
+    v2 = simple_fire(FireSettings(), version=2)
+    assert len(v1) == 53
+    assert len(v2) == 89
+    assert v1[:2] == b"\x53\x4f"
+    assert v1[6] == 0x15
+    import struct
+
+    assert struct.unpack_from("<dd", v1, 21) == (12.5, 40.0)
