@@ -30,7 +30,10 @@ def _pings(stream: PingStream, chunks: list[bytes]) -> tuple[list[Ping], list[Pr
     errors: list[ProtocolError] = []
     for chunk in chunks:
         for item in stream.feed(chunk):
-            (pings if isinstance(item, Ping) else errors).append(item)
+            if isinstance(item, Ping):
+                pings.append(item)
+            else:
+                errors.append(item)
     return pings, errors
 
 
