@@ -37,6 +37,11 @@ SERVICES: dict[str, ServiceEntry] = {
             "ArduSub telemetry onto the bus, gated estimates into ArduSub",
         ),
         ServiceEntry(
+            "oculus",
+            "services.sonar_detect.driver",
+            "Oculus multibeam driver: sonar frames onto the bus",
+        ),
+        ServiceEntry(
             "sim",
             "simulator.service",
             "simulated tank: ASV pose, ROV depth/attitude, detections, truth",

@@ -1,0 +1,117 @@
+"""A fake Oculus on loopback that speaks the protocol: for tests of the driver.
+
+It answers on a TCP port: after a SimpleFire it streams SimplePingResult messages (given bytes,
+or built from images), optionally in random-size pieces, with one corrupted message, or
+dropping the connection after N pings. It can send a status datagram to a loopback port.
+Only 127.0.0.1 is ever used.
+"""
+
+from __future__ import annotations
+
+import socket
+import struct
+import threading
+import time
+from collections.abc import Sequence
+from typing import Self
+
+import numpy as np
+
+from services.sonar_detect.oculus import HEADER, MSG_SIMPLE_FIRE, OCULUS_ID, STATUS
+
+
+class FakeOculus:
+    """`with FakeOculus(messages) as sonar:` serves on `sonar.port` until the block ends."""
+
+    def __init__(
+        self,
+        messages: Sequence[bytes],
+        *,
+        rate_hz: float = 20.0,
+        split: bool = True,
+        corrupt_every: int = 0,
+        drop_after: int = 0,
+        seed: int = 0,
+    ):
+        self.messages = list(messages)
+        self.rate_hz = rate_hz
+        self.split = split
+        self.corrupt_every = corrupt_every
+        self.drop_after = drop_after
+        self.rng = np.random.default_rng(seed)
+        self.fires: list[bytes] = []
+        self.connections = 0
+        self._stop = threading.Event()
+        self._server = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        self._server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self._server.bind(("127.0.0.1", 0))
+        self._server.listen(1)
+        self._server.settimeout(0.1)
+        self.port = int(self._server.getsockname()[1])
+        self._thread = threading.Thread(target=self._serve, name="fake-oculus", daemon=True)
+
+    def __enter__(self) -> Self:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+        self._server.close()
+
+    def send_status(self, port: int) -> None:
+        """One status broadcast, to 127.0.0.1 only."""
+        datagram = STATUS.pack(
+            OCULUS_ID, 7892, 0, 1, 0, STATUS.size - HEADER.size, 0, 7892, 0, 1042, 0
+        )
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+            sock.sendto(datagram.ljust(142, b"\0"), ("127.0.0.1", port))
+
+    def _serve(self) -> None:
+        while not self._stop.is_set():
+            try:
+                conn, _ = self._server.accept()
+            except TimeoutError:
+                continue
+            self.connections += 1
+            with conn:
+                self._stream(conn)
+
+    def _stream(self, conn: socket.socket) -> None:
+        conn.settimeout(2.0)
+        try:
+            header = conn.recv(HEADER.size)
+            oculus_id, _s, _d, msg_id, _v, size, _sp = HEADER.unpack(header)
+            if oculus_id != OCULUS_ID or msg_id != MSG_SIMPLE_FIRE:
+                return
+            self.fires.append(header + conn.recv(size))
+        except (OSError, struct.error):
+            return
+        conn.settimeout(0.0)
+        sent = 0
+        period = 1.0 / self.rate_hz
+        while not self._stop.is_set():
+            message = self.messages[sent % len(self.messages)]
+            if self.corrupt_every and sent % self.corrupt_every == self.corrupt_every - 1:
+                damaged = bytearray(message)
+                damaged[200:260] = b"\xff" * 60  # a broken bearing table
+                message = bytes(damaged)
+            try:
+                self._send(conn, message)
+            except OSError:
+                return
+            sent += 1
+            if self.drop_after and sent >= self.drop_after:
+                return
+            time.sleep(period)
+
+    def _send(self, conn: socket.socket, message: bytes) -> None:
+        conn.setblocking(True)
+        if not self.split:
+            conn.sendall(message)
+            return
+        at = 0
+        while at < len(message):
+            size = int(self.rng.integers(1, 4096))
+            conn.sendall(message[at : at + size])
+            at += size

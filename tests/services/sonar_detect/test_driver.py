@@ -1,0 +1,138 @@
+"""The Oculus driver process against a fake sonar on loopback, with a real router."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+
+from capsd import topics
+from capsd.codec import Codec
+from capsd.keys import health_key
+from capsd.payloads import Health, SonarFrame
+from services.sonar_detect.oculus import parse_ping
+from simulator.oculus_fake import FakeOculus
+from tests.conftest import Proc, free_port, wait_for
+
+pytestmark = pytest.mark.integration
+
+FIXTURES = Path(__file__).resolve().parents[4] / "shared" / "fixtures" / "oculus"
+ONE = (FIXTURES / "one_ping_8bit.raw").read_bytes()
+THREE = (FIXTURES / "three_pings_8bit.raw").read_bytes()
+PINGS = [THREE[i * len(ONE) : (i + 1) * len(ONE)] for i in range(3)]
+
+
+class Frames:
+    def __init__(self, client: zenoh.Session):
+        self.codec = Codec(SonarFrame)
+        self.got: list[SonarFrame] = []
+        self.sub = client.declare_subscriber(topics.SONAR_FRAME.key("tank", "asv"), self._on)
+
+    def _on(self, sample: zenoh.Sample) -> None:
+        self.got.append(
+            self.codec.decode(
+                sample.payload.to_bytes(),
+                encoding=str(sample.encoding),
+                key_expr=str(sample.key_expr),
+            )
+        )
+
+
+def _health(client: zenoh.Session) -> Health:
+    codec = Codec(Health)
+    for reply in client.get(health_key("tank", "asv", "oculus"), timeout=2.0):
+        if reply.ok is not None:
+            return codec.decode(
+                reply.ok.payload.to_bytes(), encoding=str(reply.ok.encoding), key_expr="h"
+            )
+    raise AssertionError("no health")
+
+
+def _driver(
+    spawn: Callable[..., Proc],
+    tmp_path: Path,
+    endpoint: str,
+    *,
+    address: str,
+    port: int,
+    status_port: int = 52102,
+) -> Proc:
+    config = tmp_path / "oculus.yaml"
+    config.write_text(
+        f"site: tank\nvehicle: asv\nbus:\n  connect: [{endpoint}]\n"
+        f"address: '{address}'\nport: {port}\nstatus_port: {status_port}\n"
+        "status_bind: 127.0.0.1\nstall_timeout_s: 1.0\nreconnect_s: 0.2\n"
+        "fire:\n  range_m: 2.0\n  gain_percent: 40.0\n"
+    )
+    return spawn("run", "oculus", "--config", str(config))
+
+
+def test_frames_from_a_split_and_corrupted_stream(
+    spawn: Callable[..., Proc], client: zenoh.Session, endpoint: str, tmp_path: Path
+) -> None:
+    frames = Frames(client)
+    with FakeOculus(PINGS, rate_hz=20.0, split=True, corrupt_every=5) as sonar:
+        driver = _driver(spawn, tmp_path, endpoint, address="127.0.0.1", port=sonar.port)
+        wait_for(lambda: len(frames.got) >= 12, timeout_s=20, what="12 frames")
+        assert sonar.fires, "the driver sent a SimpleFire"
+        assert len(sonar.fires[0]) == 89  # v2 by default
+        health = _health(client)
+    frame = frames.got[0]
+    truth = parse_ping(ONE)
+    assert (frame.n_ranges, frame.n_beams, frame.sample_bits) == (703, 256, 8)
+    # Upright mount: theta = -bearing, so the first beam (-30 deg, to port) is +30 deg theta.
+    assert math.degrees(frame.azimuths_rad[0]) == pytest.approx(30.0)
+    assert math.degrees(frame.azimuths_rad[-1]) == pytest.approx(-30.0)
+    assert frame.range_resolution_m == pytest.approx(truth.range_resolution_m)
+    image = np.frombuffer(frame.image, dtype=np.uint8).reshape(703, 256)
+    known = {p.ping_id: p for p in (parse_ping(m) for m in PINGS)}
+    for f in frames.got:
+        assert np.array_equal(
+            np.frombuffer(f.image, dtype=np.uint8).reshape(703, 256), known[f.ping_id].image
+        )
+    # Every 5th message was corrupted: skipped, counted, never published.
+    assert health.counters.get("protocol_errors", 0) >= 1
+    assert health.counters.get("resyncs", 0) >= 1
+    assert driver.popen.poll() is None
+    assert image.shape == (703, 256)
+    stamps = [f.stamp_ns for f in frames.got]
+    assert stamps == sorted(stamps)
+    frames.sub.undeclare()
+
+
+def test_reconnects_when_the_sonar_drops_the_link(
+    spawn: Callable[..., Proc], client: zenoh.Session, endpoint: str, tmp_path: Path
+) -> None:
+    frames = Frames(client)
+    with FakeOculus(PINGS, rate_hz=20.0, split=False, drop_after=4) as sonar:
+        driver = _driver(spawn, tmp_path, endpoint, address="127.0.0.1", port=sonar.port)
+        wait_for(
+            lambda: sonar.connections >= 3 and len(frames.got) >= 10,
+            timeout_s=20,
+            what="frames over three connections",
+        )
+    assert _health(client).counters.get("reconnects", 0) >= 2
+    assert driver.popen.poll() is None
+    frames.sub.undeclare()
+
+
+def test_finds_the_sonar_by_its_status_broadcast(
+    spawn: Callable[..., Proc], client: zenoh.Session, endpoint: str, tmp_path: Path
+) -> None:
+    frames = Frames(client)
+    status_port = free_port()
+    with FakeOculus(PINGS, rate_hz=20.0, split=False) as sonar:
+        _driver(spawn, tmp_path, endpoint, address="auto", port=sonar.port, status_port=status_port)
+
+        def found() -> bool:
+            sonar.send_status(status_port)
+            time.sleep(0.1)
+            return len(frames.got) > 0
+
+        wait_for(found, timeout_s=20, what="a frame after discovery")
+    frames.sub.undeclare()
