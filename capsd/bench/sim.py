@@ -13,10 +13,11 @@ import sys
 import time
 from pathlib import Path
 
+import zenoh
+
 from capsd.bus import open_session
-from capsd.codec import Codec
 from capsd.config import BusConfig
-from capsd.keys import health_key
+from capsd.health import query_health
 from capsd.payloads import Health
 
 _TICKS = os.sysconf("SC_CLK_TCK")
@@ -27,13 +28,11 @@ def _cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / _TICKS
 
 
-def _health(session: object, codec: Codec[Health]) -> Health:
-    for reply in session.get(health_key("tank", "sim", "sim"), timeout=2.0):  # type: ignore[attr-defined]
-        if reply.ok is not None:
-            return codec.decode(
-                reply.ok.payload.to_bytes(), encoding=str(reply.ok.encoding), key_expr="h"
-            )
-    raise RuntimeError("the simulator did not answer its health query")
+def _health(session: zenoh.Session) -> Health:
+    health = query_health(session, site="tank", vehicle="sim", service="sim")
+    if health is None:
+        raise RuntimeError("the simulator did not answer its health query")
+    return health
 
 
 def run(*, tank: str, trajectory: str, duration_s: float, warmup_s: float) -> int:
@@ -42,7 +41,6 @@ def run(*, tank: str, trajectory: str, duration_s: float, warmup_s: float) -> in
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         endpoint = f"tcp/127.0.0.1:{sock.getsockname()[1]}"
-    codec = Codec(Health)
     router = BusConfig(mode="router", connect=(), listen=(endpoint,))
     targets = {
         "sonar/frame": 20.0,
@@ -79,11 +77,11 @@ def run(*, tank: str, trajectory: str, duration_s: float, warmup_s: float) -> in
                 flush=True,
             )
             time.sleep(warmup_s)
-            first, cpu0, t0 = _health(session, codec), _cpu_s(proc.pid), time.monotonic()
+            first, cpu0, t0 = _health(session), _cpu_s(proc.pid), time.monotonic()
             for left in range(int(duration_s), 0, -5):
                 time.sleep(min(5, left))
                 print(f"  measuring... {max(left - 5, 0)} s left", flush=True)
-            second, cpu1, t1 = _health(session, codec), _cpu_s(proc.pid), time.monotonic()
+            second, cpu1, t1 = _health(session), _cpu_s(proc.pid), time.monotonic()
         finally:
             proc.terminate()
             proc.wait(timeout=10)

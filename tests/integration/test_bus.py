@@ -19,7 +19,8 @@ from capsd import topics
 from capsd.bus import open_session
 from capsd.codec import Codec
 from capsd.config import BusConfig
-from capsd.keys import health_key, is_concrete
+from capsd.health import query_health
+from capsd.keys import is_concrete
 from capsd.payloads import Health, Log, RovFix, SonarDetections
 from tests.conftest import REPO, Proc, capsd_json_lines, wait_for
 
@@ -27,13 +28,7 @@ pytestmark = pytest.mark.integration
 
 
 def _health(session: zenoh.Session, vehicle: str, service: str) -> Health | None:
-    codec = Codec(Health)
-    for reply in session.get(health_key("tank", vehicle, service), timeout=1.0):
-        if reply.ok is not None:
-            return codec.decode(
-                reply.ok.payload.to_bytes(), encoding=str(reply.ok.encoding), key_expr="h"
-            )
-    return None
+    return query_health(session, site="tank", vehicle=vehicle, service=service, timeout_s=1.0)
 
 
 def test_router_two_services_tap_list_and_sigterm(

@@ -16,7 +16,8 @@ import zenoh
 from capsd import topics
 from capsd.bench.footprint import _heavy_mapped
 from capsd.codec import Codec
-from capsd.keys import health_key, is_concrete
+from capsd.health import query_health
+from capsd.keys import is_concrete
 from capsd.payloads import Health, RovAttitude, RovDepth, RovFix
 from services.mav_bridge.ned import TankToNed
 from simulator.autopilot import AutopilotStandIn, VehicleState
@@ -101,13 +102,9 @@ def _wait_ready(autopilot: AutopilotStandIn, sender: FixSender) -> None:
 
 
 def _health(client: zenoh.Session) -> Health:
-    codec = Codec(Health)
-    for reply in client.get(health_key("tank", "rov", "mav_bridge"), timeout=2.0):
-        if reply.ok is not None:
-            return codec.decode(
-                reply.ok.payload.to_bytes(), encoding=str(reply.ok.encoding), key_expr="h"
-            )
-    raise AssertionError("no health from the bridge")
+    health = query_health(client, site="tank", vehicle="rov", service="mav_bridge")
+    assert health is not None, "no health from the mav_bridge"
+    return health
 
 
 @pytest.mark.parametrize("heading_deg", [0.0, 90.0, -135.0])

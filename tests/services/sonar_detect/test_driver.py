@@ -13,7 +13,7 @@ import zenoh
 
 from capsd import topics
 from capsd.codec import Codec
-from capsd.keys import health_key
+from capsd.health import query_health
 from capsd.payloads import Health, SonarFrame
 from services.sonar_detect.oculus import parse_ping
 from simulator.oculus_fake import FakeOculus
@@ -44,13 +44,9 @@ class Frames:
 
 
 def _health(client: zenoh.Session) -> Health:
-    codec = Codec(Health)
-    for reply in client.get(health_key("tank", "asv", "oculus"), timeout=2.0):
-        if reply.ok is not None:
-            return codec.decode(
-                reply.ok.payload.to_bytes(), encoding=str(reply.ok.encoding), key_expr="h"
-            )
-    raise AssertionError("no health")
+    health = query_health(client, site="tank", vehicle="asv", service="oculus")
+    assert health is not None, "no health from the oculus"
+    return health
 
 
 def _driver(
