@@ -42,6 +42,11 @@ SERVICES: dict[str, ServiceEntry] = {
             "Oculus multibeam driver: sonar frames onto the bus",
         ),
         ServiceEntry(
+            "sonar_detect",
+            "services.sonar_detect.service",
+            "ROV detection in sonar frames (classical; the CNN is to come)",
+        ),
+        ServiceEntry(
             "sim",
             "simulator.service",
             "simulated tank: ASV pose, ROV depth/attitude, detections, truth",

@@ -1,0 +1,139 @@
+"""The sonar detection service: frames in, ROV candidates out, newest frame first.
+
+Frames arrive on Zenoh's callback thread and go into a one-slot mailbox; a worker thread takes
+the newest frame, detects, and publishes SonarDetections stamped with the frame's `stamp_ns`
+and `ping_id`. A frame replaced in the mailbox before the worker took it is dropped and counted:
+a stale frame is never processed. Every `snapshot_every_s` a fan PNG with the detections is
+written for people.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from pathlib import Path
+from typing import Annotated, Literal
+
+import msgspec
+
+from capsd import topics
+from capsd.config import ConfigSection, ServiceConfig
+from capsd.payloads import Detection, SonarDetections, SonarFrame
+from capsd.runner import Publisher, ServiceRunner
+from services.sonar_detect.classical import ClassicalDetector, ClassicalSettings
+
+logger = logging.getLogger(__name__)
+
+
+class ClassicalConfig(ConfigSection, frozen=True, kw_only=True):
+    margin: Annotated[float, msgspec.Meta(gt=0.0, le=255.0)] = 70.0
+    background_margin: Annotated[float, msgspec.Meta(gt=0.0, le=255.0)] | None = None
+    range_bias_m: Annotated[float, msgspec.Meta(ge=-1.0, le=1.0)] = 0.12
+    max_candidates: Annotated[int, msgspec.Meta(ge=1, le=20)] = 3
+
+    def settings(self) -> ClassicalSettings:
+        return ClassicalSettings(
+            margin=self.margin,
+            background_margin=self.background_margin,
+            range_bias_m=self.range_bias_m,
+            max_candidates=self.max_candidates,
+        )
+
+
+class Config(ServiceConfig, frozen=True, kw_only=True):
+    """Sonar detection configuration."""
+
+    vehicle: str = "asv"
+    sonar_vehicle: str = "asv"
+    detector: Literal["classical"] = "classical"  # the CNN joins here (issue 5)
+    classical: ClassicalConfig = ClassicalConfig()
+    min_confidence: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.5
+    snapshot_every_s: Annotated[float, msgspec.Meta(gt=0.0)] | None = None
+    snapshot_dir: str = "snapshots"
+
+
+class Mailbox:
+    """One slot: `put` replaces what was there (counted as dropped); `take` waits for news."""
+
+    def __init__(self) -> None:
+        self._frame: SonarFrame | None = None
+        self._cond = threading.Condition()
+        self.dropped = 0
+
+    def put(self, frame: SonarFrame) -> None:
+        with self._cond:
+            if self._frame is not None:
+                self.dropped += 1
+            self._frame = frame
+            self._cond.notify()
+
+    def take(self, timeout_s: float) -> SonarFrame | None:
+        with self._cond:
+            if self._frame is None:
+                self._cond.wait(timeout_s)
+            frame, self._frame = self._frame, None
+            return frame
+
+
+def main(config: Config) -> int:
+    """Run the detector until stopped."""
+    detector = ClassicalDetector(config.classical.settings())
+    mailbox = Mailbox()
+    counts = {"frames": 0, "detections": 0, "snapshots": 0, "errors": 0}
+    with ServiceRunner("sonar_detect", config) as runner:
+        out: Publisher[SonarDetections] = runner.publisher(topics.SONAR_DETECTIONS)
+        runner.add_counters(lambda: {**counts, "dropped_stale_frames": mailbox.dropped})
+        runner.subscribe(topics.SONAR_FRAME, mailbox.put, vehicle=config.sonar_vehicle)
+        next_snapshot = time.monotonic()
+
+        def work() -> None:
+            nonlocal next_snapshot
+            while not runner.stop_event.is_set():
+                frame = mailbox.take(0.1)
+                if frame is None:
+                    continue
+                try:
+                    found = [
+                        d for d in detector.detect(frame) if d.confidence >= config.min_confidence
+                    ]
+                    out.put(
+                        SonarDetections(
+                            stamp_ns=frame.stamp_ns,
+                            seq=out.next_seq(),
+                            ping_id=frame.ping_id,
+                            detector=config.detector,
+                            detections=tuple(found),
+                        )
+                    )
+                    counts["frames"] += 1
+                    counts["detections"] += len(found)
+                    if config.snapshot_every_s is not None and time.monotonic() >= next_snapshot:
+                        next_snapshot = time.monotonic() + config.snapshot_every_s
+                        _snapshot(config, frame, found)
+                        counts["snapshots"] += 1
+                except Exception as exc:
+                    counts["errors"] += 1
+                    runner.report_error(f"detection failed on ping {frame.ping_id}: {exc}")
+
+        worker = threading.Thread(target=work, name="sonar-detect", daemon=True)
+        worker.start()
+        try:
+            runner.run()
+        finally:
+            runner.stop_event.set()
+            worker.join(timeout=2.0)
+    return 0
+
+
+def _snapshot(config: Config, frame: SonarFrame, found: list[Detection]) -> None:
+    from services.sonar_detect.fan import draw_fan
+
+    detections = SonarDetections(
+        stamp_ns=frame.stamp_ns,
+        seq=0,
+        ping_id=frame.ping_id,
+        detector=config.detector,
+        detections=tuple(found),
+    )
+    draw_fan(frame, None, detections, Path(config.snapshot_dir) / f"fan_{frame.ping_id:08d}.png")
