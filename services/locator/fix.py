@@ -105,8 +105,9 @@ def _candidates(
         return (), None, "behind_sonar"
     a, b, c, dc_dz = coeffs
     rho = math.hypot(a, b)
-    if rho < 1e-12:
-        # The beam surface is parallel to the depth plane: depth says nothing about elevation.
+    if rho < 1e-6:
+        # The beam surface is (nearly) parallel to the depth plane: depth says (almost)
+        # nothing about the elevation, and rounding decides whether the roots exist.
         return (), None, "ill_conditioned"
     ratio = c / rho
     if abs(ratio) > 1.0 + 1e-12:
