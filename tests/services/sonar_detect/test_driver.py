@@ -132,3 +132,49 @@ def test_finds_the_sonar_by_its_status_broadcast(
 
         wait_for(found, timeout_s=20, what="a frame after discovery")
     frames.sub.undeclare()
+
+
+def test_detection_service_keeps_up_and_never_processes_stale_frames(
+    spawn: Callable[..., Proc], client: zenoh.Session, endpoint: str
+) -> None:
+    from capsd.payloads import SonarDetections
+
+    got: list[SonarDetections] = []
+    codec = Codec(SonarDetections)
+    sub = client.declare_subscriber(
+        topics.SONAR_DETECTIONS.key("tank", "asv"),
+        lambda s: got.append(
+            codec.decode(s.payload.to_bytes(), encoding=str(s.encoding), key_expr="d")
+        ),
+    )
+    spawn("run", "sonar_detect", "--connect", endpoint)
+    frame_codec = Codec(SonarFrame)
+    publisher = client.declare_publisher(
+        topics.SONAR_FRAME.key("tank", "asv"), encoding=zenoh.Encoding(frame_codec.encoding)
+    )
+    base = parse_ping(ONE)
+    from services.sonar_detect.driver import Config as DriverConfig
+    from services.sonar_detect.driver import to_frame
+
+    def frame(i: int) -> bytes:
+        return frame_codec.encode(to_frame(base, config=DriverConfig(), stamp_ns=1_000 + i, seq=i))
+
+    def answered() -> bool:
+        publisher.put(frame(0))
+        time.sleep(0.2)
+        return len(got) > 0
+
+    wait_for(answered, timeout_s=20, what="the detector answering")
+    before = len(got)
+    for i in range(1, 60):  # a burst far faster than a ping rate
+        publisher.put(frame(i))
+    time.sleep(1.5)
+    burst = got[before:]
+    assert burst, "the newest frame is processed"
+    assert burst[-1].stamp_ns == 1_000 + 59  # ... and it is the newest
+    assert [d.stamp_ns for d in burst] == sorted(d.stamp_ns for d in burst)
+    health = query_health(client, site="tank", vehicle="asv", service="sonar_detect")
+    assert health is not None
+    assert health.counters["dropped_stale_frames"] + health.counters["frames"] >= 60
+    assert health.counters["dropped_stale_frames"] > 0
+    sub.undeclare()
