@@ -25,7 +25,7 @@ from simulator.config import OFFLINE_START_NS, Config, Streams
 from simulator.sim import Simulation
 from simulator.world import TankName, TrajectoryName
 
-RUNS = (
+RUNS: tuple[tuple[TankName, TrajectoryName, int], ...] = (
     ("nfp", "square", 101),
     ("nfp", "lawnmower", 102),
     ("nfp", "bouncing", 103),
