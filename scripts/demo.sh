@@ -1,26 +1,55 @@
 #!/usr/bin/env bash
-# Install the topside role into .venv, then run the system on the simulated tank over Zenoh on
-# loopback: a router, the simulator and the locator as separate processes; show live services
-# and fixes for DURATION seconds (default 20), then stop everything cleanly.
+# Install the topside role into .venv, then run the whole system on the simulated tank, each
+# part its own process talking over Zenoh on loopback:
+#   router -> simulator (512-beam sonar images, LiDAR, IMU, ROV depth/attitude)
+#          -> sonar_detect (ROV candidates in each frame) -> locator (fixes, tracked)
+#          -> mav_bridge -> an ArduSub stand-in (VISION_POSITION_ESTIMATE)
+# It prints the live services, the fix error against the simulator's truth for DURATION
+# seconds (default 30), what reached the autopilot, and stops everything cleanly.
+# TRAJECTORY=lawnmower shows the hard case: clutter under the ROV (see the README).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-DURATION=${1:-20}
+DURATION=${1:-30}
 PY=${PYTHON:-python3.11}
 command -v "$PY" >/dev/null 2>&1 || PY=python3
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
-.venv/bin/python -m pip install --quiet --disable-pip-version-check -e '.[topside]' 2> >(grep -v "^WARNING: Location" >&2)
+.venv/bin/python -m pip install --quiet --disable-pip-version-check -e '.[topside,rov]' 2> >(grep -v "^WARNING: Location" >&2)
 PORT=${CAPSD_PORT:-7447}
+MAV_PORT=${CAPSD_MAV_PORT:-5777}
 EP=tcp/127.0.0.1:$PORT
 LOGS=$(mktemp -d)
 pids=()
-cleanup() { for pid in "${pids[@]}"; do kill -TERM "$pid" 2>/dev/null || true; done; wait || true; }
+cleanup() {
+  for pid in "${pids[@]}"; do kill -TERM "$pid" 2>/dev/null || true; done
+  for pid in "${pids[@]}"; do wait "$pid" 2>/dev/null || true; done
+}
 trap cleanup EXIT INT TERM
+cat > "$LOGS/sim.yaml" <<YAML
+bus: {connect: [$EP]}
+trajectory: ${TRAJECTORY:-square}
+streams: {detections_truth_noise: "off"}
+YAML
+# The simulator already publishes the ROV's depth and attitude under "rov"; the stand-in's
+# telemetry goes under its own name so the two never mix on one key.
+cat > "$LOGS/bridge.yaml" <<YAML
+vehicle: rov_ap
+bus: {connect: [$EP]}
+mavlink: {connect: "tcp:127.0.0.1:$MAV_PORT"}
+YAML
 .venv/bin/capsd router --listen "$EP" 2>"$LOGS/router.log" & pids+=($!)
+.venv/bin/python -m simulator.autopilot --port "$MAV_PORT" >"$LOGS/autopilot.out" 2>&1 & AP=$!
 sleep 1
-.venv/bin/capsd run sim --config deploy/config/sim.yaml --connect "$EP" 2>"$LOGS/sim.log" & pids+=($!)
+.venv/bin/capsd run sim --config "$LOGS/sim.yaml" 2>"$LOGS/sim.log" & pids+=($!)
+.venv/bin/capsd run sonar_detect --config deploy/config/sonar_detect.yaml --connect "$EP" 2>"$LOGS/sonar_detect.log" & pids+=($!)
 .venv/bin/capsd run locator --config deploy/config/locator.yaml --connect "$EP" 2>"$LOGS/locator.log" & pids+=($!)
-sleep 3
+.venv/bin/capsd run mav_bridge --config "$LOGS/bridge.yaml" 2>"$LOGS/mav_bridge.log" & pids+=($!)
+sleep 4
 .venv/bin/capsd list --connect "$EP"
-echo "== fix accuracy against the simulator's truth, for ${DURATION} s (service logs: $LOGS)"
+echo "== fix error against the simulator's truth for ${DURATION} s (logs: $LOGS)"
 .venv/bin/python -m simulator.compare --connect "$EP" --duration "$DURATION"
 .venv/bin/capsd list --connect "$EP"
+cleanup
+pids=("$AP")
+kill -TERM "$AP" 2>/dev/null || true
+wait "$AP" 2>/dev/null || true
+cat "$LOGS/autopilot.out"

@@ -206,3 +206,46 @@ class AutopilotStandIn:
                 index=sorted(self.params).index(message.name),
                 count=len(self.params),
             )
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`python -m simulator.autopilot --port P`: serve until SIGINT/SIGTERM, then report."""
+    import argparse
+    import signal
+
+    parser = argparse.ArgumentParser(
+        prog="python -m simulator.autopilot",
+        description="An ArduSub stand-in on tcpin:127.0.0.1:PORT.",
+    )
+    parser.add_argument("--port", type=int, default=5777)
+    args = parser.parse_args(argv)
+    stop = threading.Event()
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, lambda *_: stop.set())
+    started = time.monotonic()
+    with AutopilotStandIn(args.port) as autopilot:
+        stop.wait()
+        elapsed = time.monotonic() - started
+        with autopilot.lock:
+            estimates = list(autopilot.recorded.estimates)
+            texts = [s.text for s in autopilot.recorded.statustexts]
+    rate = len(estimates) / elapsed if elapsed > 0 else 0.0
+    print(
+        f"autopilot stand-in: {len(estimates)} VISION_POSITION_ESTIMATE in {elapsed:.0f} s "
+        f"({rate:.1f}/s); STATUSTEXT: {texts}",
+        flush=True,
+    )
+    if estimates:
+        last = estimates[-1][1]
+        print(
+            f"  last: NED ({last.x:.3f}, {last.y:.3f}, {last.z:.3f}) m, "
+            f"reset_counter {last.reset_counter}",
+            flush=True,
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    import sys
+
+    sys.exit(main())
