@@ -93,6 +93,8 @@ class StreamStats(msgspec.Struct, frozen=True, kw_only=True):
     rate_hz: NonNegFloat = 0.0
     errors: NonNegInt = 0
     dropped: NonNegInt = 0
+    # seq went backwards: a publisher restarted, or two publishers share the key (a fault).
+    seq_regressions: NonNegInt = 0
     last_stamp_ns: NonNegInt | None = None
 
 

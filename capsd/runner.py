@@ -22,6 +22,7 @@ import socket
 import threading
 import time
 import types
+from collections import deque
 from collections.abc import Callable, Mapping
 from typing import Generic, Self, TypeVar
 
@@ -54,6 +55,8 @@ class StreamCounter:
         self.count = 0
         self.errors = 0
         self.dropped = 0
+        self.seq_regressions = 0
+        self._recent_regressions: deque[float] = deque(maxlen=64)
         self.last_stamp_ns: int | None = None
         self._last_seq: int | None = None
         self._rate_count = 0
@@ -67,9 +70,21 @@ class StreamCounter:
             self.count += 1
             self._rate_count += 1
             self.last_stamp_ns = payload.stamp_ns
-            if self._last_seq is not None and payload.seq > self._last_seq + 1:
-                self.dropped += payload.seq - self._last_seq - 1
+            if self._last_seq is not None:
+                if payload.seq > self._last_seq + 1:
+                    self.dropped += payload.seq - self._last_seq - 1
+                elif payload.seq <= self._last_seq:
+                    self.seq_regressions += 1
+                    self._recent_regressions.append(time.monotonic())
             self._last_seq = payload.seq
+
+    def interleaved(self, *, window_s: float = 5.0, threshold: int = 3) -> bool:
+        """True when seq went backwards repeatedly of late: more than one publisher."""
+        with self._lock:
+            now = time.monotonic()
+            while self._recent_regressions and now - self._recent_regressions[0] > window_s:
+                self._recent_regressions.popleft()
+            return len(self._recent_regressions) >= threshold
 
     def record_error(self) -> int | None:
         """Count one error; returns how many were suppressed if this one should be logged."""
@@ -97,6 +112,7 @@ class StreamCounter:
                 rate_hz=self.rate_hz,
                 errors=self.errors,
                 dropped=self.dropped,
+                seq_regressions=self.seq_regressions,
                 last_stamp_ns=self.last_stamp_ns,
             )
 
@@ -154,6 +170,7 @@ class ServiceRunner:
         self._main_tick = time.monotonic()
         self._old_handlers: dict[int, object] = {}
         self._counter_sources: list[Callable[[], Mapping[str, int]]] = []
+        self._inputs_shared = False
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -395,6 +412,23 @@ class ServiceRunner:
                 encoding=zenoh.Encoding(self._health_pub.codec.encoding),
             )
 
+    def _check_inputs(self) -> None:
+        """Two publishers on one input key silently mix two measurements: say so, loudly."""
+        with self._lock:
+            inputs = list(self._inputs)
+        shared = [c.key for c in inputs if c.interleaved()]
+        if shared:
+            message = (
+                f"input '{shared[0]}' has more than one publisher (its seq keeps going backwards)"
+            )
+            self.set_state("degraded", message)
+            self._set_last_error(message)
+            logger.warning(message)
+            self._inputs_shared = True
+        elif self._inputs_shared:
+            self._inputs_shared = False
+            self.set_state("ok")
+
     def _health_loop(self) -> None:
         period = self.config.health_period_s
         watchdog = sdnotify.watchdog_interval_s()
@@ -407,6 +441,7 @@ class ServiceRunner:
                 sdnotify.notify("WATCHDOG=1")
             if now >= next_health:
                 next_health += period
+                self._check_inputs()
                 try:
                     self._publish_health()
                 except Exception as exc:

@@ -328,3 +328,42 @@ def test_services_rejoin_a_restarted_router(
         )
     assert time.monotonic() - start < 5.0
     assert locator.popen.poll() is None
+
+
+def test_two_publishers_on_one_input_are_flagged(
+    spawn: Callable[..., Proc], client: zenoh.Session, endpoint: str
+) -> None:
+    from capsd.payloads import RovDepth
+
+    spawn("run", "locator", "--connect", endpoint)
+    wait_for(
+        lambda: _health(client, "topside", "locator") is not None,
+        timeout_s=15,
+        what="locator health",
+    )
+    codec = Codec(RovDepth)
+    key = topics.ROV_DEPTH.key("tank", "rov")
+    encoding = zenoh.Encoding(codec.encoding)
+    # Two sources of "the ROV's depth", each with its own seq from 0: a real mix-up.
+    for i in range(40):
+        for depth in (1.0, 2.4):
+            client.put(
+                key,
+                codec.encode(RovDepth(stamp_ns=time.time_ns(), seq=i, depth_m=depth)),
+                encoding=encoding,
+            )
+        time.sleep(0.05)
+
+    def flagged() -> bool:
+        health = _health(client, "topside", "locator")
+        return (
+            health is not None
+            and health.state == "degraded"
+            and (health.last_error is not None and "more than one publisher" in health.last_error)
+        )
+
+    wait_for(flagged, timeout_s=5, what="the shared input flagged")
+    health = _health(client, "topside", "locator")
+    assert health is not None
+    depth_input = next(s for s in health.inputs if s.key == key)
+    assert depth_input.seq_regressions >= 30
