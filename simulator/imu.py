@@ -1,9 +1,10 @@
 """The ASV's IMU: gyro and accelerometer in the IMU's own frame, with noise and bias.
 
-gyro  = R_I_B (omega_B + b_g) + N(0, gyro_sigma)           [rad/s]
-accel = R_I_B (R_W_B^T (a_W + g e_z) + b_a) + N(0, accel_sigma)   [m/s^2, specific force]
+gyro  = R_I_B omega_B + b_g + N(0, gyro_sigma)                   [rad/s]
+accel = R_I_B R_W_B^T (a_W + g e_z) + b_a + N(0, accel_sigma)     [m/s^2, specific force]
 omega_B comes from the attitude's time derivative (central difference, 1 ms); biases are
-constant per run, drawn from N(0, bias_sigma) with the run's seed; R_I_B is the mounting.
+constant per run, in the sensor's own frame, drawn from N(0, bias_sigma) with the run's seed;
+R_I_B is the mounting.
 """
 
 from __future__ import annotations
@@ -54,6 +55,6 @@ class Imu:
         omega_b = body_rates(rotation_at, t_s)
         specific_w = accel_w + np.array([0.0, 0.0, GRAVITY])
         f_b = rotation_at(t_s).T @ specific_w
-        gyro = self.mounting @ (omega_b + self.gyro_bias) + rng.normal(0.0, m.gyro_sigma_rad_s, 3)
-        accel = self.mounting @ (f_b + self.accel_bias) + rng.normal(0.0, m.accel_sigma_m_s2, 3)
+        gyro = self.mounting @ omega_b + self.gyro_bias + rng.normal(0.0, m.gyro_sigma_rad_s, 3)
+        accel = self.mounting @ f_b + self.accel_bias + rng.normal(0.0, m.accel_sigma_m_s2, 3)
         return gyro, accel
