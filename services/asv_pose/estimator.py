@@ -1,0 +1,163 @@
+"""The ASV's pose from its IMU and LiDAR: tilt at IMU rate, (x, y, yaw) from scan matching.
+
+- Roll/pitch: the tilt filter (services.asv_pose.tilt), fed the ASV's own acceleration from the
+  scan-matched track (rotated into the body frame), so manoeuvres do not leak into tilt.
+- Yaw between scans: integrated from the gyro (world z rate from the body rates and tilt).
+- Each scan, levelled with the current roll/pitch, is matched against the tank's walls, seeded
+  by the prediction (last match + velocity, yaw from the gyro). A match is accepted only if it
+  passes the health checks: inlier ratio, residual, degeneracy, and the jump from the
+  prediction; otherwise the prediction coasts and the failure is counted. After `lost_after`
+  consecutive failures the pose is reported lost.
+- Output at IMU rate: position extrapolated from the last match with the track's velocity,
+  orientation from yaw and tilt, a 6 x 6 covariance growing with the time since the last match.
+The start needs a pose seed (the bare rectangle is 180-degree symmetric: a heading prior picks
+the side); the global search after a loss is not implemented yet.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from capsd.geometry import Array, euler_zyx_to_matrix
+from services.asv_pose.scan_match import Segment, level_points, match
+from services.asv_pose.tilt import TiltFilter, TiltSettings
+
+
+@dataclass(frozen=True)
+class EstimatorSettings:
+    min_inlier_ratio: float = 0.6
+    max_residual_m: float = 0.06
+    min_degeneracy: float = 10.0
+    max_jump_m: float = 0.5
+    max_jump_rad: float = math.radians(5.0)
+    lost_after: int = 10
+    lidar_xy_m: tuple[float, float] = (0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class PoseEstimate:
+    stamp_ns: int
+    position_m: Array
+    rotation: Array
+    covariance: Array  # 6 x 6 over (x, y, z, roll, pitch, yaw)
+    status: str  # "ok", "degraded" (coasting), "lost"
+
+
+class AsvPoseEstimator:
+    """Feed IMU samples and scans in time order; read `estimate()` after any of them."""
+
+    def __init__(
+        self,
+        walls: tuple[Segment, ...],
+        *,
+        seed_xy_yaw: tuple[float, float, float],
+        settings: EstimatorSettings | None = None,
+        tilt: TiltSettings | None = None,
+    ):
+        self.walls = walls
+        self.settings = settings or EstimatorSettings()
+        self.tilt = TiltFilter(tilt)
+        self.xy = np.array(seed_xy_yaw[:2], dtype=np.float64)
+        self.velocity = np.zeros(2)
+        self.acceleration = np.zeros(2)
+        self.yaw = float(seed_xy_yaw[2])
+        self.match_ns: int | None = None
+        self.imu_ns: int | None = None
+        self.failures = 0
+        self.accepted = 0
+        self.rejected: dict[str, int] = {}
+        self.match_cov = np.diag([0.05**2, 0.05**2, math.radians(2.0) ** 2])
+
+    def on_imu(self, stamp_ns: int, gyro: Array, accel: Array) -> None:
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        # The track's acceleration in the (levelled) body frame, for the tilt filter.
+        a_body = np.array(
+            [
+                c * self.acceleration[0] + s * self.acceleration[1],
+                -s * self.acceleration[0] + c * self.acceleration[1],
+                0.0,
+            ]
+        )
+        self.tilt.update(stamp_ns, gyro, accel, linear_accel_body_m_s2=a_body)
+        if self.imu_ns is not None and stamp_ns > self.imu_ns:
+            dt = (stamp_ns - self.imu_ns) / 1e9
+            roll, pitch = self.tilt.roll_rad, self.tilt.pitch_rad
+            # World yaw rate from body rates (Z-Y-X): (q sin r + r cos r) / cos p.
+            g = np.asarray(gyro, dtype=np.float64) - self.tilt.bias
+            yaw_rate = (g[1] * math.sin(roll) + g[2] * math.cos(roll)) / max(math.cos(pitch), 0.1)
+            self.yaw += yaw_rate * dt
+        self.imu_ns = stamp_ns
+
+    def on_scan(self, stamp_ns: int, ranges_m: Array, angles_rad: Array) -> bool:
+        """Match one scan; True if accepted."""
+        s = self.settings
+        predicted = self._predict_xy(stamp_ns)
+        points = level_points(
+            ranges_m,
+            angles_rad,
+            roll_rad=self.tilt.roll_rad,
+            pitch_rad=self.tilt.pitch_rad,
+            mount_xy=s.lidar_xy_m,
+        )
+        if len(points) < 20:
+            return self._reject("too_few_returns")
+        result = match(
+            points, self.walls, x_m=float(predicted[0]), y_m=float(predicted[1]), yaw_rad=self.yaw
+        )
+        jump = math.hypot(result.x_m - predicted[0], result.y_m - predicted[1])
+        dyaw = abs(
+            math.atan2(math.sin(result.yaw_rad - self.yaw), math.cos(result.yaw_rad - self.yaw))
+        )
+        if result.inlier_ratio < s.min_inlier_ratio:
+            return self._reject("inliers")
+        if result.residual_rms_m > s.max_residual_m:
+            return self._reject("residual")
+        if result.degeneracy < s.min_degeneracy:
+            return self._reject("degenerate")
+        if jump > s.max_jump_m or dyaw > s.max_jump_rad:
+            return self._reject("jump")
+        new_xy = np.array([result.x_m, result.y_m])
+        if self.match_ns is not None:
+            dt = (stamp_ns - self.match_ns) / 1e9
+            if dt > 0.0:
+                velocity = (new_xy - self.xy) / dt
+                # Light smoothing: scan-to-scan differences are noisy at 15 Hz.
+                self.acceleration = 0.5 * self.acceleration + 0.5 * (velocity - self.velocity) / dt
+                self.velocity = 0.7 * self.velocity + 0.3 * velocity
+        self.xy, self.yaw = new_xy, result.yaw_rad
+        self.match_ns = stamp_ns
+        self.match_cov = result.covariance
+        self.failures = 0
+        self.accepted += 1
+        return True
+
+    def _reject(self, why: str) -> bool:
+        self.failures += 1
+        self.rejected[why] = self.rejected.get(why, 0) + 1
+        return False
+
+    def _predict_xy(self, stamp_ns: int) -> Array:
+        if self.match_ns is None:
+            return self.xy.copy()
+        dt = max(0.0, (stamp_ns - self.match_ns) / 1e9)
+        return np.asarray(self.xy + self.velocity * dt, dtype=np.float64)
+
+    def estimate(self, stamp_ns: int) -> PoseEstimate:
+        xy = self._predict_xy(stamp_ns)
+        rotation = euler_zyx_to_matrix(self.yaw, self.tilt.pitch_rad, self.tilt.roll_rad)
+        age = 0.0 if self.match_ns is None else max(0.0, (stamp_ns - self.match_ns) / 1e9)
+        cov = np.zeros((6, 6))
+        cov[0:2, 0:2] = self.match_cov[0:2, 0:2] + np.eye(2) * (0.05 * age) ** 2
+        cov[2, 2] = 0.02**2  # heave is not observed: the waves' amplitude
+        cov[3, 3] = cov[4, 4] = math.radians(0.2) ** 2
+        cov[5, 5] = self.match_cov[2, 2] + (math.radians(0.5) * age) ** 2
+        if self.failures >= self.settings.lost_after or self.match_ns is None:
+            status = "lost"
+        elif self.failures > 0:
+            status = "degraded"
+        else:
+            status = "ok"
+        return PoseEstimate(stamp_ns, np.array([xy[0], xy[1], 0.0]), rotation, cov, status)
