@@ -27,6 +27,11 @@ SERVICES: dict[str, ServiceEntry] = {
     entry.name: entry
     for entry in (
         ServiceEntry(
+            "asv_pose",
+            "services.asv_pose.service",
+            "ASV pose from IMU and LiDAR (tilt filter, scan matching)",
+        ),
+        ServiceEntry(
             "locator",
             "services.locator.service",
             "CAP-SD fix from detections, ASV pose and ROV depth",

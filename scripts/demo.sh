@@ -2,7 +2,8 @@
 # Install the topside role into .venv, then run the whole system on the simulated tank, each
 # part its own process talking over Zenoh on loopback:
 #   router -> simulator (512-beam sonar images, LiDAR, IMU, ROV depth/attitude)
-#          -> sonar_detect (ROV candidates in each frame) -> locator (fixes, tracked)
+#          -> asv_pose (tilt filter + scan matching) and sonar_detect (ROV candidates)
+#          -> locator (fixes, tracked)
 #          -> mav_bridge -> an ArduSub stand-in (VISION_POSITION_ESTIMATE)
 # It prints the live services, the fix error against the simulator's truth for DURATION
 # seconds (default 30), what reached the autopilot, and stops everything cleanly.
@@ -27,7 +28,22 @@ trap cleanup EXIT INT TERM
 cat > "$LOGS/sim.yaml" <<YAML
 bus: {connect: [$EP]}
 trajectory: ${TRAJECTORY:-square}
-streams: {detections_truth_noise: "off"}
+streams: {detections_truth_noise: "off", asv_pose_truth_noise: "off"}
+YAML
+# asv_pose needs to know roughly where the ASV was put in the water (its heading prior).
+SEED=$(.venv/bin/python -c "
+import math, sys
+from capsd.config import load_config
+from simulator.config import Config
+from simulator.sim import Simulation
+from capsd.geometry import matrix_to_euler_zyx
+pose = Simulation(load_config(sys.argv[1], Config), horizon_s=10).asv_pose(0.0)
+yaw = math.degrees(matrix_to_euler_zyx(pose.rotation)[0])
+print(f'{{x_m: {pose.translation[0]:.2f}, y_m: {pose.translation[1]:.2f}, yaw_deg: {yaw:.1f}}}')
+" "$LOGS/sim.yaml")
+cat > "$LOGS/asv_pose.yaml" <<YAML
+bus: {connect: [$EP]}
+seed: $SEED
 YAML
 # The simulator already publishes the ROV's depth and attitude under "rov"; the stand-in's
 # telemetry goes under its own name so the two never mix on one key.
@@ -40,6 +56,7 @@ YAML
 .venv/bin/python -m simulator.autopilot --port "$MAV_PORT" >"$LOGS/autopilot.out" 2>&1 & AP=$!
 sleep 1
 .venv/bin/capsd run sim --config "$LOGS/sim.yaml" 2>"$LOGS/sim.log" & pids+=($!)
+.venv/bin/capsd run asv_pose --config "$LOGS/asv_pose.yaml" 2>"$LOGS/asv_pose.log" & pids+=($!)
 .venv/bin/capsd run sonar_detect --config deploy/config/sonar_detect.yaml --connect "$EP" 2>"$LOGS/sonar_detect.log" & pids+=($!)
 .venv/bin/capsd run locator --config deploy/config/locator.yaml --connect "$EP" 2>"$LOGS/locator.log" & pids+=($!)
 .venv/bin/capsd run mav_bridge --config "$LOGS/bridge.yaml" 2>"$LOGS/mav_bridge.log" & pids+=($!)

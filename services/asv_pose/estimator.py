@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from capsd.geometry import Array, euler_zyx_to_matrix
+from capsd.payloads import AsvPoseStatus
 from services.asv_pose.scan_match import Segment, level_points, match
 from services.asv_pose.tilt import TiltFilter, TiltSettings
 
@@ -43,7 +44,7 @@ class PoseEstimate:
     position_m: Array
     rotation: Array
     covariance: Array  # 6 x 6 over (x, y, z, roll, pitch, yaw)
-    status: str  # "ok", "degraded" (coasting), "lost"
+    status: AsvPoseStatus  # "ok", "degraded" (coasting), "lost"
 
 
 class AsvPoseEstimator:
@@ -154,6 +155,7 @@ class AsvPoseEstimator:
         cov[2, 2] = 0.02**2  # heave is not observed: the waves' amplitude
         cov[3, 3] = cov[4, 4] = math.radians(0.2) ** 2
         cov[5, 5] = self.match_cov[2, 2] + (math.radians(0.5) * age) ** 2
+        status: AsvPoseStatus
         if self.failures >= self.settings.lost_after or self.match_ns is None:
             status = "lost"
         elif self.failures > 0:

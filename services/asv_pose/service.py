@@ -1,0 +1,117 @@
+"""The ASV pose service: IMU and LiDAR scans in, the ASV's pose out at IMU rate.
+
+See services.asv_pose.estimator for the method. The bare rectangle is 180-degree symmetric, so
+the start needs a heading prior: `seed` (x, y, yaw) near where the ASV is put in the water.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+from typing import Annotated
+
+import msgspec
+import numpy as np
+
+from capsd import topics
+from capsd.config import ConfigSection, ServiceConfig
+from capsd.geometry import euler_zyx_to_matrix, matrix_to_quat
+from capsd.payloads import AsvPose, ImuSample, LidarScan
+from capsd.runner import Publisher, ServiceRunner
+from services.asv_pose.estimator import AsvPoseEstimator, EstimatorSettings
+from services.asv_pose.scan_match import tank_walls
+from services.asv_pose.tilt import TiltSettings
+
+logger = logging.getLogger(__name__)
+
+Metres = Annotated[float, msgspec.Meta(gt=0.0, le=500.0)]
+
+
+class SeedConfig(ConfigSection, frozen=True, kw_only=True):
+    """Where the ASV starts (the heading prior that resolves the rectangle's symmetry)."""
+
+    x_m: float = 14.0
+    y_m: float = 8.0
+    yaw_deg: Annotated[float, msgspec.Meta(ge=-360.0, le=360.0)] = 0.0
+
+
+class Config(ServiceConfig, frozen=True, kw_only=True):
+    """ASV pose configuration."""
+
+    vehicle: str = "asv"
+    tank_length_m: Metres = 28.0
+    tank_width_m: Metres = 16.0
+    seed: SeedConfig = SeedConfig()
+    lidar_xy_m: tuple[float, float] = (0.0, 0.0)
+    imu_mount_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    tilt_kp: Annotated[float, msgspec.Meta(gt=0.0, le=10.0)] = 0.2
+    tilt_ki: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.03
+    min_inlier_ratio: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.6
+    max_jump_m: Annotated[float, msgspec.Meta(gt=0.0, le=10.0)] = 0.5
+
+
+def main(config: Config) -> int:
+    """Run the pose service until stopped."""
+    roll, pitch, yaw = (math.radians(v) for v in config.imu_mount_rpy_deg)
+    r_b_i = euler_zyx_to_matrix(yaw, pitch, roll)
+    estimator = AsvPoseEstimator(
+        tank_walls(config.tank_length_m, config.tank_width_m),
+        seed_xy_yaw=(config.seed.x_m, config.seed.y_m, math.radians(config.seed.yaw_deg)),
+        settings=EstimatorSettings(
+            min_inlier_ratio=config.min_inlier_ratio,
+            max_jump_m=config.max_jump_m,
+            lidar_xy_m=config.lidar_xy_m,
+        ),
+        tilt=TiltSettings(kp=config.tilt_kp, ki=config.tilt_ki, mounting=r_b_i),
+    )
+    lock = threading.Lock()  # IMU and scan callbacks may run on different Zenoh threads
+    with ServiceRunner("asv_pose", config) as runner:
+        poses: Publisher[AsvPose] = runner.publisher(topics.ASV_POSE)
+        runner.add_counters(
+            lambda: {
+                "scans_accepted": estimator.accepted,
+                "imu_rejected": estimator.tilt.rejected,
+                "imu_gaps": estimator.tilt.gaps,
+                **{f"scans_rejected_{k}": v for k, v in estimator.rejected.items()},
+            }
+        )
+
+        def on_imu(sample: ImuSample) -> None:
+            with lock:
+                estimator.on_imu(
+                    sample.stamp_ns,
+                    np.array(sample.angular_velocity_rad_s),
+                    np.array(sample.linear_acceleration_m_s2),
+                )
+                est = estimator.estimate(sample.stamp_ns)
+            q = matrix_to_quat(est.rotation)
+            poses.put(
+                AsvPose(
+                    stamp_ns=est.stamp_ns,
+                    seq=poses.next_seq(),
+                    position_m=(
+                        float(est.position_m[0]),
+                        float(est.position_m[1]),
+                        float(est.position_m[2]),
+                    ),
+                    orientation_xyzw=(float(q[0]), float(q[1]), float(q[2]), float(q[3])),
+                    covariance=tuple(float(v) for v in est.covariance.ravel()),
+                    status=est.status,
+                    source="scan_match",
+                )
+            )
+
+        def on_scan(scan: LidarScan) -> None:
+            ranges = np.array(scan.ranges_m, dtype=np.float64)
+            angles = np.asarray(
+                scan.angle_min_rad + scan.angle_increment_rad * np.arange(len(ranges)),
+                dtype=np.float64,
+            )
+            with lock:
+                estimator.on_scan(scan.stamp_ns, ranges, angles)
+
+        runner.subscribe(topics.ASV_IMU, on_imu)
+        runner.subscribe(topics.ASV_SCAN, on_scan)
+        runner.run()
+    return 0
