@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import socket
 import subprocess
 import sys
@@ -367,3 +368,60 @@ def test_two_publishers_on_one_input_are_flagged(
     assert health is not None
     depth_input = next(s for s in health.inputs if s.key == key)
     assert depth_input.seq_regressions >= 30
+
+
+def test_asv_pose_service_tracks_the_simulated_asv(
+    spawn: Callable[..., Proc], client: zenoh.Session, endpoint: str, tmp_path: Path
+) -> None:
+    from capsd.payloads import AsvPose, GroundTruth
+
+    sim_config = tmp_path / "sim.yaml"
+    sim_config.write_text(
+        f"bus: {{connect: [{endpoint}]}}\nasv_mode: stationary\nasv_start_xy: [14.0, 8.0]\n"
+        "streams: {sonar_frames: 'off', asv_pose_truth_noise: 'off', "
+        "detections_truth_noise: 'off'}\n"
+    )
+    pose_config = tmp_path / "asv_pose.yaml"
+    # Stationary at the tank centre; the ASV faces the ROV's start (the heading prior).
+    from simulator.config import Config as SimConfig
+    from simulator.sim import Simulation
+
+    start = Simulation(
+        msgspec.convert({"asv_mode": "stationary", "asv_start_xy": [14.0, 8.0]}, SimConfig),
+        horizon_s=5,
+    ).asv_pose(0.0)
+    from capsd.geometry import matrix_to_euler_zyx
+
+    yaw_deg = math.degrees(matrix_to_euler_zyx(start.rotation)[0])
+    pose_config.write_text(
+        f"bus: {{connect: [{endpoint}]}}\n"
+        f"seed: {{x_m: 14.2, y_m: 7.9, yaw_deg: {yaw_deg + 2.0:.2f}}}\n"
+    )
+    poses: list[AsvPose] = []
+    truths: list[GroundTruth] = []
+    pose_codec, truth_codec = Codec(AsvPose), Codec(GroundTruth)
+    subs = [
+        client.declare_subscriber(
+            topics.ASV_POSE.key("tank", "asv"),
+            lambda s: poses.append(
+                pose_codec.decode(s.payload.to_bytes(), encoding=str(s.encoding), key_expr="p")
+            ),
+        ),
+        client.declare_subscriber(
+            topics.SIM_TRUTH.key("tank", "sim"),
+            lambda s: truths.append(
+                truth_codec.decode(s.payload.to_bytes(), encoding=str(s.encoding), key_expr="t")
+            ),
+        ),
+    ]
+    spawn("run", "sim", "--config", str(sim_config))
+    spawn("run", "asv_pose", "--config", str(pose_config))
+    wait_for(lambda: len(poses) > 600 and len(truths) > 40, timeout_s=30, what="poses and truth")
+    last = poses[-1]
+    assert last.status == "ok"
+    assert last.source == "scan_match"
+    truth = min(truths, key=lambda t: abs(t.stamp_ns - last.stamp_ns))
+    assert abs(truth.stamp_ns - last.stamp_ns) < 60_000_000
+    assert math.dist(last.position_m[:2], truth.asv_position_m[:2]) < 0.05
+    for sub in subs:
+        sub.undeclare()
