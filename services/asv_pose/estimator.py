@@ -1,7 +1,8 @@
 """The ASV's pose from its IMU and LiDAR: tilt at IMU rate, (x, y, yaw) from scan matching.
 
-- Roll/pitch: the tilt filter (services.asv_pose.tilt), fed the ASV's own acceleration from the
-  scan-matched track (rotated into the body frame), so manoeuvres do not leak into tilt.
+- Roll/pitch: the tilt filter (services.asv_pose.tilt), fed the ASV's own acceleration from a
+  quadratic fit to the last ~0.7 s of scan matches (rotated into the body frame), so manoeuvres
+  do not leak into tilt.
 - Yaw between scans: integrated from the gyro (world z rate from the body rates and tilt).
 - Each scan, levelled with the current roll/pitch, is matched against the tank's walls, seeded
   by the prediction (last match + velocity, yaw from the gyro). A match is accepted only if it
@@ -36,6 +37,7 @@ class EstimatorSettings:
     max_jump_rad: float = math.radians(5.0)
     lost_after: int = 10
     lidar_xy_m: tuple[float, float] = (0.0, 0.0)
+    track_fit_scans: int = 11  # ~0.7 s at 15 Hz
 
 
 @dataclass(frozen=True)
@@ -71,6 +73,7 @@ class AsvPoseEstimator:
         self.accepted = 0
         self.rejected: dict[str, int] = {}
         self.match_cov = np.diag([0.05**2, 0.05**2, math.radians(2.0) ** 2])
+        self._track: list[tuple[int, Array]] = []
 
     def on_imu(self, stamp_ns: int, gyro: Array, accel: Array) -> None:
         c, s = math.cos(self.yaw), math.sin(self.yaw)
@@ -121,19 +124,32 @@ class AsvPoseEstimator:
         if jump > s.max_jump_m or dyaw > s.max_jump_rad:
             return self._reject("jump")
         new_xy = np.array([result.x_m, result.y_m])
-        if self.match_ns is not None:
-            dt = (stamp_ns - self.match_ns) / 1e9
-            if dt > 0.0:
-                velocity = (new_xy - self.xy) / dt
-                # Light smoothing: scan-to-scan differences are noisy at 15 Hz.
-                self.acceleration = 0.5 * self.acceleration + 0.5 * (velocity - self.velocity) / dt
-                self.velocity = 0.7 * self.velocity + 0.3 * velocity
+        self._track.append((stamp_ns, new_xy))
+        if len(self._track) > self.settings.track_fit_scans:
+            self._track.pop(0)
+        self._fit_track(stamp_ns)
         self.xy, self.yaw = new_xy, result.yaw_rad
         self.match_ns = stamp_ns
         self.match_cov = result.covariance
         self.failures = 0
         self.accepted += 1
         return True
+
+    def _fit_track(self, stamp_ns: int) -> None:
+        """Velocity and acceleration from a quadratic fit to the recent matches.
+
+        Differencing 15 Hz scans amplifies their centimetre noise into metres per second
+        squared; a least-squares quadratic over ~0.7 s gives the tilt filter a usable
+        acceleration (slightly late, but smooth).
+        """
+        if len(self._track) < 5:
+            return
+        t = np.array([(s - stamp_ns) / 1e9 for s, _ in self._track])
+        xy = np.array([p for _, p in self._track])
+        basis = np.column_stack([np.ones_like(t), t, t * t])
+        coeffs, *_ = np.linalg.lstsq(basis, xy, rcond=None)
+        self.velocity = coeffs[1]
+        self.acceleration = 2.0 * coeffs[2]
 
     def _reject(self, why: str) -> bool:
         self.failures += 1
