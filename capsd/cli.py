@@ -324,6 +324,12 @@ def _cmd_bench_detect(args: argparse.Namespace) -> int:
     return detect.run(duration_s=args.duration)
 
 
+def _cmd_bench_asv_pose(args: argparse.Namespace) -> int:
+    from capsd.bench import asv_pose
+
+    return asv_pose.run(seconds=args.duration)
+
+
 def _cmd_bench_footprint(args: argparse.Namespace) -> int:
     from capsd.bench import footprint
 
@@ -517,6 +523,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     bdet.add_argument("--duration", type=float, default=15.0, help="seconds per run")
     bdet.set_defaults(func=_cmd_bench_detect)
+    bpose = bench_sub.add_parser(
+        "asv_pose",
+        help="ASV pose error against the simulator's truth (both tanks, both modes)",
+        description="Run the pose estimator on simulated IMU and LiDAR (waves on), ASV stationary "
+        "and following; print RMS position, yaw, roll and pitch error and the targets.",
+    )
+    bpose.add_argument("--duration", type=float, default=60.0, help="seconds per run")
+    bpose.set_defaults(func=_cmd_bench_asv_pose)
     return parser
 
 
