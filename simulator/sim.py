@@ -34,7 +34,6 @@ from capsd.payloads import (
     RovDepth,
     RovVelocity,
     SonarDetections,
-    SonarFrame,
     SonarLabel,
 )
 from capsd.sonar_geometry import to_polar
@@ -295,7 +294,7 @@ class Simulation:
     def _emit_sonar(
         self, t: float, true_ns: int, clocks: dict[str, VehicleClock]
     ) -> Iterator[Event]:
-        cfg, m = self.config, self.sonar_model
+        cfg = self.config
         rov = self.rov_state(t)
         asv = self.asv_pose(t)
         sonar_pose = asv.compose(self.mount)
@@ -311,22 +310,7 @@ class Simulation:
                 t,
                 topics.SONAR_FRAME,
                 cfg.asv_vehicle,
-                SonarFrame(
-                    stamp_ns=stamp,
-                    seq=ping,
-                    ping_id=ping,
-                    n_ranges=m.n_ranges,
-                    n_beams=m.n_beams,
-                    sample_bits=8,
-                    image=rendered.image.tobytes(),
-                    azimuths_rad=tuple(float(a) for a in self.renderer.azimuths),
-                    range_start_m=0.0,
-                    range_resolution_m=m.range_resolution_m,
-                    sound_speed_m_s=m.sound_speed_m_s,
-                    gain_percent=m.gain_percent,
-                    frequency_hz=m.frequency_hz,
-                    vertical_aperture_rad=m.vertical_aperture_rad,
-                ),
+                self.renderer.frame(rendered, stamp_ns=stamp, seq=ping, ping_id=ping),
             )
         else:
             label = self._geometric_label(sonar_pose, rov, dropped)

@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from capsd.geometry import Array, IndexArray, MaskArray, Transform
+from capsd.payloads import SonarFrame
 from capsd.sonar_geometry import BeamModel, to_polar
 from simulator import scene
 from simulator.scene import Ellipsoid
@@ -106,6 +107,7 @@ class SonarRenderer:
         self.model = model
         self.tank = tank
         self.azimuths = model.azimuths()
+        self._azimuth_tuple = tuple(float(a) for a in self.azimuths)  # the same every ping
         half = model.vertical_aperture_rad / 2.0
         # Rays reach a little past the nominal aperture: the vertical pattern has skirts.
         self._elev_edges = np.linspace(-1.3 * half, 1.3 * half, model.elevation_rays + 1)
@@ -279,4 +281,24 @@ class SonarRenderer:
             count,
             overlap,
             ghosts,
+        )
+
+    def frame(self, ping: Ping, *, stamp_ns: int, seq: int, ping_id: int) -> SonarFrame:
+        """The bus payload of a rendered ping (what a real driver would publish)."""
+        m = self.model
+        return SonarFrame(
+            stamp_ns=stamp_ns,
+            seq=seq,
+            ping_id=ping_id,
+            n_ranges=m.n_ranges,
+            n_beams=m.n_beams,
+            sample_bits=8,
+            image=ping.image.tobytes(),
+            azimuths_rad=self._azimuth_tuple,
+            range_start_m=0.0,
+            range_resolution_m=m.range_resolution_m,
+            sound_speed_m_s=m.sound_speed_m_s,
+            gain_percent=m.gain_percent,
+            frequency_hz=m.frequency_hz,
+            vertical_aperture_rad=m.vertical_aperture_rad,
         )

@@ -10,7 +10,6 @@ PARAM_VALUE, COMMAND_ACK...). Connection strings: `tcp:HOST:PORT`, `tcpin:HOST:P
 from __future__ import annotations
 
 import contextlib
-import math
 import os
 import re
 import time
@@ -26,7 +25,6 @@ from capsd.errors import ConfigError
 
 MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY = 197
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
-MAV_CMD_REQUEST_MESSAGE = 512
 MAV_RESULT_ACCEPTED = 0
 MAV_SEVERITY = {"emergency": 0, "alert": 1, "critical": 2, "error": 3, "warning": 4,
                 "notice": 5, "info": 6, "debug": 7}  # fmt: skip
@@ -484,7 +482,3 @@ def mode_number(name: str) -> int:
 def message_id(name: str) -> int:
     """The MAVLink message id of e.g. "ATTITUDE" (for SET_MESSAGE_INTERVAL)."""
     return int(getattr(mavutil.mavlink, f"MAVLINK_MSG_ID_{name}"))
-
-
-def is_finite(*values: float) -> bool:
-    return all(math.isfinite(v) for v in values)

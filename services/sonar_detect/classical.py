@@ -49,8 +49,6 @@ class Blob:
     azimuth_rad: float
     range_extent_m: float
     azimuth_extent_rad: float
-    contrast: float
-    pixels: int
     energy: float  # summed excess over the local mean: dense bright echoes score high
 
 
@@ -142,6 +140,5 @@ class ClassicalDetector:
                 s.min_extent_m <= range_extent <= s.max_extent_m and cross_extent <= s.max_extent_m
             ):
                 continue
-            contrast = float(image[rows, cols][inside].max() - local[rows, cols][inside].mean())
-            blobs.append(Blob(range_c, azimuth, range_extent, float(span), contrast, area, total))
+            blobs.append(Blob(range_c, azimuth, range_extent, float(span), total))
         return blobs

@@ -98,7 +98,8 @@ def to_frame(ping: Ping, *, config: Config, stamp_ns: int, seq: int) -> SonarFra
     else:
         image = (image >> 16).astype("<u2")
         bits = 16
-    raw = np.ascontiguousarray(image.astype(image.dtype.newbyteorder("<"))).tobytes()
+    # One copy: astype is a no-op for little-endian data, tobytes writes C order.
+    raw = image.astype(image.dtype.newbyteorder("<"), copy=False).tobytes()
     return SonarFrame(
         stamp_ns=stamp_ns,
         seq=seq,

@@ -15,7 +15,6 @@ a broken message it resynchronises on the next header.
 
 from __future__ import annotations
 
-import ipaddress
 import struct
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -278,11 +277,6 @@ def parse_status(datagram: bytes) -> tuple[int, int] | None:
     if fields[0] != OCULUS_ID:
         return None
     return fields[7], fields[8]
-
-
-def is_private_or_loopback(address: str) -> bool:
-    ip = ipaddress.ip_address(address)
-    return ip.is_private or ip.is_loopback
 
 
 def build_ping_result(

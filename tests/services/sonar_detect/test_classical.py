@@ -19,23 +19,7 @@ def _frame(
     renderer: SonarRenderer, sonar: Transform, rov: Ellipsoid | None, seed: int
 ) -> SonarFrame:
     ping = renderer.render(sonar, rov, np.random.default_rng(seed))
-    m = renderer.model
-    return SonarFrame(
-        stamp_ns=seed,
-        seq=seed,
-        ping_id=seed,
-        n_ranges=m.n_ranges,
-        n_beams=m.n_beams,
-        sample_bits=8,
-        image=ping.image.tobytes(),
-        azimuths_rad=tuple(float(a) for a in renderer.azimuths),
-        range_start_m=0.0,
-        range_resolution_m=m.range_resolution_m,
-        sound_speed_m_s=1480.0,
-        gain_percent=50.0,
-        frequency_hz=1.2e6,
-        vertical_aperture_rad=m.vertical_aperture_rad,
-    )
+    return renderer.frame(ping, stamp_ns=seed, seq=seed, ping_id=seed)
 
 
 @pytest.mark.parametrize(("range_m", "azimuth_deg"), [(4.0, 0.0), (6.0, 25.0), (8.0, -40.0)])
