@@ -31,7 +31,7 @@ trajectory: ${TRAJECTORY:-square}
 streams: {detections_truth_noise: "off", asv_pose_truth_noise: "off"}
 YAML
 # asv_pose needs to know roughly where the ASV was put in the water (its heading prior).
-SEED=$(.venv/bin/python -c "
+HEADING_DEG=$(.venv/bin/python -c "
 import math, sys
 from capsd.config import load_config
 from simulator.config import Config
@@ -39,11 +39,11 @@ from simulator.sim import Simulation
 from capsd.geometry import matrix_to_euler_zyx
 pose = Simulation(load_config(sys.argv[1], Config), horizon_s=10).asv_pose(0.0)
 yaw = math.degrees(matrix_to_euler_zyx(pose.rotation)[0])
-print(f'{{x_m: {pose.translation[0]:.2f}, y_m: {pose.translation[1]:.2f}, yaw_deg: {yaw:.1f}}}')
+print(f'{yaw:.0f}')
 " "$LOGS/sim.yaml")
 cat > "$LOGS/asv_pose.yaml" <<YAML
 bus: {connect: [$EP]}
-seed: $SEED
+heading_prior_deg: $HEADING_DEG
 YAML
 # The simulator already publishes the ROV's depth and attitude under "rov"; the stand-in's
 # telemetry goes under its own name so the two never mix on one key.

@@ -11,8 +11,11 @@
   consecutive failures the pose is reported lost.
 - Output at IMU rate: position extrapolated from the last match with the track's velocity,
   orientation from yaw and tilt, a 6 x 6 covariance growing with the time since the last match.
-The start needs a pose seed (the bare rectangle is 180-degree symmetric: a heading prior picks
-the side); the global search after a loss is not implemented yet.
+- Global search (services.asv_pose.global_search) at start-up and after `lost_after`
+  consecutive failures, at most once per `search_interval_s`: no position seed is needed. The
+  bare rectangle is 180-degree symmetric, so a heading prior picks the side: the configured one
+  at start-up (compass or launch orientation; None: only a map without that symmetry works),
+  the gyro-propagated heading after a loss. An ambiguous search keeps the pose lost.
 """
 
 from __future__ import annotations
@@ -24,7 +27,8 @@ import numpy as np
 
 from capsd.geometry import Array, euler_zyx_to_matrix
 from capsd.payloads import AsvPoseStatus
-from services.asv_pose.scan_match import Segment, level_points, match
+from services.asv_pose.global_search import MapRaster, SearchSettings, search
+from services.asv_pose.scan_match import MatchResult, Segment, level_points, match
 from services.asv_pose.tilt import TiltFilter, TiltSettings
 
 
@@ -36,6 +40,7 @@ class EstimatorSettings:
     max_jump_m: float = 0.5
     max_jump_rad: float = math.radians(5.0)
     lost_after: int = 10
+    search_interval_s: float = 1.0
     lidar_xy_m: tuple[float, float] = (0.0, 0.0)
     track_fit_scans: int = 11  # ~0.7 s at 15 Hz
 
@@ -56,17 +61,25 @@ class AsvPoseEstimator:
         self,
         walls: tuple[Segment, ...],
         *,
-        seed_xy_yaw: tuple[float, float, float],
+        heading_prior_rad: float | None,
         settings: EstimatorSettings | None = None,
         tilt: TiltSettings | None = None,
+        search_settings: SearchSettings | None = None,
     ):
         self.walls = walls
         self.settings = settings or EstimatorSettings()
         self.tilt = TiltFilter(tilt)
-        self.xy = np.array(seed_xy_yaw[:2], dtype=np.float64)
+        self.search_settings = search_settings or SearchSettings()
+        self._raster = MapRaster(walls, raster_m=self.search_settings.raster_m)
+        self.heading_prior_rad = heading_prior_rad
+        self.xy = np.zeros(2)
         self.velocity = np.zeros(2)
         self.acceleration = np.zeros(2)
-        self.yaw = float(seed_xy_yaw[2])
+        self.yaw = heading_prior_rad if heading_prior_rad is not None else 0.0
+        self.searches = 0
+        self.relocalisations = 0
+        self.last_search_ns: int | None = None
+        self.last_search_why = ""
         self.match_ns: int | None = None
         self.imu_ns: int | None = None
         self.failures = 0
@@ -108,6 +121,8 @@ class AsvPoseEstimator:
         )
         if len(points) < 20:
             return self._reject("too_few_returns")
+        if self.match_ns is None or self.failures >= s.lost_after:
+            return self._search(stamp_ns, points)
         result = match(
             points, self.walls, x_m=float(predicted[0]), y_m=float(predicted[1]), yaw_rad=self.yaw
         )
@@ -115,14 +130,57 @@ class AsvPoseEstimator:
         dyaw = abs(
             math.atan2(math.sin(result.yaw_rad - self.yaw), math.cos(result.yaw_rad - self.yaw))
         )
-        if result.inlier_ratio < s.min_inlier_ratio:
-            return self._reject("inliers")
-        if result.residual_rms_m > s.max_residual_m:
-            return self._reject("residual")
-        if result.degeneracy < s.min_degeneracy:
-            return self._reject("degenerate")
+        failed = self._check(result)
+        if failed:
+            return self._reject(failed)
         if jump > s.max_jump_m or dyaw > s.max_jump_rad:
             return self._reject("jump")
+        self._accept(stamp_ns, result)
+        return True
+
+    def _check(self, result: MatchResult) -> str:
+        """The match health checks; the failed one's name, or '' when all pass."""
+        s = self.settings
+        if result.inlier_ratio < s.min_inlier_ratio:
+            return "inliers"
+        if result.residual_rms_m > s.max_residual_m:
+            return "residual"
+        if result.degeneracy < s.min_degeneracy:
+            return "degenerate"
+        return ""
+
+    def _search(self, stamp_ns: int, points: Array) -> bool:
+        """Global search (rate limited); on success the track restarts from its answer."""
+        interval_ns = int(self.settings.search_interval_s * 1e9)
+        if self.last_search_ns is not None and stamp_ns - self.last_search_ns < interval_ns:
+            return self._reject("lost_waiting_for_search")
+        self.last_search_ns = stamp_ns
+        self.searches += 1
+        # After a loss the gyro-propagated heading is the prior; at start-up the configured one.
+        prior = self.yaw if self.match_ns is not None else self.heading_prior_rad
+        found = search(
+            points,
+            self.walls,
+            heading_prior_rad=prior,
+            settings=self.search_settings,
+            raster=self._raster,
+        )
+        if found.best is None:
+            self.last_search_why = found.why
+            return self._reject("search_ambiguous" if found.ambiguous else "search_failed")
+        failed = self._check(found.best)
+        if failed:
+            self.last_search_why = f"best hypothesis fails the {failed} check"
+            return self._reject("search_failed")
+        self.last_search_why = ""
+        self._track.clear()
+        self.velocity = np.zeros(2)
+        self.acceleration = np.zeros(2)
+        self.relocalisations += 1
+        self._accept(stamp_ns, found.best)
+        return True
+
+    def _accept(self, stamp_ns: int, result: MatchResult) -> None:
         new_xy = np.array([result.x_m, result.y_m])
         self._track.append((stamp_ns, new_xy))
         if len(self._track) > self.settings.track_fit_scans:
@@ -133,7 +191,6 @@ class AsvPoseEstimator:
         self.match_cov = result.covariance
         self.failures = 0
         self.accepted += 1
-        return True
 
     def _fit_track(self, stamp_ns: int) -> None:
         """Velocity and acceleration from a quadratic fit to the recent matches.

@@ -55,7 +55,7 @@ def level_points(
     mount_xy: tuple[float, float] = (0.0, 0.0),
 ) -> Array:
     """Scan points (returns only) in the levelled body frame's x-y plane."""
-    ok = ranges_m > 0.0
+    ok = np.isfinite(ranges_m) & (ranges_m > 0.0)  # NaN, inf and 0 (no return) dropped
     r, a = ranges_m[ok], angles_rad[ok]
     pts = np.column_stack([r * np.cos(a), r * np.sin(a), np.zeros_like(r)])
     levelled = pts @ euler_zyx_to_matrix(0.0, pitch_rad, roll_rad).T

@@ -1,7 +1,8 @@
 """The ASV pose service: IMU and LiDAR scans in, the ASV's pose out at IMU rate.
 
-See services.asv_pose.estimator for the method. The bare rectangle is 180-degree symmetric, so
-the start needs a heading prior: `seed` (x, y, yaw) near where the ASV is put in the water.
+See services.asv_pose.estimator for the method. It finds itself by a global search (no position
+seed); the bare rectangle is 180-degree symmetric, so `heading_prior_deg` (which way the ASV
+was put in the water, or a compass) picks the side, within `heading_prior_tolerance_deg`.
 """
 
 from __future__ import annotations
@@ -15,11 +16,12 @@ import msgspec
 import numpy as np
 
 from capsd import topics
-from capsd.config import ConfigSection, ServiceConfig
+from capsd.config import ServiceConfig
 from capsd.geometry import euler_zyx_to_matrix, matrix_to_quat
 from capsd.payloads import AsvPose, ImuSample, LidarScan
 from capsd.runner import Publisher, ServiceRunner
 from services.asv_pose.estimator import AsvPoseEstimator, EstimatorSettings
+from services.asv_pose.global_search import SearchSettings
 from services.asv_pose.scan_match import tank_walls
 from services.asv_pose.tilt import TiltSettings
 
@@ -28,21 +30,16 @@ logger = logging.getLogger(__name__)
 Metres = Annotated[float, msgspec.Meta(gt=0.0, le=500.0)]
 
 
-class SeedConfig(ConfigSection, frozen=True, kw_only=True):
-    """Where the ASV starts (the heading prior that resolves the rectangle's symmetry)."""
-
-    x_m: float = 14.0
-    y_m: float = 8.0
-    yaw_deg: Annotated[float, msgspec.Meta(ge=-360.0, le=360.0)] = 0.0
-
-
 class Config(ServiceConfig, frozen=True, kw_only=True):
     """ASV pose configuration."""
 
     vehicle: str = "asv"
     tank_length_m: Metres = 28.0
     tank_width_m: Metres = 16.0
-    seed: SeedConfig = SeedConfig()
+    # Which way the ASV points at start-up (W's x = 0 deg, counter-clockwise); null: no prior,
+    # only a map without the rectangle's symmetry can be searched.
+    heading_prior_deg: Annotated[float, msgspec.Meta(ge=-360.0, le=360.0)] | None = 0.0
+    heading_prior_tolerance_deg: Annotated[float, msgspec.Meta(gt=0.0, lt=90.0)] = 60.0
     lidar_xy_m: tuple[float, float] = (0.0, 0.0)
     imu_mount_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
     tilt_kp: Annotated[float, msgspec.Meta(gt=0.0, le=10.0)] = 0.2
@@ -57,7 +54,12 @@ def main(config: Config) -> int:
     r_b_i = euler_zyx_to_matrix(yaw, pitch, roll)
     estimator = AsvPoseEstimator(
         tank_walls(config.tank_length_m, config.tank_width_m),
-        seed_xy_yaw=(config.seed.x_m, config.seed.y_m, math.radians(config.seed.yaw_deg)),
+        heading_prior_rad=(
+            math.radians(config.heading_prior_deg) if config.heading_prior_deg is not None else None
+        ),
+        search_settings=SearchSettings(
+            prior_tolerance_rad=math.radians(config.heading_prior_tolerance_deg)
+        ),
         settings=EstimatorSettings(
             min_inlier_ratio=config.min_inlier_ratio,
             max_jump_m=config.max_jump_m,
@@ -71,6 +73,8 @@ def main(config: Config) -> int:
         runner.add_counters(
             lambda: {
                 "scans_accepted": estimator.accepted,
+                "global_searches": estimator.searches,
+                "relocalisations": estimator.relocalisations,
                 "imu_rejected": estimator.tilt.rejected,
                 "imu_gaps": estimator.tilt.gaps,
                 **{f"scans_rejected_{k}": v for k, v in estimator.rejected.items()},
