@@ -32,6 +32,11 @@ SERVICES: dict[str, ServiceEntry] = {
             "ASV pose from IMU and LiDAR (tilt filter, scan matching)",
         ),
         ServiceEntry(
+            "tim5xx",
+            "services.asv_pose.tim5xx",
+            "SICK TiM5xx LiDAR client (CoLa-A): scans onto the bus",
+        ),
+        ServiceEntry(
             "locator",
             "services.locator.service",
             "CAP-SD fix from detections, ASV pose and ROV depth",
@@ -49,7 +54,12 @@ SERVICES: dict[str, ServiceEntry] = {
         ServiceEntry(
             "sonar_detect",
             "services.sonar_detect.service",
-            "ROV detection in sonar frames (classical; the CNN is to come)",
+            "ROV detection in sonar frames (polar CNN, or classical CFAR)",
+        ),
+        ServiceEntry(
+            "sonar_replay",
+            "services.sonar_detect.replay",
+            "recorded sonar frames (Oculus bytes or a dataset) onto the bus, paced",
         ),
         ServiceEntry(
             "sim",

@@ -60,7 +60,7 @@ def _run(
     seconds: float,
 ) -> list[tuple[float, str, float]]:
     """Static ASV: IMU at 200 Hz, scans at 15 Hz; (time, status, position error) per scan."""
-    out = []
+    out: list[tuple[float, str, float]] = []
     imu_dt, scan_every = 0.005, 13
     steps = int(seconds / imu_dt)
     for k in range(steps):
@@ -122,7 +122,7 @@ def test_bad_scans_and_imu_gaps_are_counted_and_survived() -> None:
     angles = LidarModel().angles()
     good = _scan("nfp", 14.0, 8.0, 0.0, 1)
     t = 0.0
-    for k in range(100):
+    for _k in range(100):
         estimator.on_imu(int(t * 1e9), np.zeros(3), GRAVITY)
         t += 0.005
     estimator.on_scan(int(t * 1e9), good, angles)
