@@ -16,6 +16,7 @@ class Subject(StrEnum):
     """What a key carries, relative to its vehicle's namespace."""
 
     ASV_POSE = "asv/pose"
+    ASV_POSE_EXTERNAL = "asv/pose_external"  # an existing SLAM's pose, for asv_pose to use
     ASV_IMU = "asv/imu"
     ASV_SCAN = "asv/scan"
     SONAR_FRAME = "sonar/frame"

@@ -23,6 +23,7 @@ class Topic(Generic[P]):
 
 
 ASV_POSE = Topic(Subject.ASV_POSE, pl.AsvPose)
+ASV_POSE_EXTERNAL = Topic(Subject.ASV_POSE_EXTERNAL, pl.AsvPose)
 ASV_IMU = Topic(Subject.ASV_IMU, pl.ImuSample)
 ASV_SCAN = Topic(Subject.ASV_SCAN, pl.LidarScan)
 SONAR_FRAME = Topic(Subject.SONAR_FRAME, pl.SonarFrame)
@@ -36,6 +37,6 @@ SIM_TRUTH = Topic(Subject.SIM_TRUTH, pl.GroundTruth)
 SIM_LABEL = Topic(Subject.SIM_LABEL, pl.SonarLabel)
 
 ALL_TOPICS: tuple[Topic[Any], ...] = (
-    ASV_POSE, ASV_IMU, ASV_SCAN, SONAR_FRAME, SONAR_DETECTIONS,
+    ASV_POSE, ASV_POSE_EXTERNAL, ASV_IMU, ASV_SCAN, SONAR_FRAME, SONAR_DETECTIONS,
     ROV_DEPTH, ROV_ATTITUDE, ROV_VELOCITY, ROV_STATUS, ROV_FIX, SIM_TRUTH, SIM_LABEL,
 )  # fmt: skip

@@ -138,6 +138,27 @@ class AsvPoseEstimator:
         self._accept(stamp_ns, result)
         return True
 
+    def on_external(
+        self, stamp_ns: int, x_m: float, y_m: float, yaw_rad: float, covariance: Array
+    ) -> bool:
+        """An external pose (an existing SLAM) in place of a scan match; True if used.
+
+        The external source is authoritative: a jump from the prediction is counted (a SLAM
+        reset shows up there) but the pose is taken.
+        """
+        if not all(math.isfinite(v) for v in (x_m, y_m, yaw_rad)):
+            return self._reject("external_invalid")
+        if self.match_ns is not None:
+            predicted = self._predict_xy(stamp_ns)
+            if math.hypot(x_m - predicted[0], y_m - predicted[1]) > self.settings.max_jump_m:
+                self.rejected["external_jumps"] = self.rejected.get("external_jumps", 0) + 1
+                self._track.clear()
+        cov = np.asarray(covariance, dtype=np.float64)
+        if cov.shape != (3, 3) or not np.all(np.isfinite(cov)):
+            cov = np.diag([0.05**2, 0.05**2, math.radians(2.0) ** 2])
+        self._accept(stamp_ns, MatchResult(x_m, y_m, yaw_rad, 1.0, 0.0, math.inf, cov, 0))
+        return True
+
     def _check(self, result: MatchResult) -> str:
         """The match health checks; the failed one's name, or '' when all pass."""
         s = self.settings

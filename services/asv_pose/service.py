@@ -10,14 +10,19 @@ from __future__ import annotations
 import logging
 import math
 import threading
-from typing import Annotated
+from typing import Annotated, Literal
 
 import msgspec
 import numpy as np
 
 from capsd import topics
 from capsd.config import ServiceConfig
-from capsd.geometry import euler_zyx_to_matrix, matrix_to_quat
+from capsd.geometry import (
+    euler_zyx_to_matrix,
+    matrix_to_euler_zyx,
+    matrix_to_quat,
+    quat_to_matrix,
+)
 from capsd.payloads import AsvPose, ImuSample, LidarScan
 from capsd.runner import Publisher, ServiceRunner
 from services.asv_pose.estimator import AsvPoseEstimator, EstimatorSettings
@@ -34,6 +39,9 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     """ASV pose configuration."""
 
     vehicle: str = "asv"
+    # scan_match: the built-in matcher on asv/scan; external: an existing SLAM's pose on
+    # asv/pose_external (e.g. from `capsd run ros_input`), with our tilt filter and IMU rate.
+    source: Literal["scan_match", "external"] = "scan_match"
     tank_length_m: Metres = 28.0
     tank_width_m: Metres = 16.0
     # Which way the ASV points at start-up (W's x = 0 deg, counter-clockwise); null: no prior,
@@ -102,7 +110,7 @@ def main(config: Config) -> int:
                     orientation_xyzw=(float(q[0]), float(q[1]), float(q[2]), float(q[3])),
                     covariance=tuple(float(v) for v in est.covariance.ravel()),
                     status=est.status,
-                    source="scan_match",
+                    source=config.source,
                 )
             )
 
@@ -115,7 +123,20 @@ def main(config: Config) -> int:
             with lock:
                 estimator.on_scan(scan.stamp_ns, ranges, angles)
 
+        def on_external(pose: AsvPose) -> None:
+            rotation = quat_to_matrix(np.array(pose.orientation_xyzw))
+            yaw = matrix_to_euler_zyx(rotation)[0]
+            cov6 = np.array(pose.covariance).reshape(6, 6)
+            cov3 = cov6[np.ix_([0, 1, 5], [0, 1, 5])]
+            with lock:
+                estimator.on_external(
+                    pose.stamp_ns, pose.position_m[0], pose.position_m[1], yaw, cov3
+                )
+
         runner.subscribe(topics.ASV_IMU, on_imu)
-        runner.subscribe(topics.ASV_SCAN, on_scan)
+        if config.source == "scan_match":
+            runner.subscribe(topics.ASV_SCAN, on_scan)
+        else:
+            runner.subscribe(topics.ASV_POSE_EXTERNAL, on_external)
         runner.run()
     return 0
