@@ -321,7 +321,128 @@ def _cmd_bench_sim(args: argparse.Namespace) -> int:
 def _cmd_bench_detect(args: argparse.Namespace) -> int:
     from capsd.bench import detect
 
-    return detect.run(duration_s=args.duration)
+    if args.throughput:
+        return detect.run_throughput(frames=args.frames, which=args.detector)
+    return detect.run(duration_s=args.duration, which=args.detector)
+
+
+def _cmd_record(args: argparse.Namespace) -> int:
+    import zenoh
+
+    from capsd.bus import open_session
+    from capsd.recording import record
+
+    try:
+        bus = bus_from_args(args, BusConfig())
+        zenoh.KeyExpr(args.keyexpr)
+    except (ConfigError, zenoh.ZError) as exc:
+        return _fail(f"record: {exc}", EXIT_CONFIG)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+
+    def progress(n: int) -> None:
+        print(f"record: {n} messages", file=sys.stderr, flush=True)
+
+    try:
+        with open_session(bus) as session:
+            counts = record(
+                session,
+                args.keyexpr,
+                args.output,
+                stop=stop,
+                duration_s=args.duration,
+                on_progress=progress,
+            )
+    except KeyboardInterrupt:
+        return EXIT_OK
+    except (BusError, CapsdError, OSError) as exc:
+        return _fail(f"record: {exc}", EXIT_FAILURE)
+    for key, n in sorted(counts.items()):
+        print(f"{n:8d}  {key}")
+    print(f"recorded {sum(counts.values())} messages into {args.output}")
+    return EXIT_OK
+
+
+def _cmd_replay(args: argparse.Namespace) -> int:
+    from capsd.bus import open_session
+    from capsd.recording import channel_counts, replay
+
+    if args.info:
+        try:
+            counts = channel_counts(args.file)
+        except CapsdError as exc:
+            return _fail(f"replay: {exc}", EXIT_CONFIG)
+        for key, n in sorted(counts.items()):
+            print(f"{n:8d}  {key}")
+        return EXIT_OK
+    if not args.speed > 0:
+        return _fail(f"replay: --speed must be positive, not {args.speed}", EXIT_CONFIG)
+    try:
+        bus = bus_from_args(args, BusConfig())
+    except ConfigError as exc:
+        return _fail(str(exc), EXIT_CONFIG)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    try:
+        channel_counts(args.file)  # a bad file fails before the first message
+        with open_session(bus) as session:
+            counts = replay(
+                session,
+                args.file,
+                speed=args.speed,
+                stop=stop,
+                include=args.include,
+                exclude=tuple(args.exclude),
+            )
+    except KeyboardInterrupt:
+        return EXIT_OK
+    except CapsdError as exc:
+        return _fail(f"replay: {exc}", EXIT_CONFIG)
+    except BusError as exc:
+        return _fail(f"replay: {exc}", EXIT_FAILURE)
+    print(f"replayed {sum(counts.values())} messages from {args.file}")
+    return EXIT_OK
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from datetime import UTC, datetime
+
+    from capsd import demo
+
+    out = args.out or Path("reports") / datetime.now(UTC).strftime("demo-%Y%m%d-%H%M%S")
+    return demo.main(
+        duration_s=args.duration,
+        out=out,
+        trajectory=args.trajectory,
+        tank=args.tank,
+        seed=args.seed,
+        port=args.port,
+    )
+
+
+def _cmd_bench_accuracy(args: argparse.Namespace) -> int:
+    from capsd.bench import accuracy
+
+    accuracy.bench(duration_s=args.duration, seed=args.seed, out_dir=args.out)
+    return 0
+
+
+def _cmd_train_detector(args: argparse.Namespace) -> int:
+    from services.sonar_detect.train import TrainConfig, train
+
+    config = TrainConfig(
+        seed=args.seed,
+        runs=args.runs,
+        duration_s=args.run_duration,
+        workers=args.workers,
+        threads=args.threads,
+        proposal_epochs=args.proposal_epochs,
+        refine_epochs=args.refine_epochs,
+        mining_runs=args.mining_runs,
+        eval_duration_s=args.eval_duration,
+    )
+    train(config, args.out)
+    return 0
 
 
 def _cmd_bench_asv_pose(args: argparse.Namespace) -> int:
@@ -522,7 +643,26 @@ def build_parser() -> argparse.ArgumentParser:
         "pipeline as the baseline.",
     )
     bdet.add_argument("--duration", type=float, default=15.0, help="seconds per run")
+    bdet.add_argument(
+        "--detector", choices=["all", "classical", "cnn"], default="all", help="which to run"
+    )
+    bdet.add_argument(
+        "--throughput",
+        action="store_true",
+        help="instead: per-frame latency on 512 x 1000 frames on one CPU core",
+    )
+    bdet.add_argument("--frames", type=int, default=300, help="frames timed (--throughput)")
     bdet.set_defaults(func=_cmd_bench_detect)
+    bacc = bench_sub.add_parser(
+        "accuracy",
+        help="the paper's results table: its method vs ours on the same runs, and an ablation",
+        description="Five trajectories in the nfp tank and one in the mockup through the "
+        "offline pipeline; x/y/z RMSE, MED, p95, availability; targets; ablation; PNGs.",
+    )
+    bacc.add_argument("--duration", type=float, default=60.0, help="simulated seconds per run")
+    bacc.add_argument("--seed", type=int, default=0, help="simulator seed")
+    bacc.add_argument("--out", type=Path, default=Path("reports/accuracy"), help="report folder")
+    bacc.set_defaults(func=_cmd_bench_accuracy)
     bpose = bench_sub.add_parser(
         "asv_pose",
         help="ASV pose error against the simulator's truth (both tanks, both modes)",
@@ -531,6 +671,68 @@ def build_parser() -> argparse.ArgumentParser:
     )
     bpose.add_argument("--duration", type=float, default=60.0, help="seconds per run")
     bpose.set_defaults(func=_cmd_bench_asv_pose)
+    rec = sub.add_parser(
+        "record",
+        help="record key expressions into an MCAP file (JSON schemas; Foxglove reads it)",
+        description="Subscribe to KEYEXPR and write every sample to an MCAP file until "
+        "Ctrl-C/SIGTERM or --duration.",
+    )
+    rec.add_argument("keyexpr", help="key expression, e.g. 'cap/**'")
+    rec.add_argument("-o", "--output", type=Path, required=True, help="the .mcap file")
+    rec.add_argument("--duration", type=float, default=None, help="seconds to record")
+    add_bus_flags(rec)
+    rec.set_defaults(func=_cmd_record)
+    rep = sub.add_parser(
+        "replay",
+        help="republish an MCAP recording with its original timing (bytes and stamps kept)",
+        description="Put every recorded sample again on its key, paced by --speed.",
+    )
+    rep.add_argument("file", type=Path, help="an .mcap file written by `capsd record`")
+    rep.add_argument("--speed", type=float, default=1.0, help="1 = real time, 10 = ten times")
+    rep.add_argument("--include", default="**", help="only keys intersecting this expression")
+    rep.add_argument("--exclude", action="append", default=[], help="skip these keys")
+    rep.add_argument("--info", action="store_true", help="only print per-channel counts")
+    add_bus_flags(rep)
+    rep.set_defaults(func=_cmd_replay)
+    dem = sub.add_parser(
+        "demo",
+        help="the whole system on the simulated tank, live, with a report folder",
+        description="Router, simulator, asv_pose, sonar_detect, locator, mav_bridge and an "
+        "ArduSub stand-in as separate processes on 127.0.0.1; live fix error vs truth, rates "
+        "and health; stops after --duration or Ctrl-C; writes summary.md, figures.json, PNGs.",
+    )
+    dem.add_argument("--duration", type=float, default=60.0, help="seconds to run")
+    dem.add_argument("--out", type=Path, default=None, help="report folder (reports/demo-TIME)")
+    dem.add_argument(
+        "--trajectory",
+        default="square",
+        choices=["square", "lawnmower", "bouncing", "random", "two_floor"],
+    )
+    dem.add_argument("--tank", default="nfp", choices=["nfp", "mockup"])
+    dem.add_argument("--seed", type=int, default=0)
+    dem.add_argument("--port", type=int, default=None, help="router port (a free one if unset)")
+    dem.set_defaults(func=_cmd_demo)
+    train = sub.add_parser("train", help="train a model").add_subparsers(
+        dest="train_command", required=True
+    )
+    tdet = train.add_parser(
+        "detector",
+        help="train the polar CNN detector on simulated runs",
+        description="Render simulator runs, train the proposal and refinement networks "
+        "(deterministic for a seed), evaluate on held-out runs, write polar_net.pt and "
+        "polar_net.json into --out. Defaults: about 20 minutes on 2 CPU cores.",
+    )
+    tdet.add_argument("--out", type=Path, default=Path("services/sonar_detect/weights"))
+    tdet.add_argument("--seed", type=int, default=0)
+    tdet.add_argument("--runs", type=int, default=64, help="simulated training runs")
+    tdet.add_argument("--run-duration", type=float, default=60.0, help="seconds per run")
+    tdet.add_argument("--workers", type=int, default=2, help="rendering processes")
+    tdet.add_argument("--threads", type=int, default=2, help="torch threads for training")
+    tdet.add_argument("--proposal-epochs", type=int, default=6)
+    tdet.add_argument("--refine-epochs", type=int, default=6)
+    tdet.add_argument("--mining-runs", type=int, default=24, help="runs for hard negatives")
+    tdet.add_argument("--eval-duration", type=float, default=20.0, help="seconds per held-out run")
+    tdet.set_defaults(func=_cmd_train_detector)
     return parser
 
 

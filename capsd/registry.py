@@ -37,6 +37,11 @@ SERVICES: dict[str, ServiceEntry] = {
             "SICK TiM5xx LiDAR client (CoLa-A): scans onto the bus",
         ),
         ServiceEntry(
+            "ros_input",
+            "services.asv_pose.ros_input",
+            "ROS 2 LaserScan/Imu/pose over rmw_zenoh (CDR) onto the bus",
+        ),
+        ServiceEntry(
             "locator",
             "services.locator.service",
             "CAP-SD fix from detections, ASV pose and ROV depth",

@@ -22,11 +22,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
-from capsd.geometry import Array, euler_zyx_to_matrix
-from capsd.payloads import AsvPoseStatus
+from capsd.geometry import Array, euler_zyx_to_matrix, matrix_to_quat
+from capsd.payloads import AsvPose, AsvPoseSource, AsvPoseStatus
 from services.asv_pose.global_search import MapRaster, SearchSettings, search
 from services.asv_pose.scan_match import MatchResult, Segment, level_points, match
 from services.asv_pose.tilt import TiltFilter, TiltSettings
@@ -43,6 +44,9 @@ class EstimatorSettings:
     search_interval_s: float = 1.0
     lidar_xy_m: tuple[float, float] = (0.0, 0.0)
     track_fit_scans: int = 11  # ~0.7 s at 15 Hz
+    # "track": the tilt filter is told the ASV's own acceleration (from the scan track), so
+    # manoeuvres do not read as tilt; "none": the paper's filter, which is not.
+    accel_compensation: Literal["track", "none"] = "track"
 
 
 @dataclass(frozen=True)
@@ -52,6 +56,20 @@ class PoseEstimate:
     rotation: Array
     covariance: Array  # 6 x 6 over (x, y, z, roll, pitch, yaw)
     status: AsvPoseStatus  # "ok", "degraded" (coasting), "lost"
+
+
+def pose_payload(est: PoseEstimate, *, seq: int, source: AsvPoseSource) -> AsvPose:
+    """The bus payload of an estimate."""
+    q = matrix_to_quat(est.rotation)
+    return AsvPose(
+        stamp_ns=est.stamp_ns,
+        seq=seq,
+        position_m=(float(est.position_m[0]), float(est.position_m[1]), float(est.position_m[2])),
+        orientation_xyzw=(float(q[0]), float(q[1]), float(q[2]), float(q[3])),
+        covariance=tuple(float(v) for v in est.covariance.ravel()),
+        status=est.status,
+        source=source,
+    )
 
 
 class AsvPoseEstimator:
@@ -98,6 +116,8 @@ class AsvPoseEstimator:
                 0.0,
             ]
         )
+        if self.settings.accel_compensation == "none":
+            a_body = np.zeros(3)
         self.tilt.update(stamp_ns, gyro, accel, linear_accel_body_m_s2=a_body)
         if self.imu_ns is not None and stamp_ns > self.imu_ns:
             dt = (stamp_ns - self.imu_ns) / 1e9

@@ -20,12 +20,11 @@ from capsd.config import ServiceConfig
 from capsd.geometry import (
     euler_zyx_to_matrix,
     matrix_to_euler_zyx,
-    matrix_to_quat,
     quat_to_matrix,
 )
 from capsd.payloads import AsvPose, ImuSample, LidarScan
 from capsd.runner import Publisher, ServiceRunner
-from services.asv_pose.estimator import AsvPoseEstimator, EstimatorSettings
+from services.asv_pose.estimator import AsvPoseEstimator, EstimatorSettings, pose_payload
 from services.asv_pose.global_search import SearchSettings
 from services.asv_pose.scan_match import tank_walls
 from services.asv_pose.tilt import TiltSettings
@@ -97,22 +96,7 @@ def main(config: Config) -> int:
                     np.array(sample.linear_acceleration_m_s2),
                 )
                 est = estimator.estimate(sample.stamp_ns)
-            q = matrix_to_quat(est.rotation)
-            poses.put(
-                AsvPose(
-                    stamp_ns=est.stamp_ns,
-                    seq=poses.next_seq(),
-                    position_m=(
-                        float(est.position_m[0]),
-                        float(est.position_m[1]),
-                        float(est.position_m[2]),
-                    ),
-                    orientation_xyzw=(float(q[0]), float(q[1]), float(q[2]), float(q[3])),
-                    covariance=tuple(float(v) for v in est.covariance.ravel()),
-                    status=est.status,
-                    source=config.source,
-                )
-            )
+            poses.put(pose_payload(est, seq=poses.next_seq(), source=config.source))
 
         def on_scan(scan: LidarScan) -> None:
             ranges = np.array(scan.ranges_m, dtype=np.float64)

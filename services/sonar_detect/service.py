@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -19,6 +20,7 @@ import msgspec
 
 from capsd import topics
 from capsd.config import ConfigSection, ServiceConfig
+from capsd.errors import CapsdError, ConfigError
 from capsd.payloads import Detection, SonarDetections, SonarFrame
 from capsd.runner import Publisher, ServiceRunner
 from services.sonar_detect.classical import ClassicalDetector, ClassicalSettings
@@ -41,12 +43,26 @@ class ClassicalConfig(ConfigSection, frozen=True, kw_only=True):
         )
 
 
+class CnnConfig(ConfigSection, frozen=True, kw_only=True):
+    # None: the weights shipped with the package (services/sonar_detect/weights/polar_net.pt).
+    weights: str | None = None
+    proposal_threshold: Annotated[float, msgspec.Meta(gt=0.0, lt=1.0)] = 0.1
+    max_candidates: Annotated[int, msgspec.Meta(ge=1, le=20)] = 3
+    refine_passes: Annotated[int, msgspec.Meta(ge=1, le=5)] = 2
+    threads: Annotated[int, msgspec.Meta(ge=1, le=64)] = 1
+
+
+Detect = Callable[[SonarFrame], list[Detection]]
+
+
 class Config(ServiceConfig, frozen=True, kw_only=True):
     """Sonar detection configuration."""
 
     vehicle: str = "asv"
     sonar_vehicle: str = "asv"
-    detector: Literal["classical"] = "classical"  # the CNN joins here (issue 5)
+    # cnn: the polar network (needs the `detect` extra, torch); classical: CFAR, no torch.
+    detector: Literal["cnn", "classical"] = "cnn"
+    cnn: CnnConfig = CnnConfig()
     classical: ClassicalConfig = ClassicalConfig()
     min_confidence: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.5
     snapshot_every_s: Annotated[float, msgspec.Meta(gt=0.0)] | None = None
@@ -76,9 +92,34 @@ class Mailbox:
             return frame
 
 
+def make_detector(config: Config) -> Detect:
+    """The configured detector, its weights loaded: a bad weights file is a config error."""
+    if config.detector == "classical":
+        return ClassicalDetector(config.classical.settings()).detect
+    try:
+        from services.sonar_detect.cnn import DEFAULT_WEIGHTS, CnnDetector, CnnSettings
+    except ImportError as exc:
+        raise ConfigError(
+            "config", "detector", f"'cnn' needs torch (install capsd[detect]): {exc}"
+        ) from None
+    c = config.cnn
+    weights = Path(c.weights) if c.weights is not None else DEFAULT_WEIGHTS
+    settings = CnnSettings(
+        weights=weights,
+        proposal_threshold=c.proposal_threshold,
+        max_candidates=c.max_candidates,
+        refine_passes=c.refine_passes,
+        threads=c.threads,
+    )
+    try:
+        return CnnDetector(settings).detect
+    except CapsdError as exc:
+        raise ConfigError("config", "cnn.weights", str(exc)) from None
+
+
 def main(config: Config) -> int:
     """Run the detector until stopped."""
-    detector = ClassicalDetector(config.classical.settings())
+    detect = make_detector(config)
     mailbox = Mailbox()
     counts = {"frames": 0, "detections": 0, "snapshots": 0, "errors": 0}
     with ServiceRunner("sonar_detect", config) as runner:
@@ -94,9 +135,7 @@ def main(config: Config) -> int:
                 if frame is None:
                     continue
                 try:
-                    found = [
-                        d for d in detector.detect(frame) if d.confidence >= config.min_confidence
-                    ]
+                    found = [d for d in detect(frame) if d.confidence >= config.min_confidence]
                     out.put(
                         SonarDetections(
                             stamp_ns=frame.stamp_ns,

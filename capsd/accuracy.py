@@ -1,0 +1,128 @@
+"""Fix accuracy against the simulator's truth: pairing, the paper's figures, a table row.
+
+A fix and the label of the same ping share `stamp_ns` (the simulator stamps its label with the
+frame's stamp), so pairing holds whatever the vehicles' clocks. The figures are the paper's:
+x/y/z RMSE, mean Euclidean distance (MED), and ours on top: p95 and availability (the share of
+pings that gave a good fix, i.e. one the bridge would send). The estimate scored is what goes
+to the autopilot: the tracked position, or the single-ping fix for per-frame methods.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from capsd.payloads import RovFix, SonarLabel
+
+
+@dataclass(frozen=True)
+class Scored:
+    """One ping: when, the estimate sent (None unless good), the single-ping fix, the truth."""
+
+    stamp_ns: int
+    estimate_m: tuple[float, float, float] | None
+    raw_m: tuple[float, float, float] | None
+    truth_m: tuple[float, float, float]
+
+
+def score(fix: RovFix, label: SonarLabel) -> Scored:
+    estimate = fix.position_m or fix.raw_position_m if fix.quality == "good" else None
+    raw = fix.raw_position_m if fix.quality == "good" else None
+    return Scored(fix.stamp_ns, estimate, raw, label.rov_position_m)
+
+
+@dataclass
+class Accuracy:
+    """Scored pings of one run (or one method); `summary()` gives the table's figures."""
+
+    pings: list[Scored] = field(default_factory=list)
+
+    def add(self, scored: Scored) -> None:
+        self.pings.append(scored)
+
+    def errors(self) -> tuple[np.ndarray, np.ndarray]:
+        """(per-axis errors n x 3, Euclidean errors n) of the good estimates."""
+        pairs = [(p.estimate_m, p.truth_m) for p in self.pings if p.estimate_m is not None]
+        if not pairs:
+            return np.zeros((0, 3)), np.zeros(0)
+        delta = np.array([e for e, _ in pairs]) - np.array([t for _, t in pairs])
+        return delta, np.linalg.norm(delta, axis=1)
+
+    def summary(self) -> dict[str, Any]:
+        delta, dist = self.errors()
+        n = len(self.pings)
+        out: dict[str, Any] = {
+            "pings": n,
+            "good": len(dist),
+            "availability": round(len(dist) / n, 4) if n else None,
+        }
+        if len(dist):
+            rmse = np.sqrt(np.mean(delta**2, axis=0))
+            out.update(
+                rmse_x_mm=round(float(rmse[0]) * 1000, 1),
+                rmse_y_mm=round(float(rmse[1]) * 1000, 1),
+                rmse_z_mm=round(float(rmse[2]) * 1000, 1),
+                med_mm=round(float(np.mean(dist)) * 1000, 1),
+                median_mm=round(float(np.median(dist)) * 1000, 1),
+                p95_mm=round(float(np.percentile(dist, 95)) * 1000, 1),
+            )
+            raw = [math.dist(p.raw_m, p.truth_m) for p in self.pings if p.raw_m is not None]
+            if raw:
+                out["single_ping_med_mm"] = round(float(np.mean(raw)) * 1000, 1)
+        return out
+
+
+def row(name: str, s: dict[str, Any]) -> str:
+    """A Markdown table row: name, MED, p95, RMSE x/y/z, availability."""
+
+    def mm(key: str) -> str:
+        return f"{s[key]:.1f}" if key in s else "-"
+
+    availability = s.get("availability")
+    avail = f"{100 * availability:.1f}%" if availability is not None else "-"
+    return (
+        f"| {name} | {mm('med_mm')} | {mm('p95_mm')} | {mm('rmse_x_mm')} | {mm('rmse_y_mm')} "
+        f"| {mm('rmse_z_mm')} | {avail} |"
+    )
+
+
+HEADER = (
+    "| run / method | MED mm | p95 mm | RMSE x mm | RMSE y mm | RMSE z mm | availability |\n"
+    "|---|---:|---:|---:|---:|---:|---:|"
+)
+
+
+class LivePairing:
+    """Online pairing (fixes and labels arrive on different threads, in either order)."""
+
+    def __init__(self, accuracy: Accuracy):
+        self.accuracy = accuracy
+        self.lock = threading.Lock()
+        self.labels: dict[int, SonarLabel] = {}
+        self.fixes: dict[int, RovFix] = {}
+        self.count_fixes = 0
+
+    def add_label(self, label: SonarLabel) -> None:
+        with self.lock:
+            fix = self.fixes.pop(label.stamp_ns, None)
+            if fix is not None:
+                self.accuracy.add(score(fix, label))
+            else:
+                self.labels[label.stamp_ns] = label
+                if len(self.labels) > 2000:
+                    del self.labels[min(self.labels)]
+
+    def add_fix(self, fix: RovFix) -> None:
+        with self.lock:
+            self.count_fixes += 1
+            label = self.labels.pop(fix.stamp_ns, None)
+            if label is not None:
+                self.accuracy.add(score(fix, label))
+            else:
+                self.fixes[fix.stamp_ns] = fix
+                if len(self.fixes) > 2000:
+                    del self.fixes[min(self.fixes)]

@@ -1,0 +1,95 @@
+"""The paper's figures as PNGs: 3D trajectory against truth, per-axis position, error histograms.
+
+matplotlib with the Agg backend (no display needed); only topside installs draw.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt
+import numpy as np
+
+from capsd.accuracy import Accuracy
+
+
+def _series(accuracy: Accuracy) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(t_s of every ping, truth n x 3, estimate n x 3 with NaN where no good fix)."""
+    pings = sorted(accuracy.pings, key=lambda p: p.stamp_ns)
+    if not pings:
+        return np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3))
+    t0 = pings[0].stamp_ns
+    t = np.array([(p.stamp_ns - t0) / 1e9 for p in pings])
+    truth = np.array([p.truth_m for p in pings])
+    est = np.array([p.estimate_m if p.estimate_m is not None else (np.nan,) * 3 for p in pings])
+    return t, truth, est
+
+
+def trajectory_3d(runs: dict[str, Accuracy], out: Path, *, title: str) -> None:
+    """Truth (black) and each method's estimates in 3D."""
+    fig = plt.figure(figsize=(8, 6))
+    ax = fig.add_subplot(projection="3d")
+    drawn_truth = False
+    for name, accuracy in runs.items():
+        _, truth, est = _series(accuracy)
+        if not drawn_truth and len(truth):
+            ax.plot(truth[:, 0], truth[:, 1], truth[:, 2], color="black", lw=1.5, label="truth")
+            drawn_truth = True
+        ax.plot(est[:, 0], est[:, 1], est[:, 2], lw=0.8, label=name)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_zlabel("z (m)")
+    ax.set_title(title)
+    ax.legend(loc="upper left", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+
+
+def per_axis(runs: dict[str, Accuracy], out: Path, *, title: str) -> None:
+    """x, y and z over time: truth and each method."""
+    fig, axes = plt.subplots(3, 1, figsize=(10, 7), sharex=True)
+    drawn_truth = False
+    for name, accuracy in runs.items():
+        t, truth, est = _series(accuracy)
+        for k, ax in enumerate(axes):
+            if not drawn_truth:
+                ax.plot(t, truth[:, k], color="black", lw=1.5, label="truth")
+            ax.plot(t, est[:, k], lw=0.8, label=name)
+        drawn_truth = True
+    for k, ax in enumerate(axes):
+        ax.set_ylabel(f"{'xyz'[k]} (m)")
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[0].set_title(title)
+    axes[-1].set_xlabel("time (s)")
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+
+
+def error_histograms(runs: dict[str, Accuracy], out: Path, *, title: str) -> None:
+    """Euclidean error histograms, one per method, on a shared millimetre axis."""
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    errors = {name: acc.errors()[1] * 1000 for name, acc in runs.items()}
+    top = max((float(np.percentile(e, 99)) for e in errors.values() if len(e)), default=1.0)
+    bins = np.linspace(0.0, max(top, 1.0), 60)
+    for name, e in errors.items():
+        if len(e):
+            ax.hist(
+                np.clip(e, 0, bins[-1]),
+                bins=[float(b) for b in bins],
+                alpha=0.5,
+                label=f"{name} (MED {e.mean():.0f} mm)",
+            )
+    ax.set_xlabel("Euclidean error (mm)")
+    ax.set_ylabel("pings")
+    ax.set_title(title)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)

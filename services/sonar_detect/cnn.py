@@ -1,0 +1,171 @@
+"""The CNN ROV detector: polar frame in, ROV candidates with sub-bin centres out.
+
+1. The coarse grid of the frame (polar_input) goes through the proposal network; local maxima
+   of its heatmap above `proposal_threshold` are candidates (at most `max_candidates`).
+2. A metric crop around each candidate goes through the refiner: ROV or not (the confidence),
+   the centre's offset in range and cross-range, its Laplace scale (reported as sigma) and the
+   echo's extent. The crop is taken again around the refined centre `refine_passes - 1` times:
+   the refiner is most precise near the crop's centre.
+3. Candidates closer than `merge_distance_m` to a more confident one are the same ROV.
+All in the polar image; the only geometry is the bearing table and the range resolution.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.nn import functional
+
+from capsd.payloads import Detection, SonarFrame
+from services.sonar_detect.polar_input import (
+    BeamTable,
+    Grid,
+    Image,
+    coarse_input,
+    crop,
+    unit_image,
+)
+from services.sonar_detect.polar_net import OFFSET_SCALE_M, PolarNet, load
+
+DEFAULT_WEIGHTS = Path(__file__).with_name("weights") / "polar_net.pt"
+LAPLACE_SIGMA = math.sqrt(2.0)  # standard deviation of a Laplace law per unit scale
+
+
+@dataclass(frozen=True)
+class CnnSettings:
+    weights: Path = DEFAULT_WEIGHTS
+    proposal_threshold: float = 0.1
+    max_candidates: int = 3
+    refine_passes: int = 2
+    merge_distance_m: float = 0.3
+    threads: int = 1  # torch intra-op threads: one core keeps the service's CPU predictable
+
+
+@dataclass(frozen=True)
+class Candidate:
+    range_m: float
+    azimuth_rad: float
+
+
+class CnnDetector:
+    """Stateless apart from the network: `detect` any frame, in any order."""
+
+    def __init__(self, settings: CnnSettings | None = None, *, net: PolarNet | None = None):
+        self.settings = settings or CnnSettings()
+        torch.set_num_threads(self.settings.threads)
+        self.net = net if net is not None else load(self.settings.weights)
+        self.net.eval()
+
+    def detect(self, frame: SonarFrame) -> list[Detection]:
+        s = self.settings
+        image = unit_image(frame)
+        table = BeamTable(frame.azimuths_rad)
+        candidates = self._propose(frame, image, table)
+        if not candidates:
+            return []
+        found: list[Detection] = []
+        for _ in range(max(1, s.refine_passes)):
+            found = self._refine(frame, image, table, candidates)
+            candidates = [Candidate(d.range_m, d.azimuth_rad) for d in found]
+        return self._merge(found)
+
+    def _propose(self, frame: SonarFrame, image: Image, table: BeamTable) -> list[Candidate]:
+        s = self.settings
+        return propose(
+            self.net.proposal,
+            frame,
+            image,
+            table,
+            threshold=s.proposal_threshold,
+            max_candidates=s.max_candidates,
+        )
+
+    def _refine(
+        self, frame: SonarFrame, image: Image, table: BeamTable, candidates: list[Candidate]
+    ) -> list[Detection]:
+        crops = np.stack(
+            [
+                crop(image, frame, table, range_m=c.range_m, azimuth_rad=c.azimuth_rad)
+                for c in candidates
+            ]
+        )
+        with torch.inference_mode():
+            out = self.net.refine(torch.from_numpy(crops)[:, None]).numpy().astype(np.float64)
+        half_fov = table.half_fov_rad
+        found = []
+        for c, o in zip(candidates, out, strict=True):
+            range_m = c.range_m + float(o[1]) * OFFSET_SCALE_M
+            if range_m <= 0.0:
+                continue
+            azimuth = c.azimuth_rad + float(o[2]) * OFFSET_SCALE_M / c.range_m
+            azimuth = min(max(azimuth, -half_fov), half_fov)
+            log_scales = np.clip(o[3:5], -8.0, 3.0)
+            sigma_range, sigma_cross = np.exp(log_scales) * OFFSET_SCALE_M * LAPLACE_SIGMA
+            extent_range, extent_cross = np.exp(np.clip(o[5:7], -6.0, 2.0))
+            found.append(
+                Detection(
+                    range_m=range_m,
+                    azimuth_rad=azimuth,
+                    range_sigma_m=float(sigma_range),
+                    azimuth_sigma_rad=float(sigma_cross) / range_m,
+                    confidence=float(1.0 / (1.0 + math.exp(-float(np.clip(o[0], -30, 30))))),
+                    range_extent_m=float(extent_range),
+                    azimuth_extent_rad=float(extent_cross) / range_m,
+                )
+            )
+        return found
+
+    def _merge(self, found: list[Detection]) -> list[Detection]:
+        kept: list[Detection] = []
+        for d in sorted(found, key=lambda d: -d.confidence):
+            if all(_distance(d, k) >= self.settings.merge_distance_m for k in kept):
+                kept.append(d)
+        return kept
+
+
+def propose(
+    proposal: torch.nn.Module,
+    frame: SonarFrame,
+    image: Image,
+    table: BeamTable,
+    *,
+    threshold: float,
+    max_candidates: int,
+) -> list[Candidate]:
+    """Local maxima of the proposal heatmap above `threshold`, strongest first."""
+    grid = Grid.of(frame)
+    if grid.rows < 4 or grid.cols < 4:
+        return []
+    coarse = torch.from_numpy(coarse_input(image, grid))[None]
+    with torch.inference_mode():
+        heat = torch.sigmoid(proposal(coarse))[0]
+        peaks = (heat == functional.max_pool2d(heat[None], 3, stride=1, padding=1)[0]) & (
+            heat >= threshold
+        )
+        scores = torch.where(peaks, heat, torch.zeros_like(heat)).flatten()
+        top = torch.topk(scores, min(max_candidates, scores.numel()))
+    out = []
+    cols = heat.shape[1]
+    for score, index in zip(top.values.tolist(), top.indices.tolist(), strict=True):
+        if score < threshold:
+            break
+        i, j = divmod(int(index), cols)
+        bin_index = (2 * i + 1) * grid.range_factor
+        beam = (2 * j + 1) * grid.beam_factor - 0.5
+        out.append(
+            Candidate(
+                frame.range_start_m + bin_index * frame.range_resolution_m,
+                float(table.azimuth(beam)),
+            )
+        )
+    return out
+
+
+def _distance(a: Detection, b: Detection) -> float:
+    dx = a.range_m * math.cos(a.azimuth_rad) - b.range_m * math.cos(b.azimuth_rad)
+    dy = a.range_m * math.sin(a.azimuth_rad) - b.range_m * math.sin(b.azimuth_rad)
+    return math.hypot(dx, dy)

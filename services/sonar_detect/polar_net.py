@@ -1,0 +1,135 @@
+"""The polar ROV network (pure torch): a coarse proposal heatmap and a crop refiner.
+
+- `ProposalNet` reads the coarse grid (2 x rows x cols, see polar_input) and gives a heatmap
+  logit at half its resolution: peaks are places that look like an ROV centre. Dilated
+  convolutions give it ~3 m of context, enough to tell a hull from a rack edge or a ghost.
+- `RefineNet` reads a metric crop (1 x CROP_SIZE x CROP_SIZE) around each peak and gives
+  an ROV/not-ROV logit, the centre's offset from the crop centre in range and cross-range
+  (metres), the log scale of a Laplace error for each (the sigma we report), and the log of the
+  echo's extent in range and cross-range.
+Weights are a plain state dict with a format tag, loaded with `weights_only=True`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import nn
+
+from capsd.errors import CapsdError
+
+FORMAT = "capsd-polar-net"
+VERSION = 1
+OFFSET_SCALE_M = 0.1  # offsets are regressed in units of 10 cm
+
+
+def _conv(c_in: int, c_out: int, *, stride: int = 1, dilation: int = 1) -> list[nn.Module]:
+    return [
+        nn.Conv2d(c_in, c_out, 3, stride=stride, padding=dilation, dilation=dilation, bias=False),
+        nn.BatchNorm2d(c_out),
+        nn.ReLU(inplace=True),
+    ]
+
+
+class ProposalNet(nn.Module):
+    """Coarse grid -> heatmap logit at stride 2."""
+
+    def __init__(self, width: int = 32):
+        super().__init__()
+        self.body = nn.Sequential(
+            *_conv(2, 16, stride=2),
+            *_conv(16, width),
+            *_conv(width, width, dilation=2),
+            *_conv(width, width, dilation=4),
+            *_conv(width, width, dilation=8),
+            nn.Conv2d(width, 1, 1),
+        )
+        # CenterNet's prior: start every cell at p = 0.1, or the first steps drown in negatives.
+        head = self.body[-1]
+        assert isinstance(head, nn.Conv2d)
+        assert head.bias is not None
+        nn.init.constant_(head.bias, -2.19)
+
+    def forward(self, grid: torch.Tensor) -> torch.Tensor:
+        out: torch.Tensor = self.body(grid)
+        return out[:, 0]
+
+
+REFINE_OUTPUTS = 7  # logit, d_range, d_cross, log_scale_range, log_scale_cross, log extents
+
+
+class RefineNet(nn.Module):
+    """Crop -> (logit, offsets, log scales, log extents)."""
+
+    def __init__(self, crop_size: int = 96):
+        super().__init__()
+        self.features = nn.Sequential(
+            *_conv(1, 16, stride=2),
+            *_conv(16, 32),
+            nn.MaxPool2d(2),
+            *_conv(32, 48),
+            nn.MaxPool2d(2),
+            *_conv(48, 64),
+            nn.MaxPool2d(2),
+            *_conv(64, 64),
+            nn.MaxPool2d(2),
+        )
+        side = crop_size // 32
+        self.head = nn.Sequential(
+            nn.Flatten(),
+            nn.Linear(64 * side * side, 128),
+            nn.ReLU(inplace=True),
+            nn.Linear(128, REFINE_OUTPUTS),
+        )
+
+    def forward(self, crops: torch.Tensor) -> torch.Tensor:
+        out: torch.Tensor = self.head(self.features(crops))
+        return out
+
+
+class PolarNet(nn.Module):
+    """Both stages under one state dict."""
+
+    def __init__(self, *, crop_size: int = 96):
+        super().__init__()
+        self.crop_size = crop_size
+        self.proposal = ProposalNet()
+        self.refine = RefineNet(crop_size)
+
+
+def save(net: PolarNet, path: Path, *, meta: dict[str, Any]) -> None:
+    """Weights as float32 with the format tag and the training metadata."""
+    state = {k: v.detach().to(torch.float32).clone() for k, v in net.state_dict().items()}
+    torch.save(
+        {
+            "format": FORMAT,
+            "version": VERSION,
+            "crop_size": net.crop_size,
+            "state": state,
+            "meta": meta,
+        },
+        path,
+    )
+
+
+def load(path: Path) -> PolarNet:
+    """Load weights written by `save`; a clear error for anything else."""
+    try:
+        blob = torch.load(path, map_location="cpu", weights_only=True)
+    except FileNotFoundError:
+        raise CapsdError(f"{path}: no such weights file") from None
+    except Exception as exc:  # torch raises many types for a bad file
+        raise CapsdError(f"{path}: not a weights file ({exc})") from exc
+    if not isinstance(blob, dict) or blob.get("format") != FORMAT:
+        raise CapsdError(f"{path}: not a {FORMAT} weights file")
+    if blob.get("version") != VERSION:
+        raise CapsdError(f"{path}: weights version {blob.get('version')}, expected {VERSION}")
+    net = PolarNet(crop_size=int(blob["crop_size"]))
+    try:
+        net.load_state_dict(blob["state"])
+    except RuntimeError as exc:
+        raise CapsdError(f"{path}: weights do not fit the network ({exc})") from exc
+    net.eval()
+    return net

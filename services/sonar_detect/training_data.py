@@ -1,0 +1,324 @@
+"""Training samples for the polar network, rendered by the simulator from labelled pings.
+
+Each simulated run (tank, trajectory, ASV mode and stand-off, seed, gain, ghost strength and
+noise drawn per run) gives, per ping:
+- the coarse grid (uint8) and the ROV centre in heatmap cells (or none when not visible);
+- crops: positives around the true centre with the offset a proposal would have, and
+  negatives on what a proposal might pick instead (the brightest cells away from the ROV,
+  the multipath ghosts, a random place), each with its targets.
+Runs are spread over worker processes; the same plan and seed give the same samples.
+"""
+
+from __future__ import annotations
+
+import math
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from multiprocessing import get_context
+from typing import Any, Literal
+
+import numpy as np
+import numpy.typing as npt
+
+from capsd.payloads import SonarFrame, SonarLabel
+from capsd.progress import Progress
+from services.sonar_detect.polar_input import (
+    BeamTable,
+    Grid,
+    coarse_input,
+    crop,
+    unit_image,
+)
+from simulator.config import (
+    OFFLINE_START_NS,
+    Config,
+    Noise,
+    Rates,
+    SonarImageConfig,
+    Streams,
+)
+from simulator.sim import Simulation
+from simulator.world import TankName, TrajectoryName
+
+TRAJECTORIES: tuple[TrajectoryName, ...] = (
+    "square",
+    "bouncing",
+    "lawnmower",
+    "random",
+    "two_floor",
+)
+NEGATIVE_MIN_DISTANCE_M = 0.8
+
+
+@dataclass(frozen=True)
+class RunPlan:
+    """One simulated run to render."""
+
+    tank: TankName
+    trajectory: TrajectoryName
+    asv_mode: Literal["follow", "stationary"]
+    standoff_m: float | None
+    seed: int
+    gain_percent: float
+    ghost_gain: float
+    noise_level: float
+    duration_s: float
+    sonar_hz: float
+
+    def config(self) -> Config:
+        return Config(
+            tank=self.tank,
+            trajectory=self.trajectory,
+            seed=self.seed,
+            asv_mode=self.asv_mode,
+            asv_standoff_m=self.standoff_m,
+            sonar_image=SonarImageConfig(
+                gain_percent=self.gain_percent,
+                ghost_gain=self.ghost_gain,
+                noise_level=self.noise_level,
+            ),
+            rates=Rates(sonar_hz=self.sonar_hz),
+            noise=Noise(),
+            streams=Streams(
+                lidar="off", imu="off", asv_pose_truth_noise="off", detections_truth_noise="off"
+            ),
+        )
+
+
+def plan_runs(*, runs: int, seed: int, duration_s: float, sonar_hz: float) -> list[RunPlan]:
+    """`runs` varied runs drawn from `seed` (both tanks, every trajectory, both ASV modes)."""
+    rng = np.random.default_rng(seed)
+    plans = []
+    for k in range(runs):
+        tank: TankName = "nfp" if k % 2 == 0 else "mockup"
+        mode: Literal["follow", "stationary"] = "follow" if (k // 2) % 3 else "stationary"
+        standoff = None
+        if mode == "follow" and tank == "nfp" and rng.random() < 0.6:
+            standoff = float(rng.uniform(1.0, 8.0))
+        plans.append(
+            RunPlan(
+                tank=tank,
+                trajectory=TRAJECTORIES[(k // 2) % len(TRAJECTORIES)],
+                asv_mode=mode,
+                standoff_m=standoff,
+                seed=int(rng.integers(10_000, 1_000_000)),
+                gain_percent=float(rng.uniform(40.0, 60.0)),
+                ghost_gain=float(rng.uniform(0.05, 0.25)),
+                noise_level=float(0.0004 * math.exp(rng.uniform(-0.7, 0.7))),
+                duration_s=duration_s,
+                sonar_hz=sonar_hz,
+            )
+        )
+    return plans
+
+
+@dataclass
+class Samples:
+    """Samples of one or more runs, ready to stack."""
+
+    grids: list[npt.NDArray[np.uint8]] = field(default_factory=list)  # 2 x rows x cols
+    # Per grid: visible (0/1), centre row and col in heatmap cells, extent rows and cols.
+    grid_targets: list[tuple[float, float, float, float, float]] = field(default_factory=list)
+    crops: list[npt.NDArray[np.uint8]] = field(default_factory=list)
+    # Per crop: is ROV (0/1), d_range, d_cross (m), extent range, extent cross (m), overlap.
+    crop_targets: list[tuple[float, float, float, float, float, float]] = field(
+        default_factory=list
+    )
+
+    def extend(self, other: Samples) -> None:
+        self.grids.extend(other.grids)
+        self.grid_targets.extend(other.grid_targets)
+        self.crops.extend(other.crops)
+        self.crop_targets.extend(other.crop_targets)
+
+
+def _to_u8(a: npt.NDArray[np.float32]) -> npt.NDArray[np.uint8]:
+    return np.asarray(np.clip(a * 255.0 + 0.5, 0, 255), dtype=np.uint8)
+
+
+def heat_coordinates(
+    frame: SonarFrame, grid: Grid, range_m: float, beam: float
+) -> tuple[float, float]:
+    """(row, col) in heatmap cells (stride 2 over the coarse grid) of a range and beam index."""
+    bin_index = (range_m - frame.range_start_m) / frame.range_resolution_m
+    return (
+        bin_index / (2 * grid.range_factor) - 0.5,
+        (beam + 0.5) / (2 * grid.beam_factor) - 0.5,
+    )
+
+
+def samples_of_ping(
+    frame: SonarFrame,
+    label: SonarLabel,
+    rng: np.random.Generator,
+    *,
+    proposal: Any = None,
+) -> Samples:
+    """The grid and crops of one labelled ping.
+
+    With a trained `proposal` network (hard-negative mining), its own peaks away from the ROV
+    are added as negatives: the sandbags and rack corners it mistakes for an ROV.
+    """
+    out = Samples()
+    image = unit_image(frame)
+    grid = Grid.of(frame)
+    coarse = coarse_input(image, grid)
+    out.grids.append(_to_u8(coarse))
+    table = BeamTable(frame.azimuths_rad)
+    truth: tuple[float, float] | None = None
+    if (
+        label.visible
+        and label.range_min_m is not None
+        and label.range_max_m is not None
+        and label.azimuth_min_rad is not None
+        and label.azimuth_max_rad is not None
+    ):
+        truth = (label.range_m, label.azimuth_rad)
+        beam = float(table.index(label.azimuth_rad))
+        row, col = heat_coordinates(frame, grid, label.range_m, beam)
+        extent_beams = abs(
+            float(table.index(label.azimuth_max_rad)) - float(table.index(label.azimuth_min_rad))
+        )
+        extent_bins = (label.range_max_m - label.range_min_m) / frame.range_resolution_m
+        out.grid_targets.append(
+            (
+                1.0,
+                row,
+                col,
+                extent_bins / (2 * grid.range_factor),
+                extent_beams / (2 * grid.beam_factor),
+            )
+        )
+        extent_range = label.range_max_m - label.range_min_m
+        extent_cross = (label.azimuth_max_rad - label.azimuth_min_rad) * label.range_m
+        for k in range(2):
+            spread = 0.08 if k == 0 else 0.35
+            d_range = float(np.clip(rng.normal(0.0, spread), -0.45, 0.45))
+            d_cross = float(np.clip(rng.normal(0.0, spread), -0.45, 0.45))
+            centre_range = label.range_m - d_range
+            centre_az = label.azimuth_rad - d_cross / centre_range
+            if centre_range <= 0.2:
+                continue
+            patch = crop(image, frame, table, range_m=centre_range, azimuth_rad=centre_az)
+            # The target offset is measured at the crop's own range (its cross-range scale).
+            out.crops.append(_to_u8(patch))
+            out.crop_targets.append(
+                (
+                    1.0,
+                    d_range,
+                    (label.azimuth_rad - centre_az) * centre_range,
+                    extent_range,
+                    extent_cross,
+                    float(label.overlap),
+                )
+            )
+    else:
+        out.grid_targets.append((0.0, 0.0, 0.0, 0.0, 0.0))
+    places = _negative_places(frame, grid, coarse, table, label, rng)
+    if proposal is not None:
+        from services.sonar_detect.cnn import propose
+
+        peaks = propose(proposal, frame, image, table, threshold=0.05, max_candidates=3)
+        places += [(c.range_m, c.azimuth_rad) for c in peaks]
+    for range_m, azimuth in places:
+        if truth is not None and _distance(truth, (range_m, azimuth)) < NEGATIVE_MIN_DISTANCE_M:
+            continue
+        patch = crop(image, frame, table, range_m=range_m, azimuth_rad=azimuth)
+        out.crops.append(_to_u8(patch))
+        out.crop_targets.append((0.0, 0.0, 0.0, 0.0, 0.0, float(label.overlap)))
+    return out
+
+
+def _distance(a: tuple[float, float], b: tuple[float, float]) -> float:
+    """Planar distance between two (range, azimuth) points in the sonar's fan."""
+    ax, ay = a[0] * math.cos(a[1]), a[0] * math.sin(a[1])
+    bx, by = b[0] * math.cos(b[1]), b[0] * math.sin(b[1])
+    return math.hypot(ax - bx, ay - by)
+
+
+def _negative_places(
+    frame: SonarFrame,
+    grid: Grid,
+    coarse: npt.NDArray[np.float32],
+    table: BeamTable,
+    label: SonarLabel,
+    rng: np.random.Generator,
+) -> list[tuple[float, float]]:
+    """Where a proposal might land other than the ROV: bright cells, ghosts, anywhere."""
+    places = [(r, a) for r, a in ((g.range_m, g.azimuth_rad) for g in label.ghosts)]
+    mean = coarse[0]
+    # The brightest cells, one per 1 m x 8-cell block so they are spread out.
+    flat = np.argsort(mean, axis=None)[::-1][:400]
+    picked: list[tuple[int, int]] = []
+    block_rows = max(1, int(1.0 / (grid.range_factor * frame.range_resolution_m)))
+    for idx in flat:
+        i, j = divmod(int(idx), mean.shape[1])
+        if all(abs(i - pi) > block_rows or abs(j - pj) > 8 for pi, pj in picked):
+            picked.append((i, j))
+        if len(picked) >= 3:
+            break
+    for i, j in picked:
+        range_m = frame.range_start_m + (i + 0.5) * grid.range_factor * frame.range_resolution_m
+        azimuth = float(table.azimuth((j + 0.5) * grid.beam_factor - 0.5))
+        places.append((range_m, azimuth))
+    max_range = frame.range_start_m + frame.n_ranges * frame.range_resolution_m
+    places.append(
+        (
+            float(rng.uniform(0.5, max_range)),
+            float(rng.uniform(-table.half_fov_rad, table.half_fov_rad)),
+        )
+    )
+    return [(r, a) for r, a in places if 0.3 < r < max_range and abs(a) <= table.half_fov_rad]
+
+
+_PROPOSAL_CACHE: dict[bytes, Any] = {}
+
+
+def _proposal_net(state: bytes) -> Any:
+    """A worker's copy of the proposal network (loaded once per process)."""
+    if state not in _PROPOSAL_CACHE:
+        import io
+
+        import torch
+
+        from services.sonar_detect.polar_net import ProposalNet
+
+        torch.set_num_threads(1)
+        net = ProposalNet()
+        net.load_state_dict(torch.load(io.BytesIO(state), weights_only=True))
+        net.eval()
+        _PROPOSAL_CACHE.clear()
+        _PROPOSAL_CACHE[state] = net
+    return _PROPOSAL_CACHE[state]
+
+
+def render_run(job: tuple[RunPlan, bytes | None]) -> Samples:
+    """Render one run into samples (runs in a worker process); mine with a proposal state."""
+    plan, state = job
+    proposal = _proposal_net(state) if state is not None else None
+    rng = np.random.default_rng(plan.seed + 17)
+    sim = Simulation(plan.config(), horizon_s=plan.duration_s + 5.0)
+    out = Samples()
+    frame: SonarFrame | None = None
+    for event in sim.events(start_ns=OFFLINE_START_NS, duration_s=plan.duration_s):
+        payload = event.payload
+        if isinstance(payload, SonarFrame):
+            frame = payload
+        elif isinstance(payload, SonarLabel) and frame is not None:
+            out.extend(samples_of_ping(frame, payload, rng, proposal=proposal))
+            frame = None
+    return out
+
+
+def render(plans: list[RunPlan], *, workers: int, proposal_state: bytes | None = None) -> Samples:
+    """Every run's samples, in plan order, with a progress line."""
+    out = Samples()
+    what = "mining hard negatives" if proposal_state is not None else "rendering training runs"
+    bar = Progress(len(plans), label=what, unit=" runs")
+    jobs = [(plan, proposal_state) for plan in plans]
+    with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
+        for done, samples in enumerate(pool.map(render_run, jobs), start=1):
+            out.extend(samples)
+            bar.update(done)
+    bar.close()
+    return out

@@ -1,0 +1,64 @@
+"""The systemd units: the settings a field deployment relies on, and `systemd-analyze verify`."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import REPO
+
+UNITS = sorted((REPO / "deploy" / "systemd").glob("capsd-*.service"))
+
+
+def test_every_deployed_service_has_a_unit() -> None:
+    names = {u.stem.removeprefix("capsd-").replace("-", "_") for u in UNITS}
+    assert {
+        "router",
+        "asv_pose",
+        "sonar_detect",
+        "oculus",
+        "tim5xx",
+        "locator",
+        "mav_bridge",
+    } <= names
+
+
+@pytest.mark.parametrize("unit", UNITS, ids=lambda p: p.name)
+def test_unit_settings(unit: Path) -> None:
+    lines = {
+        line.split("=", 1)[0]: line.split("=", 1)[1]
+        for line in unit.read_text().splitlines()
+        if "=" in line and not line.startswith("#")
+    }
+    assert lines["Type"] == "notify"
+    assert int(lines["WatchdogSec"]) > 0
+    assert lines["Restart"] == "on-failure"
+    assert lines["RestartPreventExitStatus"] == "2"  # a bad config is not a crash loop
+    assert lines["EnvironmentFile"].lstrip("-") == "/etc/capsd/capsd.env"
+    assert lines["User"] == "capsd"
+    assert lines["MemoryMax"].endswith("M")
+    config = lines["ExecStart"].split("--config ")[1]
+    example = REPO / "deploy" / "config" / Path(config).name
+    assert example.exists(), f"{unit.name}: no example config {example.name}"
+
+
+@pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="systemd-analyze not installed")
+def test_systemd_analyze_verify(tmp_path: Path) -> None:
+    capsd = Path(sys.executable).parent / "capsd"
+    assert capsd.exists()
+    for unit in UNITS:
+        text = unit.read_text().replace("/opt/capsd/venv/bin/capsd", str(capsd))
+        (tmp_path / unit.name).write_text(text)
+    proc = subprocess.run(
+        ["systemd-analyze", "verify", "--man=no", *sorted(str(p) for p in tmp_path.iterdir())],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    # Warnings (an unknown value is "ignored") count as failures too.
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr.strip() == "", proc.stderr

@@ -1,0 +1,128 @@
+"""The polar CNN: shipped weights find the ROV and stay quiet; training is deterministic."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from capsd.errors import CapsdError
+from capsd.geometry import Transform, euler_zyx_to_matrix
+from capsd.payloads import SonarFrame
+from services.sonar_detect.cnn import DEFAULT_WEIGHTS, CnnDetector
+from services.sonar_detect.polar_net import PolarNet, load
+from services.sonar_detect.train import TrainConfig, focal_loss, refine_loss, train
+from simulator.scene import BLUEROV2_SEMI_AXES, Ellipsoid
+from simulator.sonar import SonarModel, SonarRenderer
+from simulator.world import make_tank
+
+
+@pytest.fixture(scope="module")
+def detector() -> CnnDetector:
+    return CnnDetector()
+
+
+def _frame(
+    renderer: SonarRenderer, sonar: Transform, rov: Ellipsoid | None, seed: int
+) -> SonarFrame:
+    ping = renderer.render(sonar, rov, np.random.default_rng(seed))
+    return renderer.frame(ping, stamp_ns=seed, seq=seed, ping_id=seed)
+
+
+@pytest.mark.parametrize(("range_m", "azimuth_deg"), [(3.0, -20.0), (6.0, 25.0), (9.0, 0.0)])
+def test_finds_the_rov_centre(detector: CnnDetector, range_m: float, azimuth_deg: float) -> None:
+    tank = make_tank("nfp")
+    renderer = SonarRenderer(SonarModel(range_max_m=20.0, n_ranges=1000), tank)
+    sonar = Transform(euler_zyx_to_matrix(0.0, math.radians(30.0), 0.0), np.array([6.0, 8.0, -0.2]))
+    az = math.radians(azimuth_deg)
+    rov = Ellipsoid(
+        sonar.apply(range_m * np.array([math.cos(az), math.sin(az), 0.0])),
+        euler_zyx_to_matrix(az + 0.4, 0.0, 0.0),
+        BLUEROV2_SEMI_AXES,
+    )
+    errors_r, errors_a = [], []
+    for seed in range(5):
+        found = [
+            d for d in detector.detect(_frame(renderer, sonar, rov, seed)) if d.confidence > 0.5
+        ]
+        assert found, "the ROV must be detected"
+        best = found[0]
+        errors_r.append(best.range_m - range_m)
+        errors_a.append(math.degrees(best.azimuth_rad - az))
+        assert 0.0 < best.range_sigma_m < 0.2
+        assert 0.05 < best.range_extent_m < 1.0
+    assert abs(float(np.median(errors_r))) < 0.04
+    assert abs(float(np.median(errors_a))) < 0.4
+
+
+def test_quiet_on_an_empty_fan(detector: CnnDetector) -> None:
+    tank = make_tank("nfp")
+    renderer = SonarRenderer(SonarModel(range_max_m=20.0, n_ranges=1000), tank)
+    sonar = Transform(euler_zyx_to_matrix(0.0, math.radians(30.0), 0.0), np.array([6.0, 8.0, -0.2]))
+    alarms = sum(
+        len([d for d in detector.detect(_frame(renderer, sonar, None, seed)) if d.confidence > 0.5])
+        for seed in range(10)
+    )
+    assert alarms / 10 <= 0.1
+
+
+def test_shipped_weights_are_small_and_documented() -> None:
+    assert DEFAULT_WEIGHTS.stat().st_size <= 5_000_000
+    meta = json.loads(DEFAULT_WEIGHTS.with_suffix(".json").read_text())
+    assert meta["train_config"]["seed"] == 0
+    assert "cnn / clear" in meta["evaluation"]["groups"]
+
+
+def test_bad_weights_files_are_named(tmp_path: Path) -> None:
+    with pytest.raises(CapsdError, match="no such weights file"):
+        load(tmp_path / "missing.pt")
+    junk = tmp_path / "junk.pt"
+    junk.write_bytes(b"\x00" * 100)
+    with pytest.raises(CapsdError, match=r"junk\.pt: not a weights file"):
+        load(junk)
+    other = tmp_path / "other.pt"
+    torch.save({"format": "something-else"}, other)
+    with pytest.raises(CapsdError, match="not a capsd-polar-net"):
+        load(other)
+
+
+def test_losses_prefer_the_truth() -> None:
+    target = torch.zeros(1, 8, 8)
+    target[0, 3, 4] = 1.0
+    right = torch.full((1, 8, 8), -6.0)
+    right[0, 3, 4] = 6.0
+    wrong = torch.full((1, 8, 8), -6.0)
+    wrong[0, 6, 1] = 6.0
+    assert focal_loss(right, target) < 0.1 * focal_loss(wrong, target)
+    targets = torch.tensor([[1.0, 0.05, -0.02, 0.3, 0.5, 0.0], [0.0, 0, 0, 0, 0, 0]])
+    good = torch.tensor(
+        [[8.0, 0.5, -0.2, -3.0, -3.0, math.log(0.3), math.log(0.5)], [-8.0, 0, 0, 0, 0, 0, 0]]
+    )
+    bad = good.clone()
+    bad[0, 1] = -0.5
+    assert refine_loss(good, targets) < refine_loss(bad, targets)
+
+
+def test_training_is_deterministic_for_a_seed(tmp_path: Path) -> None:
+    config = TrainConfig(
+        runs=2,
+        duration_s=3.0,
+        workers=1,
+        threads=1,
+        proposal_epochs=1,
+        refine_epochs=1,
+        eval_duration_s=0.3,
+    )
+    nets = []
+    for name in ("a", "b"):
+        meta = train(config, tmp_path / name)
+        assert meta["samples"]["frames"] > 0
+        nets.append(load(tmp_path / name / "polar_net.pt"))
+        assert (tmp_path / name / "polar_net.json").exists()
+    first, second = (n.state_dict() for n in nets)
+    assert all(torch.equal(first[k], second[k]) for k in first)
+    assert isinstance(nets[0], PolarNet)

@@ -1,0 +1,132 @@
+"""The detection service and the replay source as real processes on 127.0.0.1."""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+import zenoh
+
+from capsd import topics
+from capsd.codec import Codec
+from capsd.health import query_health
+from capsd.keys import is_concrete
+from capsd.payloads import SonarDetections, SonarFrame, SonarLabel
+from tests.conftest import REPO, Proc, wait_for
+
+pytestmark = pytest.mark.integration
+FIXTURES = REPO.parent / "shared" / "fixtures" / "oculus"
+
+
+def _collect(client: zenoh.Session, key: str, codec: Codec[Any], into: list[Any]) -> Any:
+    lock = threading.Lock()
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        if not is_concrete(str(sample.key_expr)):
+            return
+        payload = codec.decode(
+            sample.payload.to_bytes(), encoding=str(sample.encoding), key_expr=str(sample.key_expr)
+        )
+        with lock:
+            into.append(payload)
+
+    return client.declare_subscriber(key, on_sample)
+
+
+def test_cnn_service_detects_the_simulated_rov_stamped_at_the_ping(
+    spawn: Callable[..., Proc], router: Proc, endpoint: str, client: zenoh.Session, tmp_path: Path
+) -> None:
+    frames: list[object] = []
+    labels: list[object] = []
+    found: list[object] = []
+    subs = [
+        _collect(client, topics.SONAR_FRAME.key("tank", "asv"), Codec(SonarFrame), frames),
+        _collect(client, topics.SIM_LABEL.key("tank", "sim"), Codec(SonarLabel), labels),
+        _collect(client, topics.SONAR_DETECTIONS.key("tank", "asv"), Codec(SonarDetections), found),
+    ]
+    # The simulator's stand-in detections would share the key: off, as in the demo.
+    sim_config = _write(
+        tmp_path,
+        "sim.yaml",
+        "streams:\n  lidar: 'off'\n  imu: 'off'\n  asv_pose_truth_noise: 'off'\n"
+        "  detections_truth_noise: 'off'\nrates:\n  sonar_hz: 10.0\n",
+    )
+    spawn(
+        "run", "sonar_detect", "--config", "deploy/config/sonar_detect.yaml", "--connect", endpoint
+    )
+    spawn("run", "sim", "--config", str(sim_config), "--connect", endpoint)
+    wait_for(lambda: len(found) >= 40, timeout_s=60, what="40 detection messages")
+    by_ping = {lab.ping_id: lab for lab in labels if isinstance(lab, SonarLabel)}
+    stamps = {f.ping_id: f.stamp_ns for f in frames if isinstance(f, SonarFrame)}
+    errors_m = []
+    for det in found:
+        assert isinstance(det, SonarDetections)
+        assert det.detector == "cnn"
+        if det.ping_id in stamps:
+            assert det.stamp_ns == stamps[det.ping_id]  # the ping's stamp, not the detector's
+        label = by_ping.get(det.ping_id)
+        if label is None or not label.visible or not det.detections:
+            continue
+        best = det.detections[0]
+        dx = best.range_m * math.cos(best.azimuth_rad) - label.range_m * math.cos(label.azimuth_rad)
+        dy = best.range_m * math.sin(best.azimuth_rad) - label.range_m * math.sin(label.azimuth_rad)
+        errors_m.append(math.hypot(dx, dy))
+    assert len(errors_m) >= 20
+    errors_m.sort()
+    assert errors_m[len(errors_m) // 2] < 0.05
+    health = query_health(client, site="tank", vehicle="asv", service="sonar_detect", timeout_s=2)
+    assert health is not None
+    assert health.counters["frames"] >= 40
+    assert "dropped_stale_frames" in health.counters
+    for sub in subs:
+        sub.undeclare()
+
+
+def _write(tmp_path: Path, name: str, text: str) -> Path:
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def test_replay_of_real_oculus_bytes_reaches_the_bus(
+    spawn: Callable[..., Proc], router: Proc, endpoint: str, client: zenoh.Session, tmp_path: Path
+) -> None:
+    frames: list[object] = []
+    sub = _collect(client, topics.SONAR_FRAME.key("tank", "asv"), Codec(SonarFrame), frames)
+    config = _write(
+        tmp_path,
+        "replay.yaml",
+        f"path: {FIXTURES / 'three_pings_8bit.raw'}\nformat: oculus\nping_rate_hz: 20\n",
+    )
+    spawn("run", "sonar_replay", "--config", str(config), "--connect", endpoint)
+    wait_for(lambda: len(frames) >= 6, timeout_s=20, what="6 replayed frames (two passes)")
+    frame = frames[0]
+    assert isinstance(frame, SonarFrame)
+    assert (frame.n_ranges, frame.n_beams) == (703, 256)
+    degrees = sorted(math.degrees(a) for a in frame.azimuths_rad)
+    assert -31.0 < degrees[0] < -29.0
+    assert 29.0 < degrees[-1] < 31.0
+    sub.undeclare()
+
+
+@pytest.mark.parametrize(
+    ("service", "text", "where"),
+    [
+        ("sonar_replay", "path: /nonexistent/recording.raw\n", "'path'"),
+        ("sonar_replay", "path: {junk}\n", "no sonar frame"),
+        ("sonar_detect", "detector: cnn\ncnn:\n  weights: /nonexistent/net.pt\n", "'cnn.weights'"),
+        ("sonar_detect", "detector: cnn\ncnn:\n  weights: {junk}\n", "not a weights file"),
+    ],
+)
+def test_bad_recording_or_weights_is_a_config_error(
+    spawn: Callable[..., Proc], endpoint: str, tmp_path: Path, service: str, text: str, where: str
+) -> None:
+    junk = _write(tmp_path, "junk.bin", "not a recording, not weights\n" * 10)
+    config = _write(tmp_path, "bad.yaml", text.format(junk=junk))
+    proc = spawn("run", service, "--config", str(config), "--connect", endpoint)
+    assert proc.popen.wait(timeout=30) == 2
+    assert where in proc.output()
