@@ -185,7 +185,9 @@ def _cmd_list(args: argparse.Namespace) -> int:
                         "vehicle": vehicle,
                         "service": service,
                     }
+            asked_ns = time.time_ns()
             for reply in session.get(all_health(args.site), timeout=args.timeout):
+                received_ns = time.time_ns()
                 if reply.ok is None:
                     continue
                 key = str(reply.ok.key_expr)
@@ -199,6 +201,12 @@ def _cmd_list(args: argparse.Namespace) -> int:
                 ident = parse_service_key(key)
                 if ident in rows:  # only live services (a stale health reply is not a live service)
                     rows[ident]["health"] = reported
+                    # The service stamped its reply between our query and the reply's arrival:
+                    # its clock minus ours, +- half the round trip (NTP's estimate).
+                    rows[ident]["clock_offset_ms"] = round(
+                        (reported.stamp_ns - (asked_ns + received_ns) / 2) / 1e6, 1
+                    )
+                    rows[ident]["clock_uncertainty_ms"] = round((received_ns - asked_ns) / 2e6, 1)
     except (BusError, CapsdError) as exc:
         return _fail(str(exc), EXIT_FAILURE)
     ordered = [rows[k] for k in sorted(rows)]
@@ -213,8 +221,9 @@ def _cmd_list(args: argparse.Namespace) -> int:
         return EXIT_OK
     print(
         f"{'SITE':<10} {'VEHICLE':<10} {'SERVICE':<14} {'STATE':<9} {'UPTIME':>8} "
-        f"{'IN/s':>7} {'OUT/s':>7} {'ERRORS':>7}  LAST ERROR"
+        f"{'IN/s':>7} {'OUT/s':>7} {'ERRORS':>7} {'CLOCK ms':>9}  LAST ERROR"
     )
+    skewed = []
     for row in ordered:
         health: Health | None = row.get("health")
         if health is None:
@@ -222,13 +231,22 @@ def _cmd_list(args: argparse.Namespace) -> int:
             continue
         rate_in = sum(s.rate_hz for s in health.inputs)
         rate_out = sum(s.rate_hz for s in health.outputs)
+        offset = row["clock_offset_ms"]
+        if abs(offset) > args.clock_warn_ms + row["clock_uncertainty_ms"]:
+            skewed.append(f"{row['vehicle']}/{row['service']} ({offset:+.1f} ms)")
         print(
             f"{row['site']:<10} {row['vehicle']:<10} {row['service']:<14} {health.state:<9} "
-            f"{health.uptime_s:>7.0f}s {rate_in:>7.1f} {rate_out:>7.1f} {health.decode_errors:>7}  "
-            f"{health.last_error or ''}"
+            f"{health.uptime_s:>7.0f}s {rate_in:>7.1f} {rate_out:>7.1f} {health.decode_errors:>7} "
+            f"{offset:>+9.1f}  {health.last_error or ''}"
         )
     if not ordered:
         print("(no live services)")
+    if skewed:
+        print(
+            f"WARNING: clock offset above {args.clock_warn_ms:g} ms against this computer: "
+            + ", ".join(skewed)
+            + " (fixes combine stamps from several computers: check chrony)"
+        )
     return EXIT_OK
 
 
@@ -521,6 +539,12 @@ def build_parser() -> argparse.ArgumentParser:
     lst.add_argument("--site", help="only this site")
     lst.add_argument("--timeout", type=float, default=1.0, help="query timeout in seconds")
     lst.add_argument("--json", action="store_true", help="one JSON object per service")
+    lst.add_argument(
+        "--clock-warn-ms",
+        type=float,
+        default=20.0,
+        help="warn when a service's clock is off ours by more than this",
+    )
     add_bus_flags(lst)
     lst.set_defaults(func=_cmd_list)
 
