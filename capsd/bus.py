@@ -5,11 +5,12 @@ from __future__ import annotations
 import json
 import logging
 import threading
+from pathlib import Path
 
 import zenoh
 
 from capsd.config import BusConfig
-from capsd.errors import BusError
+from capsd.errors import BusError, ConfigError
 
 logger = logging.getLogger(__name__)
 
@@ -29,6 +30,23 @@ def zenoh_config(bus: BusConfig) -> zenoh.Config:
         "period_increase_factor": 2,
     }
     conf.insert_json5("connect/retry", json.dumps(retry))
+    if bus.tls is not None:
+        tls = {
+            "root_ca_certificate": bus.tls.ca_certificate,
+            "enable_mtls": True,
+            "listen_certificate": bus.tls.certificate,
+            "listen_private_key": bus.tls.private_key,
+            "connect_certificate": bus.tls.certificate,
+            "connect_private_key": bus.tls.private_key,
+            "verify_name_on_connect": bus.tls.verify_name == "on",
+        }
+        conf.insert_json5("transport/link/tls", json.dumps(tls))
+    if bus.access_control_file is not None:
+        path = Path(bus.access_control_file)
+        try:
+            conf.insert_json5("access_control", path.read_text())
+        except (OSError, zenoh.ZError) as exc:
+            raise ConfigError(str(path), "access_control", str(exc)) from None
     return conf
 
 

@@ -38,8 +38,27 @@ class ConfigSection(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fi
                 raise ValueError(f"`{name}` must be a finite number, got {value}")
 
 
+class TlsConfig(ConfigSection, frozen=True, kw_only=True):
+    """Mutual TLS: the site's CA, this process's certificate and key.
+
+    The certificate's common name is the identity the router's access control grants rights to.
+    """
+
+    ca_certificate: str
+    certificate: str
+    private_key: str
+    verify_name: Literal["on", "off"] = "on"  # the router's certificate must name its host
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for field in ("ca_certificate", "certificate", "private_key"):
+            path = getattr(self, field)
+            if not Path(path).is_file():
+                raise ValueError(f"`{field}`: no such file '{path}'")
+
+
 class BusConfig(ConfigSection, frozen=True, kw_only=True):
-    """How a process joins Zenoh: its mode, endpoints and scouting."""
+    """How a process joins Zenoh: its mode, endpoints, scouting and security."""
 
     mode: Literal["client", "peer", "router"] = "client"
     # BlueOS runs a router here; a service joins it rather than starting another.
@@ -50,9 +69,15 @@ class BusConfig(ConfigSection, frozen=True, kw_only=True):
     connect_timeout_s: Annotated[float, msgspec.Meta(gt=0.0, le=60.0)] = 1.0
     # Reconnect back-off ceiling after a link loss (FIELD-NOTES: 0.5 s gives ~0.2 s recovery).
     reconnect_max_s: Annotated[float, msgspec.Meta(gt=0.0, le=60.0)] = 0.5
+    # Between computers: tls/ endpoints with mutual TLS (deploy/security/make-site-certs.sh).
+    tls: TlsConfig | None = None
+    # Routers: Zenoh's access_control object as a JSON5 file (deploy/security/).
+    access_control_file: str | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        if self.access_control_file is not None and not Path(self.access_control_file).is_file():
+            raise ValueError(f"`access_control_file`: no such file '{self.access_control_file}'")
         for field, endpoints in (("connect", self.connect), ("listen", self.listen)):
             for i, endpoint in enumerate(endpoints):
                 if not _ENDPOINT.fullmatch(endpoint):
