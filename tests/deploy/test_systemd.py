@@ -62,3 +62,54 @@ def test_systemd_analyze_verify(tmp_path: Path) -> None:
     # Warnings (an unknown value is "ignored") count as failures too.
     assert proc.returncode == 0, proc.stderr
     assert proc.stderr.strip() == "", proc.stderr
+
+
+@pytest.mark.integration
+def test_install_script_for_the_rov_role(tmp_path: Path) -> None:
+    """The ROV role installs without torch/scipy/opencv, its units point at its venv."""
+    prefix, etc, units = tmp_path / "opt", tmp_path / "etc", tmp_path / "units"
+    proc = subprocess.run(
+        [
+            "bash",
+            str(REPO / "deploy" / "install.sh"),
+            "rov",
+            "--prefix",
+            str(prefix),
+            "--etc",
+            str(etc),
+            "--unit-dir",
+            str(units),
+            "--no-enable",
+            "--no-user",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    unit = (units / "capsd-mav-bridge.service").read_text()
+    assert (
+        f"ExecStart={prefix}/venv/bin/capsd run mav_bridge --config {etc}/mav_bridge.yaml" in unit
+    )
+    assert (etc / "mav_bridge.yaml").exists()
+    check = subprocess.run(
+        [
+            str(prefix / "venv" / "bin" / "python"),
+            "-c",
+            "import importlib.util as u, services.mav_bridge.service; "
+            "print([m for m in ('torch', 'scipy', 'cv2') if u.find_spec(m)])",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert check.returncode == 0, check.stderr
+    assert check.stdout.strip() == "[]"
+    if shutil.which("systemd-analyze"):
+        verify = subprocess.run(
+            ["systemd-analyze", "verify", "--man=no", str(units / "capsd-mav-bridge.service")],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert verify.returncode == 0, verify.stderr

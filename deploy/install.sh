@@ -1,0 +1,54 @@
+#!/usr/bin/env bash
+# Install CAP-SD for one role of a site into a virtual environment and enable its units.
+#   asv      ASV computer: asv_pose, tim5xx, oculus, sonar_detect (torch CPU), ros_input
+#   rov      ROV companion (BlueOS Pi): mav_bridge only; no torch, scipy or opencv
+#   topside  topside computer: the router and the locator (and the laptop tools)
+# Usage: deploy/install.sh ROLE [--prefix /opt/capsd] [--etc /etc/capsd]
+#                               [--unit-dir /etc/systemd/system] [--no-enable] [--no-user]
+# Existing configs in --etc are kept (an upgrade never overwrites a site's settings).
+set -euo pipefail
+ROLE=${1:?usage: install.sh asv|rov|topside [options]}
+shift
+PREFIX=/opt/capsd ETC=/etc/capsd UNIT_DIR=/etc/systemd/system ENABLE=1 MAKE_USER=1
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --prefix) PREFIX=$2; shift 2 ;;
+    --etc) ETC=$2; shift 2 ;;
+    --unit-dir) UNIT_DIR=$2; shift 2 ;;
+    --no-enable) ENABLE=0; shift ;;
+    --no-user) MAKE_USER=0; shift ;;
+    *) echo "install.sh: unknown option '$1'" >&2; exit 2 ;;
+  esac
+done
+case "$ROLE" in
+  asv) EXTRAS="asv,detect,ros"; UNITS="asv-pose tim5xx oculus sonar-detect ros-input" ;;
+  rov) EXTRAS="rov"; UNITS="mav-bridge" ;;
+  topside) EXTRAS="topside"; UNITS="router locator" ;;
+  *) echo "install.sh: role must be asv, rov or topside, not '$ROLE'" >&2; exit 2 ;;
+esac
+REPO=$(cd "$(dirname "$0")/.." && pwd)
+PY=${PYTHON:-python3.11}
+command -v "$PY" >/dev/null 2>&1 || PY=python3
+echo "installing CAP-SD ($ROLE) into $PREFIX/venv"
+mkdir -p "$PREFIX" "$ETC" "$UNIT_DIR"
+[ -x "$PREFIX/venv/bin/python" ] || "$PY" -m venv "$PREFIX/venv"
+"$PREFIX/venv/bin/python" -m pip install --quiet --disable-pip-version-check "$REPO[$EXTRAS]"
+if [ "$MAKE_USER" = 1 ] && ! id capsd >/dev/null 2>&1; then
+  useradd --system --no-create-home --shell /usr/sbin/nologin capsd
+fi
+for unit in $UNITS; do
+  service=${unit//-/_}
+  src="$REPO/deploy/config/$service.yaml"
+  if [ -f "$src" ] && [ ! -f "$ETC/$service.yaml" ]; then cp "$src" "$ETC/$service.yaml"; fi
+  sed -e "s#/opt/capsd/venv#$PREFIX/venv#g" -e "s#/etc/capsd#$ETC#g" \
+    "$REPO/deploy/systemd/capsd-$unit.service" > "$UNIT_DIR/capsd-$unit.service"
+done
+[ -f "$ETC/capsd.env" ] || printf '# Site settings for the CAP-SD units (KEY=value).\n' > "$ETC/capsd.env"
+if [ "$ROLE" = topside ] && [ ! -f "$ETC/access_control.json5" ]; then
+  cp "$REPO/deploy/security/access_control.json5" "$ETC/access_control.json5"
+fi
+if [ "$ENABLE" = 1 ] && command -v systemctl >/dev/null 2>&1; then
+  systemctl daemon-reload
+  for unit in $UNITS; do systemctl enable "capsd-$unit.service"; done
+fi
+echo "done: units $(printf 'capsd-%s ' $UNITS)in $UNIT_DIR, configs in $ETC"
