@@ -441,6 +441,37 @@ def _cmd_import_bag(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_live_view(args: argparse.Namespace) -> int:
+    from capsd.bus import open_session
+    from capsd.live_view import serve
+
+    try:
+        bus = bus_from_args(args, BusConfig())
+    except ConfigError as exc:
+        return _fail(str(exc), EXIT_CONFIG)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    print(f"live view on ws://{args.host}:{args.port} (open it in Foxglove)", flush=True)
+    try:
+        with open_session(bus) as session:
+            serve(
+                session,
+                site=args.site,
+                host=args.host,
+                port=args.port,
+                tank_length_m=args.tank_length,
+                tank_width_m=args.tank_width,
+                fan_hz=args.fan_hz,
+                stop=stop,
+                on_status=lambda counts: print(f"live view: {counts}", file=sys.stderr),
+            )
+    except KeyboardInterrupt:
+        return EXIT_OK
+    except BusError as exc:
+        return _fail(str(exc), EXIT_FAILURE)
+    return EXIT_OK
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from datetime import UTC, datetime
 
@@ -747,6 +778,20 @@ def build_parser() -> argparse.ArgumentParser:
     imp.add_argument("--mapping", type=Path, required=True, help="topic mapping YAML")
     imp.add_argument("-o", "--output", type=Path, required=True, help="the .mcap to write")
     imp.set_defaults(func=_cmd_import_bag)
+    live = sub.add_parser(
+        "live-view",
+        help="a Foxglove WebSocket server: sonar fan with detections, tank map, every payload",
+        description="Serve the site's keys to Foxglove (ws://HOST:PORT): JSON channels with "
+        "schemas, /capsd/sonar_fan and /capsd/tank_map images.",
+    )
+    live.add_argument("--site", default="tank")
+    live.add_argument("--host", default="127.0.0.1", help="address to serve on")
+    live.add_argument("--port", type=int, default=8765)
+    live.add_argument("--tank-length", type=float, default=28.0, help="tank length (m), map")
+    live.add_argument("--tank-width", type=float, default=16.0, help="tank width (m), map")
+    live.add_argument("--fan-hz", type=float, default=2.0, help="fan images per second")
+    add_bus_flags(live)
+    live.set_defaults(func=_cmd_live_view)
     dem = sub.add_parser(
         "demo",
         help="the whole system on the simulated tank, live, with a report folder",

@@ -24,6 +24,11 @@ def draw_top_view(
     tank: Tank, rov_xy: Array, asv_xy: Array, out: Path, *, px_per_m: float = 40.0
 ) -> None:
     """Write a top view of the tank: walls, clutter, the ROV's (green) and ASV's (red) tracks."""
+    write_png(out, top_view(tank, rov_xy, asv_xy, px_per_m=px_per_m))
+
+
+def top_view(tank: Tank, rov_xy: Array, asv_xy: Array, *, px_per_m: float = 40.0) -> Image:
+    """The top view image (tracks may hold a single point: the current positions)."""
     margin = 30
     w = int(tank.length_m * px_per_m) + 2 * margin
     h = int(tank.width_m * px_per_m) + 2 * margin
@@ -68,7 +73,7 @@ def draw_top_view(
     )
     cv2.line(image, px(0.5, -0.4), px(1.5, -0.4), (40, 40, 40), 2)
     cv2.putText(image, "1 m", px(1.7, -0.55), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (40, 40, 40), 1)
-    write_png(out, image)
+    return image
 
 
-__all__ = ["draw_fan", "draw_top_view"]
+__all__ = ["draw_fan", "draw_top_view", "top_view"]

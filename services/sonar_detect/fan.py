@@ -82,6 +82,13 @@ def draw_fan(
     frame: SonarFrame, label: SonarLabel | None, detections: SonarDetections | None, out: Path
 ) -> None:
     """Write the fan PNG: truth in green (centre, footprint), ghosts in yellow, detections red."""
+    write_png(out, fan_with_overlays(frame, label, detections))
+
+
+def fan_with_overlays(
+    frame: SonarFrame, label: SonarLabel | None, detections: SonarDetections | None
+) -> Image:
+    """The fan image with the truth (if any) and the detections drawn on it."""
     image, scale, apex = fan_image(frame)
     if label is not None:
         if (
@@ -114,7 +121,7 @@ def draw_fan(
             p = _pixel(apex, scale, det.range_m, det.azimuth_rad)
             cv2.drawMarker(image, p, _RED, cv2.MARKER_CROSS, 12, 1)
     cv2.putText(image, f"ping {frame.ping_id}", (10, 40), cv2.FONT_HERSHEY_SIMPLEX, 0.5, _GREY, 1)
-    write_png(out, image)
+    return image
 
 
 def write_png(out: Path, image: Image) -> None:
