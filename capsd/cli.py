@@ -355,14 +355,12 @@ def _cmd_record(args: argparse.Namespace) -> int:
         zenoh.KeyExpr(args.keyexpr)
     except (ConfigError, zenoh.ZError) as exc:
         return _fail(f"record: {exc}", EXIT_CONFIG)
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
 
     def progress(n: int) -> None:
         print(f"record: {n} messages", file=sys.stderr, flush=True)
 
     try:
-        with open_session(bus) as session:
+        with _StopOnSignal() as stop, open_session(bus) as session:
             counts = record(
                 session,
                 args.keyexpr,
@@ -399,11 +397,9 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         bus = bus_from_args(args, BusConfig())
     except ConfigError as exc:
         return _fail(str(exc), EXIT_CONFIG)
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
         channel_counts(args.file)  # a bad file fails before the first message
-        with open_session(bus) as session:
+        with _StopOnSignal() as stop, open_session(bus) as session:
             counts = replay(
                 session,
                 args.file,
@@ -449,11 +445,9 @@ def _cmd_live_view(args: argparse.Namespace) -> int:
         bus = bus_from_args(args, BusConfig())
     except ConfigError as exc:
         return _fail(str(exc), EXIT_CONFIG)
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
     print(f"live view on ws://{args.host}:{args.port} (open it in Foxglove)", flush=True)
     try:
-        with open_session(bus) as session:
+        with _StopOnSignal() as stop, open_session(bus) as session:
             serve(
                 session,
                 site=args.site,
