@@ -38,7 +38,8 @@ if [ "$MAKE_USER" = 1 ] && ! id capsd >/dev/null 2>&1; then
 fi
 for unit in $UNITS; do
   service=${unit//-/_}
-  src="$REPO/deploy/config/$service.yaml"
+  src="$REPO/deploy/roles/$ROLE/$service.yaml"  # joined the way this role joins
+  [ -f "$src" ] || src="$REPO/deploy/config/$service.yaml"
   if [ -f "$src" ] && [ ! -f "$ETC/$service.yaml" ]; then cp "$src" "$ETC/$service.yaml"; fi
   sed -e "s#/opt/capsd/venv#$PREFIX/venv#g" -e "s#/etc/capsd#$ETC#g" \
     "$REPO/deploy/systemd/capsd-$unit.service" > "$UNIT_DIR/capsd-$unit.service"
