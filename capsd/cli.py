@@ -489,6 +489,16 @@ def _cmd_bench_accuracy(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_train_calibrate(args: argparse.Namespace) -> int:
+    from services.sonar_detect.train import recalibrate
+
+    try:
+        recalibrate(args.weights, duration_s=args.duration)
+    except CapsdError as exc:
+        return _fail(f"calibrate: {exc}", EXIT_CONFIG)
+    return EXIT_OK
+
+
 def _cmd_train_detector(args: argparse.Namespace) -> int:
     from services.sonar_detect.train import TrainConfig, train
 
@@ -825,6 +835,18 @@ def build_parser() -> argparse.ArgumentParser:
     tdet.add_argument("--mining-runs", type=int, default=24, help="runs for hard negatives")
     tdet.add_argument("--eval-duration", type=float, default=20.0, help="seconds per held-out run")
     tdet.set_defaults(func=_cmd_train_detector)
+    tcal = train.add_parser(
+        "calibrate",
+        help="set the polar CNN's operating point on validation runs (part of `detector`)",
+        description="Choose the confidence offset that keeps false alarms <= 0.005 per frame "
+        "on validation runs (seeds used neither in training nor in the bench), save it in the "
+        "weights and refresh their evaluation.",
+    )
+    tcal.add_argument(
+        "--weights", type=Path, default=Path("services/sonar_detect/weights/polar_net.pt")
+    )
+    tcal.add_argument("--duration", type=float, default=10.0, help="seconds per validation run")
+    tcal.set_defaults(func=_cmd_train_calibrate)
     return parser
 
 

@@ -27,6 +27,7 @@ from services.sonar_detect.polar_input import (
     Image,
     coarse_input,
     crop,
+    crop_pair,
     unit_image,
 )
 from services.sonar_detect.polar_net import OFFSET_SCALE_M, PolarNet, load
@@ -87,15 +88,24 @@ class CnnDetector:
     def _refine(
         self, frame: SonarFrame, image: Image, table: BeamTable, candidates: list[Candidate]
     ) -> list[Detection]:
-        crops = np.stack(
-            [
-                crop(image, frame, table, range_m=c.range_m, azimuth_rad=c.azimuth_rad)
-                for c in candidates
-            ]
-        )
+        if self.net.refine_channels == 2:
+            crops = np.stack(
+                [
+                    crop_pair(image, frame, table, range_m=c.range_m, azimuth_rad=c.azimuth_rad)
+                    for c in candidates
+                ]
+            )
+        else:
+            crops = np.stack(
+                [
+                    crop(image, frame, table, range_m=c.range_m, azimuth_rad=c.azimuth_rad)
+                    for c in candidates
+                ]
+            )[:, None]
         with torch.inference_mode():
-            out = self.net.refine(torch.from_numpy(crops)[:, None]).numpy().astype(np.float64)
+            out = self.net.refine(torch.from_numpy(crops)).numpy().astype(np.float64)
         half_fov = table.half_fov_rad
+        offset = float(self.net.logit_offset)
         found = []
         for c, o in zip(candidates, out, strict=True):
             range_m = c.range_m + float(o[1]) * OFFSET_SCALE_M
@@ -112,7 +122,9 @@ class CnnDetector:
                     azimuth_rad=azimuth,
                     range_sigma_m=float(sigma_range),
                     azimuth_sigma_rad=float(sigma_cross) / range_m,
-                    confidence=float(1.0 / (1.0 + math.exp(-float(np.clip(o[0], -30, 30))))),
+                    confidence=float(
+                        1.0 / (1.0 + math.exp(-float(np.clip(o[0] - offset, -30, 30))))
+                    ),
                     range_extent_m=float(extent_range),
                     azimuth_extent_rad=float(extent_cross) / range_m,
                 )

@@ -26,6 +26,7 @@ COARSE_RANGE_M = 0.08
 COARSE_BEAMS = 128
 CROP_SIZE = 96
 CROP_STEP_M = 0.02
+CONTEXT_STEP_M = 0.08  # the context channel: the same grid 4x coarser, 7.7 m across
 
 
 def unit_image(frame: SonarFrame) -> Image:
@@ -95,15 +96,16 @@ def crop(
     *,
     range_m: float,
     azimuth_rad: float,
+    step_m: float = CROP_STEP_M,
 ) -> Image:
     """CROP_SIZE x CROP_SIZE samples around (range_m, azimuth_rad); rows: range, cols: cross.
 
-    Row i is at range `range_m + (i - c) * CROP_STEP_M`, column j at azimuth
-    `azimuth_rad + (j - c) * CROP_STEP_M / range_m`, with c = (CROP_SIZE - 1) / 2. Samples
+    Row i is at range `range_m + (i - c) * step_m`, column j at azimuth
+    `azimuth_rad + (j - c) * step_m / range_m`, with c = (CROP_SIZE - 1) / 2. Samples
     outside the image or the fan are 0.
     """
     c = (CROP_SIZE - 1) / 2.0
-    offsets = (np.arange(CROP_SIZE, dtype=np.float64) - c) * CROP_STEP_M
+    offsets = (np.arange(CROP_SIZE, dtype=np.float64) - c) * step_m
     ranges = range_m + offsets
     azimuths = azimuth_rad + offsets / max(range_m, 0.05)
     rows = (ranges - frame.range_start_m) / frame.range_resolution_m - 0.5
@@ -121,3 +123,22 @@ def crop(
         borderValue=0.0,
     )
     return np.asarray(out, dtype=np.float32)
+
+
+def crop_pair(
+    image: Image, frame: SonarFrame, table: BeamTable, *, range_m: float, azimuth_rad: float
+) -> Image:
+    """2 x CROP_SIZE x CROP_SIZE: the detail crop and, centred on it, the context crop.
+
+    The context (7.7 m across) shows what the detail cannot: whether the blob lies on the
+    floor's echo among the clutter (a sandbag, a rack corner) or hangs in the water column with
+    its shadow behind it (the ROV).
+    """
+    return np.stack(
+        [
+            crop(image, frame, table, range_m=range_m, azimuth_rad=azimuth_rad),
+            crop(
+                image, frame, table, range_m=range_m, azimuth_rad=azimuth_rad, step_m=CONTEXT_STEP_M
+            ),
+        ]
+    )

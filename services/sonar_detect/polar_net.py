@@ -3,7 +3,8 @@
 - `ProposalNet` reads the coarse grid (2 x rows x cols, see polar_input) and gives a heatmap
   logit at half its resolution: peaks are places that look like an ROV centre. Dilated
   convolutions give it ~3 m of context, enough to tell a hull from a rack edge or a ghost.
-- `RefineNet` reads a metric crop (1 x CROP_SIZE x CROP_SIZE) around each peak and gives
+- `RefineNet` reads metric crops (detail and context, 2 x CROP_SIZE x CROP_SIZE) around each
+  peak and gives
   an ROV/not-ROV logit, the centre's offset from the crop centre in range and cross-range
   (metres), the log scale of a Laplace error for each (the sigma we report), and the log of the
   echo's extent in range and cross-range.
@@ -63,10 +64,10 @@ REFINE_OUTPUTS = 7  # logit, d_range, d_cross, log_scale_range, log_scale_cross,
 class RefineNet(nn.Module):
     """Crop -> (logit, offsets, log scales, log extents)."""
 
-    def __init__(self, crop_size: int = 96):
+    def __init__(self, crop_size: int = 96, channels: int = 2):
         super().__init__()
         self.features = nn.Sequential(
-            *_conv(1, 16, stride=2),
+            *_conv(channels, 16, stride=2),
             *_conv(16, 32),
             nn.MaxPool2d(2),
             *_conv(32, 48),
@@ -92,11 +93,17 @@ class RefineNet(nn.Module):
 class PolarNet(nn.Module):
     """Both stages under one state dict."""
 
-    def __init__(self, *, crop_size: int = 96):
+    logit_offset: torch.Tensor
+
+    def __init__(self, *, crop_size: int = 96, refine_channels: int = 2):
         super().__init__()
         self.crop_size = crop_size
+        self.refine_channels = refine_channels  # 1: detail crop only; 2: detail and context
         self.proposal = ProposalNet()
-        self.refine = RefineNet(crop_size)
+        self.refine = RefineNet(crop_size, refine_channels)
+        # The operating point: subtracted from the refiner's logit so that confidence 0.5 is
+        # the threshold chosen on validation runs (train.calibrate), not the raw 50%.
+        self.register_buffer("logit_offset", torch.zeros(()))
 
 
 def save(net: PolarNet, path: Path, *, meta: dict[str, Any]) -> None:
@@ -107,6 +114,7 @@ def save(net: PolarNet, path: Path, *, meta: dict[str, Any]) -> None:
             "format": FORMAT,
             "version": VERSION,
             "crop_size": net.crop_size,
+            "refine_channels": net.refine_channels,
             "state": state,
             "meta": meta,
         },
@@ -126,9 +134,13 @@ def load(path: Path) -> PolarNet:
         raise CapsdError(f"{path}: not a {FORMAT} weights file")
     if blob.get("version") != VERSION:
         raise CapsdError(f"{path}: weights version {blob.get('version')}, expected {VERSION}")
-    net = PolarNet(crop_size=int(blob["crop_size"]))
+    net = PolarNet(
+        crop_size=int(blob["crop_size"]), refine_channels=int(blob.get("refine_channels", 1))
+    )
+    state = dict(blob["state"])
+    state.setdefault("logit_offset", torch.zeros(()))  # weights saved before calibration
     try:
-        net.load_state_dict(blob["state"])
+        net.load_state_dict(state)
     except RuntimeError as exc:
         raise CapsdError(f"{path}: weights do not fit the network ({exc})") from exc
     net.eval()

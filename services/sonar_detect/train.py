@@ -173,7 +173,7 @@ def _train_refine(
         order = torch.randperm(len(crops), generator=gen)
         for b in range(0, len(order), config.refine_batch):
             idx = order[b : b + config.refine_batch]
-            x = crops[idx].float()[:, None] / 255.0
+            x = crops[idx].float() / 255.0
             t = targets[idx].clone()
             flip = torch.rand(len(idx), generator=gen) < 0.5
             x[flip] = torch.flip(x[flip], dims=[-1])
@@ -243,6 +243,7 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
         "machine": {"cpus_used": config.threads, "platform": platform.platform()},
         "torch": str(torch.__version__),
     }
+    meta["calibration"] = calibrate(net, duration_s=config.eval_duration_s / 2)
     save(net, weights, meta=meta)
     from capsd.bench.detect import evaluate_cnn
 
@@ -250,6 +251,114 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
     (out_dir / "polar_net.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
     print(f"weights: {weights} ({weights.stat().st_size / 1e6:.2f} MB)")
     print(f"total {time.monotonic() - started:.0f} s")
+    return meta
+
+
+# Validation runs for the operating point: seeds used neither in training nor in the bench.
+VALIDATION_RUNS: tuple[tuple[str, str, str, int], ...] = (
+    ("nfp", "square", "follow", 301),
+    ("nfp", "lawnmower", "follow", 302),
+    ("nfp", "bouncing", "follow", 303),
+    ("nfp", "two_floor", "stationary", 304),
+    ("mockup", "square", "stationary", 305),
+    ("mockup", "random", "follow", 306),
+)
+MAX_FALSE_ALARMS_PER_FRAME = 0.005
+
+
+def calibrate(net: PolarNet, *, duration_s: float) -> dict[str, Any]:
+    """Set the operating point on the validation runs (the refiner logit's offset).
+
+    Confidence 0.5 becomes the lowest threshold with at most MAX_FALSE_ALARMS_PER_FRAME.
+    """
+    from capsd.bench.detect import MATCH_M
+    from capsd.payloads import SonarFrame, SonarLabel
+    from services.sonar_detect.cnn import CnnDetector
+    from simulator.config import OFFLINE_START_NS, Streams
+    from simulator.config import Config as SimConfig
+    from simulator.sim import Simulation
+
+    net.logit_offset.zero_()
+    detector = CnnDetector(net=net)
+    false_logits: list[float] = []
+    hit_logits: list[float] = []  # per visible ping: the best matching candidate, or -inf
+    frames = 0
+    bar = Progress(duration_s * len(VALIDATION_RUNS), label="calibrating", unit=" sim s")
+    for k, (tank, trajectory, mode, seed) in enumerate(VALIDATION_RUNS):
+        config = SimConfig(
+            tank=tank,  # type: ignore[arg-type]
+            trajectory=trajectory,  # type: ignore[arg-type]
+            asv_mode=mode,  # type: ignore[arg-type]
+            seed=seed,
+            streams=Streams(
+                lidar="off", imu="off", asv_pose_truth_noise="off", detections_truth_noise="off"
+            ),
+        )
+        frame: SonarFrame | None = None
+        for event in Simulation(config, horizon_s=duration_s + 5).events(
+            start_ns=OFFLINE_START_NS, duration_s=duration_s
+        ):
+            p = event.payload
+            if isinstance(p, SonarFrame):
+                frame = p
+            elif isinstance(p, SonarLabel) and frame is not None:
+                frames += 1
+                best = -math.inf
+                for d in detector.detect(frame):
+                    c = min(max(d.confidence, 1e-12), 1 - 1e-12)
+                    logit = math.log(c / (1 - c))
+                    near = p.visible and (
+                        abs(d.range_m - p.range_m) < MATCH_M
+                        and abs(d.azimuth_rad - p.azimuth_rad) * p.range_m < MATCH_M
+                    )
+                    if near and logit > best:
+                        if best > -math.inf:
+                            false_logits.append(best)  # a second ROV candidate is a false alarm
+                        best = logit
+                    else:
+                        false_logits.append(logit)
+                if p.visible:
+                    hit_logits.append(best)
+                bar.update(k * duration_s + event.t_s)
+    bar.close()
+    allowed = int(MAX_FALSE_ALARMS_PER_FRAME * frames)
+    ordered = sorted(false_logits, reverse=True)
+    # Never below the raw 50%: the offset only ever makes the detector more cautious.
+    offset = max(0.0, ordered[allowed] + 1e-6) if len(ordered) > allowed else 0.0
+    net.logit_offset.fill_(offset)
+
+    def rates(threshold: float) -> dict[str, float]:
+        return {
+            "false_alarms_per_frame": round(sum(v >= threshold for v in false_logits) / frames, 4),
+            "detection_rate": round(
+                sum(v >= threshold for v in hit_logits) / max(len(hit_logits), 1), 4
+            ),
+        }
+
+    result = {
+        "logit_offset": round(offset, 4),
+        "validation_runs": [list(r) for r in VALIDATION_RUNS],
+        "frames": frames,
+        "max_false_alarms_per_frame": MAX_FALSE_ALARMS_PER_FRAME,
+        "at_raw_0.5": rates(0.0),
+        "at_operating_point": rates(offset),
+    }
+    print(f"operating point: logit offset {offset:.3f}; {result}")
+    return result
+
+
+def recalibrate(weights: Path, *, duration_s: float) -> dict[str, Any]:
+    """Calibrate existing weights in place and refresh their evaluation (capsd train calibrate)."""
+    from capsd.bench.detect import evaluate_cnn
+    from services.sonar_detect.polar_net import load
+
+    net = load(weights)
+    meta_path = weights.with_suffix(".json")
+    meta = json.loads(meta_path.read_text()) if meta_path.exists() else {}
+    meta["calibration"] = calibrate(net, duration_s=duration_s)
+    save(net, weights, meta={k: v for k, v in meta.items() if k != "evaluation"})
+    meta["evaluation"] = evaluate_cnn(net, duration_s=2 * duration_s)
+    meta_path.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
     return meta
 
 

@@ -26,7 +26,7 @@ from services.sonar_detect.polar_input import (
     BeamTable,
     Grid,
     coarse_input,
-    crop,
+    crop_pair,
     unit_image,
 )
 from simulator.config import (
@@ -119,7 +119,7 @@ class Samples:
     grids: list[npt.NDArray[np.uint8]] = field(default_factory=list)  # 2 x rows x cols
     # Per grid: visible (0/1), centre row and col in heatmap cells, extent rows and cols.
     grid_targets: list[tuple[float, float, float, float, float]] = field(default_factory=list)
-    crops: list[npt.NDArray[np.uint8]] = field(default_factory=list)
+    crops: list[npt.NDArray[np.uint8]] = field(default_factory=list)  # 2 x N x N
     # Per crop: is ROV (0/1), d_range, d_cross (m), extent range, extent cross (m), overlap.
     crop_targets: list[tuple[float, float, float, float, float, float]] = field(
         default_factory=list
@@ -199,7 +199,7 @@ def samples_of_ping(
             centre_az = label.azimuth_rad - d_cross / centre_range
             if centre_range <= 0.2:
                 continue
-            patch = crop(image, frame, table, range_m=centre_range, azimuth_rad=centre_az)
+            patch = crop_pair(image, frame, table, range_m=centre_range, azimuth_rad=centre_az)
             # The target offset is measured at the crop's own range (its cross-range scale).
             out.crops.append(_to_u8(patch))
             out.crop_targets.append(
@@ -223,7 +223,7 @@ def samples_of_ping(
     for range_m, azimuth in places:
         if truth is not None and _distance(truth, (range_m, azimuth)) < NEGATIVE_MIN_DISTANCE_M:
             continue
-        patch = crop(image, frame, table, range_m=range_m, azimuth_rad=azimuth)
+        patch = crop_pair(image, frame, table, range_m=range_m, azimuth_rad=azimuth)
         out.crops.append(_to_u8(patch))
         out.crop_targets.append((0.0, 0.0, 0.0, 0.0, 0.0, float(label.overlap)))
     return out
