@@ -202,7 +202,7 @@ def _line(elapsed: float, watch: Watch, health: dict[str, Health | None]) -> str
     avail = f"{100 * s['availability']:.1f}%" if s.get("availability") is not None else "-"
     states = " ".join(f"{name}:{h.state if h else 'silent'}" for name, h in health.items())
     bridge = health.get("mav_bridge")
-    sent = bridge.counters.get("sent", 0) if bridge else 0
+    sent = bridge.counters.get("gate_sent", 0) if bridge else 0
     return (
         f"[{elapsed:5.0f} s] pings {s['pings']:5d} good {avail:>6} MED {med:>9}  "
         f"VPE sent {sent:5d}  {states}"

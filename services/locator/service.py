@@ -232,7 +232,20 @@ class Locator:
                 azimuth_rad=detection.azimuth_rad,
                 depth_m=depth_m,
             )
-            return "no_intersection" if position is None else (position, None)
+            if position is None:
+                return "no_intersection"
+            if self.method.tracking == "per_frame":
+                return position, None  # the paper's method: no uncertainty at all
+            # The paper's geometry under our tracker (the ablation): the tracker needs a
+            # covariance; the exact model's at the same inputs is the honest stand-in.
+            exact = self._solve_exact(detection, asv, depth_m, attitude)
+            cov = exact[1] if not isinstance(exact, str) else np.eye(3) * 0.1**2
+            return position, cov
+        return self._solve_exact(detection, asv, depth_m, attitude)
+
+    def _solve_exact(
+        self, detection: Detection, asv: Transform, depth_m: float, attitude: Array
+    ) -> tuple[Array, Array] | str:
         result = solve_fix(
             asv_pose=asv,
             sonar_mount=self.mount,
