@@ -395,7 +395,7 @@ def test_asv_pose_service_tracks_the_simulated_asv(
     yaw_deg = math.degrees(matrix_to_euler_zyx(start.rotation)[0])
     pose_config.write_text(
         f"bus: {{connect: [{endpoint}]}}\n"
-        f"seed: {{x_m: 14.2, y_m: 7.9, yaw_deg: {yaw_deg + 2.0:.2f}}}\n"
+        f"heading_prior_deg: {yaw_deg + 20.0:.2f}\n"  # no position: the global search finds it
     )
     poses: list[AsvPose] = []
     truths: list[GroundTruth] = []
