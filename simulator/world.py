@@ -220,12 +220,16 @@ def _follow(targets: Array, start: Array, *, omega: float, max_speed: float, dt:
         ax = k2 * (tx[k] - px) - k1 * vx
         ay = k2 * (ty[k] - py) - k1 * vy
         az = k2 * (tz[k] - pz) - k1 * vz
-        rows.append((px, py, pz, vx, vy, vz, ax, ay, az))
-        vx, vy, vz = vx + ax * dt, vy + ay * dt, vz + az * dt
-        speed = math.sqrt(vx * vx + vy * vy + vz * vz)
+        nx, ny, nz = vx + ax * dt, vy + ay * dt, vz + az * dt
+        speed = math.sqrt(nx * nx + ny * ny + nz * nz)
         if speed > max_speed:
             scale = max_speed / speed
-            vx, vy, vz = vx * scale, vy * scale, vz * scale
+            nx, ny, nz = nx * scale, ny * scale, nz * scale
+        # The acceleration recorded is the one the motion has (after the speed limit), or the
+        # simulated accelerometer would report a push the vehicle never makes.
+        ax, ay, az = (nx - vx) / dt, (ny - vy) / dt, (nz - vz) / dt
+        rows.append((px, py, pz, vx, vy, vz, ax, ay, az))
+        vx, vy, vz = nx, ny, nz
         px, py, pz = px + vx * dt, py + vy * dt, pz + vz * dt
     table = np.array(rows)
     out[0], out[1], out[2] = table[:, 0:3], table[:, 3:6], table[:, 6:9]
