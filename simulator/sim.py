@@ -34,6 +34,7 @@ from capsd.payloads import (
     RovDepth,
     RovVelocity,
     SonarDetections,
+    SonarFrame,
     SonarLabel,
 )
 from capsd.sonar_geometry import to_polar
@@ -143,6 +144,20 @@ class Simulation:
         return seq
 
     # ------------------------------------------------------------------ the stream
+
+    def labelled_pings(
+        self, *, start_ns: int, duration_s: float
+    ) -> Iterator[tuple[float, SonarFrame, SonarLabel]]:
+        """(sim time, frame, its label) for every ping: what detector training and scoring read."""
+        frame: SonarFrame | None = None
+        for event in self.events(start_ns=start_ns, duration_s=duration_s):
+            payload = event.payload
+            if isinstance(payload, SonarFrame):
+                frame = payload
+            elif isinstance(payload, SonarLabel) and frame is not None:
+                if payload.stamp_ns == frame.stamp_ns:
+                    yield event.t_s, frame, payload
+                frame = None
 
     def events(self, *, start_ns: int, duration_s: float | None = None) -> Iterator[Event]:
         """Every payload in time order from sim time 0; true time is `start_ns` + sim time."""

@@ -34,7 +34,8 @@ from simulator.sim import Simulation
 from simulator.world import TankName, TrajectoryName
 
 AsvMode = Literal["follow", "stationary"]
-RUNS: tuple[tuple[TankName, TrajectoryName, AsvMode, int], ...] = (
+Run = tuple[TankName, TrajectoryName, AsvMode, int]
+RUNS: tuple[Run, ...] = (
     ("nfp", "square", "follow", 101),
     ("nfp", "lawnmower", "follow", 102),
     ("nfp", "bouncing", "follow", 103),
@@ -87,7 +88,7 @@ class Tally:
             return f"{'-':>{width}}" if v is None else f"{v * scale:>{width}.{digits}f}"
 
         return (
-            f"{name:<34} {self.frames:>5} {num('detection_rate', 6, 1, 100)}"
+            f"{name:<42} {self.frames:>5} {num('detection_rate', 6, 1, 100)}"
             f"{'%' if s['detection_rate'] is not None else ' '} "
             f"{num('false_alarms_per_frame', 7, 3)} "
             f"{num('ghost_alarms_per_frame', 6, 3)} {num('range_err_cm_median', 7, 2)} "
@@ -97,9 +98,22 @@ class Tally:
 
 
 HEADER = (
-    f"{'detector / pings':<34} {'pings':>5} {'detect':>7} {'FA/frm':>7} {'ghost':>6} "
+    f"{'detector / pings':<42} {'pings':>5} {'detect':>7} {'FA/frm':>7} {'ghost':>6} "
     f"{'r cm50':>7} {'r cm95':>7} {'az50 deg':>8} {'az95':>7}"
 )
+
+
+def sonar_only(tank: TankName, trajectory: TrajectoryName, asv_mode: AsvMode, seed: int) -> Config:
+    """A simulator config that renders sonar pings and labels only (no LiDAR, IMU, stand-ins)."""
+    return Config(
+        tank=tank,
+        trajectory=trajectory,
+        seed=seed,
+        asv_mode=asv_mode,
+        streams=Streams(
+            lidar="off", imu="off", asv_pose_truth_noise="off", detections_truth_noise="off"
+        ),
+    )
 
 
 def evaluate(
@@ -110,27 +124,15 @@ def evaluate(
     bar = Progress(duration_s * len(runs), label="detect bench", unit=" sim s")
     done = 0.0
     for tank, trajectory, asv_mode, seed in runs:
-        config = Config(
-            tank=tank,
-            trajectory=trajectory,
-            seed=seed,
-            asv_mode=asv_mode,
-            streams=Streams(
-                lidar="off", imu="off", asv_pose_truth_noise="off", detections_truth_noise="off"
-            ),
-        )
-        sim = Simulation(config, horizon_s=duration_s + 5)
-        frame: SonarFrame | None = None
-        for event in sim.events(start_ns=OFFLINE_START_NS, duration_s=duration_s):
-            payload = event.payload
-            if isinstance(payload, SonarFrame):
-                frame = payload
-            elif isinstance(payload, SonarLabel) and frame is not None:
-                for name, detect in detectors.items():
-                    found = [d for d in detect(frame) if d.confidence >= MIN_CONFIDENCE]
-                    score(tallies, name, payload, found)
-                score(tallies, "paper: box centre (perfect box)", payload, box_centre(payload))
-                bar.update(done + event.t_s)
+        sim = Simulation(sonar_only(tank, trajectory, asv_mode, seed), horizon_s=duration_s + 5)
+        for t_s, frame, label in sim.labelled_pings(
+            start_ns=OFFLINE_START_NS, duration_s=duration_s
+        ):
+            for name, detect in detectors.items():
+                found = [d for d in detect(frame) if d.confidence >= MIN_CONFIDENCE]
+                score(tallies, name, label, found)
+            score(tallies, "paper: box centre (perfect box)", label, box_centre(label))
+            bar.update(done + t_s)
         done += duration_s
     bar.close()
     return dict(tallies)
@@ -233,15 +235,7 @@ def run_throughput(*, frames: int = 200, which: str = "all") -> int:
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
     cv2.setNumThreads(1)
     torch.set_num_threads(1)
-    config = Config(
-        tank="nfp",
-        trajectory="random",
-        seed=201,
-        streams=Streams(
-            lidar="off", imu="off", asv_pose_truth_noise="off", detections_truth_noise="off"
-        ),
-    )
-    sim = Simulation(config, horizon_s=60.0)
+    sim = Simulation(sonar_only("nfp", "random", "follow", 201), horizon_s=60.0)
     pool: list[SonarFrame] = []
     for event in sim.events(start_ns=OFFLINE_START_NS, duration_s=30.0):
         if isinstance(event.payload, SonarFrame):

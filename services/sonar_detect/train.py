@@ -28,6 +28,7 @@ import numpy.typing as npt
 import torch
 from torch.nn import functional
 
+from capsd.bench.detect import Run
 from capsd.progress import Progress
 from services.sonar_detect.polar_net import OFFSET_SCALE_M, PolarNet, save
 from services.sonar_detect.training_data import Samples, plan_runs, render
@@ -255,7 +256,7 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
 
 
 # Validation runs for the operating point: seeds used neither in training nor in the bench.
-VALIDATION_RUNS: tuple[tuple[str, str, str, int], ...] = (
+VALIDATION_RUNS: tuple[Run, ...] = (
     ("nfp", "square", "follow", 301),
     ("nfp", "lawnmower", "follow", 302),
     ("nfp", "bouncing", "follow", 303),
@@ -271,11 +272,9 @@ def calibrate(net: PolarNet, *, duration_s: float) -> dict[str, Any]:
 
     Confidence 0.5 becomes the lowest threshold with at most MAX_FALSE_ALARMS_PER_FRAME.
     """
-    from capsd.bench.detect import MATCH_M
-    from capsd.payloads import SonarFrame, SonarLabel
+    from capsd.bench.detect import MATCH_M, sonar_only
     from services.sonar_detect.cnn import CnnDetector
-    from simulator.config import OFFLINE_START_NS, Streams
-    from simulator.config import Config as SimConfig
+    from simulator.config import OFFLINE_START_NS
     from simulator.sim import Simulation
 
     net.logit_offset.zero_()
@@ -284,42 +283,27 @@ def calibrate(net: PolarNet, *, duration_s: float) -> dict[str, Any]:
     hit_logits: list[float] = []  # per visible ping: the best matching candidate, or -inf
     frames = 0
     bar = Progress(duration_s * len(VALIDATION_RUNS), label="calibrating", unit=" sim s")
-    for k, (tank, trajectory, mode, seed) in enumerate(VALIDATION_RUNS):
-        config = SimConfig(
-            tank=tank,  # type: ignore[arg-type]
-            trajectory=trajectory,  # type: ignore[arg-type]
-            asv_mode=mode,  # type: ignore[arg-type]
-            seed=seed,
-            streams=Streams(
-                lidar="off", imu="off", asv_pose_truth_noise="off", detections_truth_noise="off"
-            ),
-        )
-        frame: SonarFrame | None = None
-        for event in Simulation(config, horizon_s=duration_s + 5).events(
-            start_ns=OFFLINE_START_NS, duration_s=duration_s
-        ):
-            p = event.payload
-            if isinstance(p, SonarFrame):
-                frame = p
-            elif isinstance(p, SonarLabel) and frame is not None:
-                frames += 1
-                best = -math.inf
-                for d in detector.detect(frame):
-                    c = min(max(d.confidence, 1e-12), 1 - 1e-12)
-                    logit = math.log(c / (1 - c))
-                    near = p.visible and (
-                        abs(d.range_m - p.range_m) < MATCH_M
-                        and abs(d.azimuth_rad - p.azimuth_rad) * p.range_m < MATCH_M
-                    )
-                    if near and logit > best:
-                        if best > -math.inf:
-                            false_logits.append(best)  # a second ROV candidate is a false alarm
-                        best = logit
-                    else:
-                        false_logits.append(logit)
-                if p.visible:
-                    hit_logits.append(best)
-                bar.update(k * duration_s + event.t_s)
+    for k, run in enumerate(VALIDATION_RUNS):
+        sim = Simulation(sonar_only(*run), horizon_s=duration_s + 5)
+        for t_s, frame, p in sim.labelled_pings(start_ns=OFFLINE_START_NS, duration_s=duration_s):
+            frames += 1
+            best = -math.inf
+            for d in detector.detect(frame):
+                c = min(max(d.confidence, 1e-12), 1 - 1e-12)
+                logit = math.log(c / (1 - c))
+                near = p.visible and (
+                    abs(d.range_m - p.range_m) < MATCH_M
+                    and abs(d.azimuth_rad - p.azimuth_rad) * p.range_m < MATCH_M
+                )
+                if near and logit > best:
+                    if best > -math.inf:
+                        false_logits.append(best)  # a second ROV candidate is a false alarm
+                    best = logit
+                else:
+                    false_logits.append(logit)
+            if p.visible:
+                hit_logits.append(best)
+            bar.update(k * duration_s + t_s)
     bar.close()
     allowed = int(MAX_FALSE_ALARMS_PER_FRAME * frames)
     ordered = sorted(false_logits, reverse=True)

@@ -299,14 +299,10 @@ def render_run(job: tuple[RunPlan, bytes | None]) -> Samples:
     rng = np.random.default_rng(plan.seed + 17)
     sim = Simulation(plan.config(), horizon_s=plan.duration_s + 5.0)
     out = Samples()
-    frame: SonarFrame | None = None
-    for event in sim.events(start_ns=OFFLINE_START_NS, duration_s=plan.duration_s):
-        payload = event.payload
-        if isinstance(payload, SonarFrame):
-            frame = payload
-        elif isinstance(payload, SonarLabel) and frame is not None:
-            out.extend(samples_of_ping(frame, payload, rng, proposal=proposal))
-            frame = None
+    for _, frame, label in sim.labelled_pings(
+        start_ns=OFFLINE_START_NS, duration_s=plan.duration_s
+    ):
+        out.extend(samples_of_ping(frame, label, rng, proposal=proposal))
     return out
 
 
