@@ -98,6 +98,19 @@ class StreamStats(msgspec.Struct, frozen=True, kw_only=True):
     last_stamp_ns: NonNegInt | None = None
 
 
+class LatencyStats(msgspec.Struct, frozen=True, kw_only=True):
+    """Cumulative latency histogram of one stage of a service (capsd.latency reads it).
+
+    `bins` maps bin k to its count; bin k holds [1.05**k, 1.05**(k+1)) microseconds.
+    """
+
+    name: str
+    count: NonNegInt = 0
+    negative: NonNegInt = 0  # latencies below zero: the two ends' clocks disagree
+    max_ms: NonNegFloat = 0.0
+    bins: dict[NonNegInt, NonNegInt] = msgspec.field(default_factory=dict)
+
+
 class Health(Payload, frozen=True, kw_only=True):
     """A service's state and counters, published at 1 Hz; `stamp_ns` is the sender's clock."""
 
@@ -115,6 +128,8 @@ class Health(Payload, frozen=True, kw_only=True):
     last_error_stamp_ns: NonNegInt | None = None
     # Service-specific decision counts, e.g. the bridge's {"sent": 812, "stale": 3}.
     counters: dict[str, NonNegInt] = msgspec.field(default_factory=dict)
+    # Per stage (transport of each input, the service's own work): see capsd.latency.
+    latencies: tuple[LatencyStats, ...] = ()
 
 
 class FoxgloveTime(msgspec.Struct, frozen=True, kw_only=True):

@@ -34,8 +34,9 @@ from capsd.codec import Codec
 from capsd.config import ServiceConfig
 from capsd.errors import PayloadError
 from capsd.keys import alive_key, check_name, health_key, is_concrete, log_key
+from capsd.latency import LatencyRecorder
 from capsd.logs import BusLogHandler, log_fields
-from capsd.payloads import Health, HealthState, Log, Payload, StreamStats
+from capsd.payloads import Health, HealthState, LatencyStats, Log, Payload, StreamStats
 from capsd.topics import Topic
 
 P = TypeVar("P", bound=Payload)
@@ -44,6 +45,18 @@ logger = logging.getLogger(__name__)
 
 _ERROR_LOG_INTERVAL_S = 1.0
 _SHUTDOWN_LIMIT_S = 1.5
+_PUT_TIME_BYTES = 8  # the attachment of every put: the wall clock (ns) when it was put
+
+
+def put_time_ns(sample: zenoh.Sample) -> int | None:
+    """When the sample was put (sender's wall clock), from its attachment; None if absent."""
+    attachment = sample.attachment
+    if attachment is None:
+        return None
+    raw = attachment.to_bytes()
+    if len(raw) != _PUT_TIME_BYTES:
+        return None
+    return int.from_bytes(raw, "little")
 
 
 class StreamCounter:
@@ -135,7 +148,9 @@ class Publisher(Generic[P]):
             return seq
 
     def put(self, payload: P) -> None:
-        self._publisher.put(self.codec.encode(payload))
+        # The put time travels as an attachment so receivers can measure transport latency.
+        stamp = time.time_ns().to_bytes(_PUT_TIME_BYTES, "little")
+        self._publisher.put(self.codec.encode(payload), attachment=stamp)
         self.counter.record(payload)
 
     def undeclare(self) -> None:
@@ -170,6 +185,8 @@ class ServiceRunner:
         self._main_tick = time.monotonic()
         self._old_handlers: dict[int, object] = {}
         self._counter_sources: list[Callable[[], Mapping[str, int]]] = []
+        self._latencies: list[LatencyRecorder] = []
+        self._arrival = threading.local()
         self._inputs_shared = False
 
     # ------------------------------------------------------------------ lifecycle
@@ -304,10 +321,16 @@ class ServiceRunner:
         key = topic.key(self.config.site, vehicle or self.config.vehicle)
         codec = Codec(topic.payload)
         counter = StreamCounter(key)
+        transport = self.latency(f"transport {topic.subject.value}")
         with self._lock:
             self._inputs.append(counter)
 
         def on_sample(sample: zenoh.Sample) -> None:
+            received_ns = time.time_ns()
+            sent_ns = put_time_ns(sample)
+            if sent_ns is not None:
+                transport.record_ns(received_ns - sent_ns)
+            self._arrival.ns = received_ns
             sample_key = str(sample.key_expr)
             try:
                 if not is_concrete(sample_key):
@@ -332,6 +355,18 @@ class ServiceRunner:
 
         self._declared.append(self.session.declare_subscriber(key, on_sample))
         return counter
+
+    def received_ns(self) -> int:
+        """When the payload a handler is working on arrived (wall clock, before decoding)."""
+        arrival: int | None = getattr(self._arrival, "ns", None)
+        return time.time_ns() if arrival is None else arrival
+
+    def latency(self, name: str) -> LatencyRecorder:
+        """A latency histogram reported in this service's Health under `name`."""
+        recorder = LatencyRecorder(name)
+        with self._lock:
+            self._latencies.append(recorder)
+        return recorder
 
     def _input_error(self, counter: StreamCounter, message: str, *, kind: str) -> None:
         suppressed = counter.record_error()
@@ -376,6 +411,7 @@ class ServiceRunner:
             counters: dict[str, int] = {}
             for source in self._counter_sources:
                 counters.update(source())
+            latencies: tuple[LatencyStats, ...] = tuple(r.snapshot() for r in self._latencies)
         assert self._health_pub is not None
         return Health(
             stamp_ns=time.time_ns(),
@@ -393,6 +429,7 @@ class ServiceRunner:
             last_error=last_error,
             last_error_stamp_ns=last_error_stamp,
             counters=counters,
+            latencies=latencies,
         )
 
     def _publish_health(self) -> None:

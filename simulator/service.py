@@ -11,7 +11,7 @@ import time
 from collections import defaultdict
 from typing import Any
 
-from capsd.payloads import Payload
+from capsd.payloads import Payload, SonarFrame
 from capsd.runner import Publisher, ServiceRunner
 from simulator.config import Config
 from simulator.sim import Event, Simulation
@@ -47,6 +47,8 @@ def main(config: Config) -> int:
     accounting = _Accounting()
     with ServiceRunner("sim", config) as runner:
         runner.add_counters(accounting.counters)
+        # The stand-in sonar's own latency, ping to frame put (a real one adds echo travel).
+        sonar_lag = runner.latency("sonar frame put after ping")
         publishers: dict[str, Publisher[Any]] = {}
         start_ns = time.time_ns()
         start = time.monotonic()
@@ -67,6 +69,8 @@ def main(config: Config) -> int:
                     )
                 payload: Payload = pending.payload
                 publisher.put(payload)
+                if isinstance(payload, SonarFrame):
+                    sonar_lag.record_ns(time.time_ns() - payload.stamp_ns)
                 late = time.monotonic() - start - pending.t_s
                 accounting.add(stream, pending_cpu + time.thread_time_ns() - cpu0, late)
                 cpu1 = time.thread_time_ns()

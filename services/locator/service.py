@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import math
 import threading
+import time
 from typing import Annotated, Literal, TypeVar
 
 import msgspec
@@ -362,9 +363,12 @@ def main(config: Config) -> int:
     locator = Locator(config)
     with ServiceRunner("locator", config) as runner:
         fixes: Publisher[RovFix] = runner.publisher(topics.ROV_FIX)
+        stage = runner.latency("fix")  # detections arrival to fix put
 
         def on_detections(detections: SonarDetections) -> None:
+            received_ns = runner.received_ns()
             fixes.put(locator.locate(detections, seq=fixes.next_seq()))
+            stage.record_ns(time.time_ns() - received_ns)
 
         asv, rov = config.inputs.asv_vehicle, config.inputs.rov_vehicle
         runner.subscribe(topics.ASV_POSE, locator.on_pose, vehicle=asv)

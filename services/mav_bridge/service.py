@@ -180,6 +180,9 @@ class Bridge:
             topics.ROV_ATTITUDE, vehicle=rov
         )
         self.status_pub: Publisher[RovStatus] = runner.publisher(topics.ROV_STATUS, vehicle=rov)
+        # Fix arrival to the estimate leaving the socket; and the ping (the fix's stamp) to it.
+        self.stage_latency = runner.latency("bridge")
+        self.end_to_end_latency = runner.latency("end to end")
 
     # ------------------------------------------------------------------ link upkeep
 
@@ -348,6 +351,7 @@ class Bridge:
         """Gate one estimate and, if it passes, send it to the autopilot."""
         if self.config.output == "off":
             return
+        received_ns = self.runner.received_ns()
         with self.lock:
             attitude = self.attitude
             if attitude is None or not self.link.is_open:
@@ -364,6 +368,9 @@ class Bridge:
                 self.counts["send_failed"] += 1
                 logger.warning("estimate not sent", extra={"fields": {"error": str(exc)}})
                 return
+            sent_ns = time.time_ns()
+            self.stage_latency.record_ns(sent_ns - received_ns)
+            self.end_to_end_latency.record_ns(sent_ns - fix.stamp_ns)
             self._last_sent_mono = time.monotonic()
             self._outage_reasons.clear()
 

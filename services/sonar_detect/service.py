@@ -70,26 +70,29 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
 
 
 class Mailbox:
-    """One slot: `put` replaces what was there (counted as dropped); `take` waits for news."""
+    """One slot: `put` replaces what was there (counted as dropped); `take` waits for news.
+
+    Each frame is held with its arrival time (wall clock ns), for the latency figures.
+    """
 
     def __init__(self) -> None:
-        self._frame: SonarFrame | None = None
+        self._item: tuple[SonarFrame, int] | None = None
         self._cond = threading.Condition()
         self.dropped = 0
 
-    def put(self, frame: SonarFrame) -> None:
+    def put(self, frame: SonarFrame, received_ns: int) -> None:
         with self._cond:
-            if self._frame is not None:
+            if self._item is not None:
                 self.dropped += 1
-            self._frame = frame
+            self._item = (frame, received_ns)
             self._cond.notify()
 
-    def take(self, timeout_s: float) -> SonarFrame | None:
+    def take(self, timeout_s: float) -> tuple[SonarFrame, int] | None:
         with self._cond:
-            if self._frame is None:
+            if self._item is None:
                 self._cond.wait(timeout_s)
-            frame, self._frame = self._frame, None
-            return frame
+            item, self._item = self._item, None
+            return item
 
 
 def make_detector(config: Config) -> Detect:
@@ -125,15 +128,25 @@ def main(config: Config) -> int:
     with ServiceRunner("sonar_detect", config) as runner:
         out: Publisher[SonarDetections] = runner.publisher(topics.SONAR_DETECTIONS)
         runner.add_counters(lambda: {**counts, "dropped_stale_frames": mailbox.dropped})
-        runner.subscribe(topics.SONAR_FRAME, mailbox.put, vehicle=config.sonar_vehicle)
+        # Frame age when its detection starts (ping to now): the "never a stale frame" check.
+        age_at_start = runner.latency("frame age at detection start")
+        # Frame arrival to detections put: decoding, waiting for the worker, detecting, encoding.
+        stage = runner.latency("detection")
+        runner.subscribe(
+            topics.SONAR_FRAME,
+            lambda frame: mailbox.put(frame, runner.received_ns()),
+            vehicle=config.sonar_vehicle,
+        )
         next_snapshot = time.monotonic()
 
         def work() -> None:
             nonlocal next_snapshot
             while not runner.stop_event.is_set():
-                frame = mailbox.take(0.1)
-                if frame is None:
+                item = mailbox.take(0.1)
+                if item is None:
                     continue
+                frame, received_ns = item
+                age_at_start.record_ns(time.time_ns() - frame.stamp_ns)
                 try:
                     found = [d for d in detect(frame) if d.confidence >= config.min_confidence]
                     out.put(
@@ -145,6 +158,7 @@ def main(config: Config) -> int:
                             detections=tuple(found),
                         )
                     )
+                    stage.record_ns(time.time_ns() - received_ns)
                     counts["frames"] += 1
                     counts["detections"] += len(found)
                     if config.snapshot_every_s is not None and time.monotonic() >= next_snapshot:

@@ -7,7 +7,12 @@ order; a fixed number of steps, never a time budget). Stages:
    Gaussian at the ROV centre (sized by the echo), frames without the ROV all negative;
 3. train the refiner on the crops: binary cross-entropy for ROV / not, a Laplace negative
    log-likelihood for the centre offsets (it learns its own sigma), L1 on the log extents;
-4. evaluate the whole detector on held-out runs (bench/detect's scoring) and write
+4. hard examples: fresh runs seen through the trained detector (its proposals as negatives);
+   the ROV crops it doubts and the clutter crops it believes are repeated `hard_repeat` times
+   in a short fine-tune of the refiner (the ROV against a floor or wall echo, or seen only by
+   the skirts of the vertical beam, is what it misses);
+5. set the operating point on validation runs (calibrate);
+6. evaluate the whole detector on held-out runs (bench/detect's scoring) and write
    `polar_net.pt` (weights) and `polar_net.json` (the training config and the evaluation).
 Augmentation: mirrored azimuth, gain and contrast changes.
 """
@@ -49,6 +54,10 @@ class TrainConfig:
     refine_epochs: int = 6
     refine_batch: int = 128
     refine_lr: float = 2e-3
+    hard_runs: int = 32
+    hard_epochs: int = 2
+    hard_repeat: int = 3
+    hard_lr: float = 5e-4
     eval_duration_s: float = 20.0
 
 
@@ -158,20 +167,52 @@ def refine_loss(out: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
     return loss
 
 
+# A hard example: an ROV crop the refiner scores below this logit, or clutter above minus it.
+HARD_LOGIT = 2.5
+
+
+def _hard_indices(net: PolarNet, crops: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
+    """Indices of the crops the trained refiner gets wrong or only just right."""
+    with torch.inference_mode():
+        logits = torch.cat(
+            [
+                net.refine(crops[k : k + 512].float() / 255.0)[:, 0]
+                for k in range(0, len(crops), 512)
+            ]
+        )
+    is_rov = targets[:, 0] > 0.5
+    hard = (is_rov & (logits < HARD_LOGIT)) | (~is_rov & (logits > -HARD_LOGIT))
+    return torch.nonzero(hard).flatten()
+
+
 def _train_refine(
-    net: PolarNet, samples: Samples, config: TrainConfig, gen: torch.Generator
+    net: PolarNet,
+    samples: Samples,
+    config: TrainConfig,
+    gen: torch.Generator,
+    *,
+    label: str = "training refiner",
+    epochs: int | None = None,
+    lr: float | None = None,
+    repeat: torch.Tensor | None = None,
 ) -> list[float]:
+    """Train the refiner on every crop (plus the `repeat` indices again) for `epochs`."""
     crops = torch.from_numpy(np.stack(samples.crops))
     targets = torch.tensor(samples.crop_targets, dtype=torch.float32)
-    opt = torch.optim.AdamW(net.refine.parameters(), lr=config.refine_lr, weight_decay=1e-4)
-    per_epoch = math.ceil(len(crops) / config.refine_batch)
-    total = per_epoch * config.refine_epochs
-    sched = torch.optim.lr_scheduler.OneCycleLR(opt, config.refine_lr, total_steps=total)
-    bar = Progress(total, label="training refiner", unit=" batches")
+    epochs = config.refine_epochs if epochs is None else epochs
+    lr = config.refine_lr if lr is None else lr
+    pool = torch.arange(len(crops))
+    if repeat is not None:
+        pool = torch.cat([pool, repeat])
+    opt = torch.optim.AdamW(net.refine.parameters(), lr=lr, weight_decay=1e-4)
+    per_epoch = math.ceil(len(pool) / config.refine_batch)
+    total = per_epoch * epochs
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, lr, total_steps=total)
+    bar = Progress(total, label=label, unit=" batches")
     losses: list[float] = []
     net.refine.train()
-    for _ in range(config.refine_epochs):
-        order = torch.randperm(len(crops), generator=gen)
+    for _ in range(epochs):
+        order = pool[torch.randperm(len(pool), generator=gen)]
         for b in range(0, len(order), config.refine_batch):
             idx = order[b : b + config.refine_batch]
             x = crops[idx].float() / 255.0
@@ -224,6 +265,29 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
     samples.crops.extend(mined.crops)
     samples.crop_targets.extend(mined.crop_targets)
     refine_losses = _train_refine(net, samples, config, gen)
+    hard_set = plan_runs(
+        runs=config.hard_runs,
+        seed=config.seed + 2,
+        duration_s=config.duration_s,
+        sonar_hz=config.sonar_hz,
+    )
+    fresh = render(hard_set, workers=config.workers, proposal_state=buffer.getvalue())
+    hard = _hard_indices(
+        net,
+        torch.from_numpy(np.stack(fresh.crops)),
+        torch.tensor(fresh.crop_targets, dtype=torch.float32),
+    )
+    print(f"hard examples: {len(hard)} of {len(fresh.crops)} fresh crops")
+    hard_losses = _train_refine(
+        net,
+        fresh,
+        config,
+        gen,
+        label="fine-tuning on hard examples",
+        epochs=config.hard_epochs,
+        lr=config.hard_lr,
+        repeat=hard.repeat(config.hard_repeat - 1),
+    )
     trained_s = time.monotonic() - started
     out_dir.mkdir(parents=True, exist_ok=True)
     weights = out_dir / "polar_net.pt"
@@ -235,10 +299,13 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
             "crops": len(samples.crops),
             "crops_on_rov": n_pos,
             "mined_crops": len(mined.crops),
+            "hard_stage_crops": len(fresh.crops),
+            "hard_examples": len(hard),
         },
         "loss": {
             "proposal_first_last": [_mean(proposal_losses[:50]), _mean(proposal_losses[-50:])],
             "refine_first_last": [_mean(refine_losses[:50]), _mean(refine_losses[-50:])],
+            "hard_first_last": [_mean(hard_losses[:50]), _mean(hard_losses[-50:])],
         },
         "seconds": {"render": round(rendered_s, 1), "render_and_train": round(trained_s, 1)},
         "machine": {"cpus_used": config.threads, "platform": platform.platform()},

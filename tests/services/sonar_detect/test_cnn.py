@@ -115,6 +115,9 @@ def test_training_is_deterministic_for_a_seed(tmp_path: Path) -> None:
         threads=1,
         proposal_epochs=1,
         refine_epochs=1,
+        mining_runs=2,
+        hard_runs=2,
+        hard_epochs=1,
         eval_duration_s=0.3,
     )
     nets = []
