@@ -519,6 +519,17 @@ def _cmd_train_detector(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_bench_latency(args: argparse.Namespace) -> int:
+    from capsd.bench import latency
+
+    return latency.run(
+        rates_hz=tuple(args.rates),
+        duration_s=args.duration,
+        warmup_s=args.warmup,
+        out=args.out,
+    )
+
+
 def _cmd_bench_asv_pose(args: argparse.Namespace) -> int:
     from capsd.bench import asv_pose
 
@@ -751,6 +762,21 @@ def build_parser() -> argparse.ArgumentParser:
     )
     bpose.add_argument("--duration", type=float, default=60.0, help="seconds per run")
     bpose.set_defaults(func=_cmd_bench_asv_pose)
+    blat = bench_sub.add_parser(
+        "latency",
+        help="ping to autopilot latency per stage at 10/20/40 Hz, Zenoh floor, CPU and RSS",
+        description="Run the whole pipeline (as `capsd demo`) once per sonar rate; print the "
+        "latency of each stage and end to end (median, p99), the bare Zenoh floor for the "
+        "same payload sizes, frames dropped, CPU share and resident memory per service, and "
+        "the 40 Hz targets next to the measured values.",
+    )
+    blat.add_argument(
+        "--rates", type=float, nargs="+", default=[10.0, 20.0, 40.0], help="sonar rates, Hz"
+    )
+    blat.add_argument("--duration", type=float, default=30.0, help="seconds measured per rate")
+    blat.add_argument("--warmup", type=float, default=5.0, help="seconds after the first VPE")
+    blat.add_argument("--out", type=Path, default=Path("reports/latency"), help="report folder")
+    blat.set_defaults(func=_cmd_bench_latency)
     rec = sub.add_parser(
         "record",
         help="record key expressions into an MCAP file (JSON schemas; Foxglove reads it)",

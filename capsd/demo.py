@@ -101,6 +101,7 @@ def _write_configs(
     tank: TankName,
     seed: int,
     mav_port: int,
+    sonar_hz: float = 20.0,
 ) -> dict[str, Path]:
     import yaml
 
@@ -116,6 +117,7 @@ def _write_configs(
         "trajectory": trajectory,
         "seed": seed,
         "streams": {"detections_truth_noise": "off", "asv_pose_truth_noise": "off"},
+        "rates": {"sonar_hz": sonar_hz},
     }
     start = Simulation(SimConfig(tank=tank, trajectory=trajectory, seed=seed), horizon_s=10)
     # The person putting the ASV in the water knows roughly which way it points: 20 deg off.

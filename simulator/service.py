@@ -1,14 +1,18 @@
 """The simulator in real time: publishes every stream on the keys real drivers use.
 
-Paced by the wall clock: an event is published when its sim time comes. Each stream's count,
-CPU time (generation and publishing, on this thread) and worst lateness are reported in the
-service's Health counters, which `capsd bench sim` reads.
+Paced by the wall clock: an event is generated ahead on its own thread and published when its
+sim time comes. Each stream's count, CPU time (generation on the look-ahead thread and
+publishing) and worst lateness are reported in the service's Health counters, which
+`capsd bench sim` reads.
 """
 
 from __future__ import annotations
 
+import queue
+import threading
 import time
 from collections import defaultdict
+from collections.abc import Iterator
 from typing import Any
 
 from capsd.payloads import Payload, SonarFrame
@@ -41,6 +45,50 @@ class _Accounting:
         return out
 
 
+class _Lookahead(threading.Thread):
+    """Events generated ahead of their time on a thread of their own, at most `depth` ahead.
+
+    A sonar ping takes ~10 ms to render: made ahead, it is put when it is due, not a render late.
+    """
+
+    def __init__(self, events: Iterator[Event], stop: threading.Event, *, depth: int = 64):
+        super().__init__(name="sim-lookahead", daemon=True)
+        self._events = events
+        self._stop_event = stop
+        self._queue: queue.Queue[tuple[Event, int]] = queue.Queue(maxsize=depth)
+        self._head: tuple[Event, int] | None = None
+        self.failure: BaseException | None = None
+
+    def run(self) -> None:
+        try:
+            while not self._stop_event.is_set():
+                cpu = time.thread_time_ns()
+                event = next(self._events)
+                item = (event, time.thread_time_ns() - cpu)
+                while not self._stop_event.is_set():
+                    try:
+                        self._queue.put(item, timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+        except BaseException as exc:  # handed to the publishing loop, which reports it
+            self.failure = exc
+
+    def due(self, now_s: float) -> tuple[Event, int] | None:
+        """The next event if its time has come (with its generation CPU ns), else None."""
+        if self._head is None:
+            try:
+                self._head = self._queue.get_nowait()
+            except queue.Empty:
+                if self.failure is not None:
+                    raise RuntimeError(f"the simulation stopped: {self.failure}") from None
+                return None
+        if self._head[0].t_s > now_s:
+            return None
+        item, self._head = self._head, None
+        return item
+
+
 def main(config: Config) -> int:
     """Run the simulator in real time until stopped."""
     simulation = Simulation(config)
@@ -52,30 +100,29 @@ def main(config: Config) -> int:
         publishers: dict[str, Publisher[Any]] = {}
         start_ns = time.time_ns()
         start = time.monotonic()
-        events = simulation.events(start_ns=start_ns)
-        cpu = time.thread_time_ns()
-        pending: Event = next(events)
-        pending_cpu = time.thread_time_ns() - cpu
+        ahead = _Lookahead(simulation.events(start_ns=start_ns), runner.stop_event)
+        ahead.start()
 
         def step() -> None:
-            nonlocal pending, pending_cpu
-            while pending.t_s <= time.monotonic() - start:
+            while (item := ahead.due(time.monotonic() - start)) is not None:
+                event, event_cpu_ns = item
                 cpu0 = time.thread_time_ns()
-                stream = f"{pending.topic.subject.value}@{pending.vehicle}"
+                stream = f"{event.topic.subject.value}@{event.vehicle}"
                 publisher = publishers.get(stream)
                 if publisher is None:
                     publisher = publishers[stream] = runner.publisher(
-                        pending.topic, vehicle=pending.vehicle
+                        event.topic, vehicle=event.vehicle
                     )
-                payload: Payload = pending.payload
+                payload: Payload = event.payload
                 publisher.put(payload)
                 if isinstance(payload, SonarFrame):
                     sonar_lag.record_ns(time.time_ns() - payload.stamp_ns)
-                late = time.monotonic() - start - pending.t_s
-                accounting.add(stream, pending_cpu + time.thread_time_ns() - cpu0, late)
-                cpu1 = time.thread_time_ns()
-                pending = next(events)
-                pending_cpu = time.thread_time_ns() - cpu1
+                late = time.monotonic() - start - event.t_s
+                accounting.add(stream, event_cpu_ns + time.thread_time_ns() - cpu0, late)
 
-        runner.run(step, period_s=0.002)
+        try:
+            runner.run(step, period_s=0.002)
+        finally:
+            runner.stop_event.set()
+            ahead.join(timeout=2.0)
     return 0

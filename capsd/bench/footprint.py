@@ -28,7 +28,7 @@ class Footprint:
     heavy_libraries: tuple[str, ...]
 
 
-def _status_kb(pid: int, field: str) -> float:
+def status_kb(pid: int, field: str) -> float:
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
         if line.startswith(field + ":"):
             return float(line.split()[1])
@@ -64,8 +64,8 @@ def measure(args: list[str], *, settle_s: float, env: dict[str, str] | None = No
                     pass
                 startup = time.monotonic() - start
                 time.sleep(settle_s)
-                rss = _status_kb(proc.pid, "VmRSS") / 1024
-                peak = _status_kb(proc.pid, "VmHWM") / 1024
+                rss = status_kb(proc.pid, "VmRSS") / 1024
+                peak = status_kb(proc.pid, "VmHWM") / 1024
                 heavy = _heavy_mapped(proc.pid)
             finally:
                 proc.terminate()

@@ -22,7 +22,8 @@ from capsd.codec import Codec
 from capsd.config import BusConfig
 from capsd.health import query_health
 from capsd.keys import is_concrete
-from capsd.payloads import Health, Log, RovFix, SonarDetections
+from capsd.latency import percentile_ms
+from capsd.payloads import Health, LatencyStats, Log, RovFix, SonarDetections
 from tests.conftest import REPO, Proc, capsd_json_lines, wait_for
 
 pytestmark = pytest.mark.integration
@@ -87,6 +88,16 @@ def test_router_two_services_tap_list_and_sigterm(
     locator_health = services[("topside", "locator")]["health"]
     assert locator_health["state"] == "ok"
     assert sum(s["count"] for s in locator_health["inputs"]) > 0
+    # Every input's transport and the locator's own stage are timed (put time attachment).
+    latencies = {
+        stats["name"]: msgspec.convert(stats, LatencyStats, strict=False)
+        for stats in locator_health["latencies"]
+    }
+    for name in ("transport sonar/detections", "transport asv/pose", "fix"):
+        assert latencies[name].count > 0, name
+        median = percentile_ms(latencies[name], 50)
+        assert median is not None, name
+        assert 0.0 < median < 500.0, (name, median)
 
     human = subprocess.run(
         [sys.executable, "-m", "capsd", "list", "--connect", endpoint],

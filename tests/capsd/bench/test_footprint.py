@@ -6,7 +6,7 @@ import subprocess
 import sys
 import time
 
-from capsd.bench.footprint import _heavy_mapped, _status_kb
+from capsd.bench.footprint import _heavy_mapped, status_kb
 
 
 def test_detects_scipy_in_a_process_that_loads_it() -> None:
@@ -18,7 +18,7 @@ def test_detects_scipy_in_a_process_that_loads_it() -> None:
             assert proc.stdout is not None
             assert proc.stdout.readline().strip() == "ready"
             assert "scipy" in _heavy_mapped(proc.pid)
-            assert _status_kb(proc.pid, "VmRSS") > 1000
+            assert status_kb(proc.pid, "VmRSS") > 1000
         finally:
             proc.kill()
 
