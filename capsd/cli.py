@@ -352,7 +352,8 @@ def _cmd_record(args: argparse.Namespace) -> int:
 
     try:
         bus = bus_from_args(args, BusConfig())
-        zenoh.KeyExpr(args.keyexpr)
+        for expr in (args.keyexpr, *args.exclude):
+            zenoh.KeyExpr(expr)
     except (ConfigError, zenoh.ZError) as exc:
         return _fail(f"record: {exc}", EXIT_CONFIG)
 
@@ -367,6 +368,7 @@ def _cmd_record(args: argparse.Namespace) -> int:
                 args.output,
                 stop=stop,
                 duration_s=args.duration,
+                exclude=tuple(args.exclude),
                 on_progress=progress,
             )
     except KeyboardInterrupt:
@@ -416,6 +418,18 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         return _fail(f"replay: {exc}", EXIT_FAILURE)
     print(f"replayed {sum(counts.values())} messages from {args.file}")
     return EXIT_OK
+
+
+def _cmd_replay_check(args: argparse.Namespace) -> int:
+    from capsd import replay_check
+
+    if not args.speed > 0:
+        return _fail(f"replay-check: --speed must be positive, not {args.speed}", EXIT_CONFIG)
+    try:
+        result = replay_check.run(args.file, locator_config=args.locator_config, speed=args.speed)
+    except CapsdError as exc:
+        return _fail(f"replay-check: {exc}", EXIT_CONFIG)
+    return EXIT_OK if result.consistent else EXIT_FAILURE
 
 
 def _cmd_import_bag(args: argparse.Namespace) -> int:
@@ -479,6 +493,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         tank=args.tank,
         seed=args.seed,
         port=args.port,
+        record=args.record,
     )
 
 
@@ -786,6 +801,9 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("keyexpr", help="key expression, e.g. 'cap/**'")
     rec.add_argument("-o", "--output", type=Path, required=True, help="the .mcap file")
     rec.add_argument("--duration", type=float, default=None, help="seconds to record")
+    rec.add_argument(
+        "--exclude", action="append", default=[], help="skip keys intersecting this (repeatable)"
+    )
     add_bus_flags(rec)
     rec.set_defaults(func=_cmd_record)
     rep = sub.add_parser(
@@ -800,6 +818,23 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--info", action="store_true", help="only print per-channel counts")
     add_bus_flags(rep)
     rep.set_defaults(func=_cmd_replay)
+    rchk = sub.add_parser(
+        "replay-check",
+        help="replay a recording into a fresh locator and compare its fixes with the recorded",
+        description="Start a router and a fresh locator on 127.0.0.1, replay the recording's "
+        "inputs in recorded order, and compare every fix by ping stamp: input stamps, "
+        "quality, single-ping and tracked positions bit for bit. Exit 0 when identical, or when "
+        "every difference follows from an input the live locator did not have yet.",
+    )
+    rchk.add_argument("file", type=Path, help="an .mcap file (e.g. from `capsd demo --record`)")
+    rchk.add_argument(
+        "--locator-config",
+        type=Path,
+        default=Path("deploy/config/locator.yaml"),
+        help="the live locator's config (the demo writes it to its logs folder)",
+    )
+    rchk.add_argument("--speed", type=float, default=1.0, help="replay speed (1 = real time)")
+    rchk.set_defaults(func=_cmd_replay_check)
     imp = sub.add_parser(
         "import-bag",
         help="a ROS 1/ROS 2 bag into a replayable MCAP recording, by a topic mapping file",
@@ -841,6 +876,13 @@ def build_parser() -> argparse.ArgumentParser:
     dem.add_argument("--tank", default="nfp", choices=["nfp", "mockup"])
     dem.add_argument("--seed", type=int, default=0)
     dem.add_argument("--port", type=int, default=None, help="router port (a free one if unset)")
+    dem.add_argument(
+        "--record",
+        type=Path,
+        default=None,
+        help="also record every key but the sonar images into this .mcap, from before the "
+        "services start (`capsd replay-check` replays it into a fresh locator)",
+    )
     dem.set_defaults(func=_cmd_demo)
     train = sub.add_parser("train", help="train a model").add_subparsers(
         dest="train_command", required=True

@@ -219,6 +219,7 @@ def main(
     tank: TankName,
     seed: int,
     port: int | None,
+    record: Path | None = None,
     stream: TextIO = sys.stdout,
 ) -> int:
     """Run the demo; returns 0 when every service ran to the end and fixes were good."""
@@ -246,6 +247,10 @@ def main(
     try:
         procs.start("router", ["-m", "capsd", "router", "--listen", endpoint])
         procs.start("autopilot", ["-m", "simulator.autopilot", "--port", str(mav_port)])
+        if record is not None:
+            # Started first and stopped last: the recording holds each service's whole life.
+            args = ["cap/**", "-o", str(record), "--exclude", "cap/*/*/sonar/frame"]
+            procs.start("recorder", ["-m", "capsd", "record", *args, "--connect", endpoint])
         time.sleep(1.0)
         for name in ("sim", "asv_pose", "sonar_detect", "locator", "mav_bridge"):
             procs.start(name, ["-m", "capsd", "run", name, "--config", str(configs[name])])
@@ -257,7 +262,7 @@ def main(
                     time.sleep(2.0)
                     health = watch.health()
                     print(_line(time.monotonic() - t0, watch, health), file=stream, flush=True)
-                    if dead := [d for d in procs.dead() if d != "autopilot"]:
+                    if dead := [d for d in procs.dead() if d not in ("autopilot", "recorder")]:
                         print(f"capsd demo: stopped early, exited: {dead}", file=stream)
                         break
             except KeyboardInterrupt:

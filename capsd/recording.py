@@ -113,16 +113,23 @@ def record(
     *,
     stop: threading.Event,
     duration_s: float | None = None,
+    exclude: tuple[str, ...] = (),
     on_progress: Callable[[int], None] | None = None,
 ) -> Counter[str]:
-    """Record until `stop` (or `duration_s`); returns the message count per key."""
+    """Record until `stop` (or `duration_s`); returns the message count per key.
+
+    Keys intersecting an `exclude` expression are not written (e.g. the sonar images).
+    """
     pending: queue.Queue[Sample] = queue.Queue()
     refused: Counter[str] = Counter()
+    skip = [zenoh.KeyExpr(e) for e in exclude]
 
     def on_sample(s: zenoh.Sample) -> None:
         key = str(s.key_expr)
         if not is_concrete(key):
             refused["wildcard_keys"] += 1
+            return
+        if any(e.intersects(s.key_expr) for e in skip):
             return
         pending.put(Sample(key, str(s.encoding), s.payload.to_bytes(), time.time_ns()))
 
@@ -197,27 +204,38 @@ def replay(
     stop: threading.Event,
     include: str = "**",
     exclude: tuple[str, ...] = (),
+    settle_s: float = 0.5,
 ) -> Counter[str]:
-    """Put the recorded samples again, paced; returns the count per key."""
+    """Put the recorded samples again, in recorded order and paced; returns the count per key.
+
+    Every publisher is declared, and given `settle_s` to be routed, before the first put: the
+    first put on a fresh route could otherwise be lost, and a replay must not lose anything.
+    """
     inc = zenoh.KeyExpr(include)
     exc = [zenoh.KeyExpr(e) for e in exclude]
+
+    def wanted(key: str) -> bool:
+        k = zenoh.KeyExpr(key)
+        return inc.intersects(k) and not any(e.intersects(k) for e in exc)
+
     counts: Counter[str] = Counter()
     start_wall: float | None = None
     first_log = 0
-    publishers: dict[str, zenoh.Publisher] = {}
+    publishers = {
+        key: session.declare_publisher(key) for key in channel_counts(path) if wanted(key)
+    }
     try:
+        if publishers and stop.wait(settle_s):
+            return counts
         for item in read(path):
-            key = zenoh.KeyExpr(item.key)
-            if not inc.intersects(key) or any(e.intersects(key) for e in exc):
+            pub = publishers.get(item.key)
+            if pub is None:
                 continue
             if start_wall is None:
                 start_wall, first_log = time.monotonic(), item.log_time_ns
             due = start_wall + (item.log_time_ns - first_log) / 1e9 / speed
             if stop.wait(max(0.0, due - time.monotonic())):
                 break
-            pub = publishers.get(item.key)
-            if pub is None:
-                pub = publishers[item.key] = session.declare_publisher(item.key)
             pub.put(item.data, encoding=zenoh.Encoding(item.encoding) if item.encoding else None)
             counts[item.key] += 1
     finally:

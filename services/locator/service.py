@@ -70,7 +70,10 @@ class MethodConfig(ConfigSection, frozen=True, kw_only=True):
 
     preset: Literal["capsd", "paper", "custom"] = "capsd"
     geometry: Literal["exact", "paper"] = "exact"
-    matching: Literal["interpolate", "latest"] = "interpolate"
+    # causal: inputs stamped before the ping, extrapolated to it (deterministic under replay:
+    # nothing that arrives with or after the ping counts); interpolate: also the samples at or
+    # after it when they are in by then; latest: the newest sample (the paper's matching).
+    matching: Literal["causal", "interpolate", "latest"] = "causal"
     lever_arm: Literal["correct", "ignore"] = "correct"
     tracking: Literal["filter", "per_frame"] = "filter"
 
@@ -189,18 +192,29 @@ class Locator:
         self._velocities: list[tuple[int, Array, Array]] = []
         # Zenoh may run different subscribers' callbacks on different threads at once.
         self._lock = threading.Lock()
+        # Inputs stamped before a ping already solved: the fix went without them (a replay,
+        # where they come in time, then differs from the live fix).
+        self.late_inputs = 0
+        self._solved_until_ns = 0
+
+    def _note_arrival(self, stamp_ns: int) -> None:
+        if stamp_ns < self._solved_until_ns:
+            self.late_inputs += 1
 
     def on_pose(self, pose: AsvPose) -> None:
         if pose.status == "lost":
             return  # a lost pose is not a pose: fixes needing it are refused as missing
+        self._note_arrival(pose.stamp_ns)
         self.poses.add(pose.stamp_ns, (np.array(pose.position_m), np.array(pose.orientation_xyzw)))
         self.pose_cov = np.array(pose.covariance).reshape(6, 6)
 
     def on_depth(self, depth: RovDepth) -> None:
+        self._note_arrival(depth.stamp_ns)
         self.depths.add(depth.stamp_ns, depth.depth_m)
         self.depth_sigma_m = depth.sigma_m
 
     def on_attitude(self, attitude: RovAttitude) -> None:
+        self._note_arrival(attitude.stamp_ns)
         self.attitudes.add(attitude.stamp_ns, np.array(attitude.orientation_xyzw))
 
     def on_velocity(self, velocity: RovVelocity) -> None:
@@ -220,7 +234,9 @@ class Locator:
             self.tracker.update_velocity(stamp, velocity, covariance)
 
     def _lookup(self, line: Timeline[T], stamp_ns: int) -> Lookup[T]:
-        return line.latest() if self.method.matching == "latest" else line.at(stamp_ns)
+        if self.method.matching == "latest":
+            return line.latest()
+        return line.at(stamp_ns, use="before" if self.method.matching == "causal" else "around")
 
     def _solve(
         self, detection: Detection, asv: Transform, depth_m: float, attitude: Array
@@ -270,6 +286,7 @@ class Locator:
     def locate(self, detections: SonarDetections, *, seq: int) -> RovFix:
         """The fix for one ping, tracked; an invalid RovFix says why there is none."""
         with self._lock:
+            self._solved_until_ns = max(self._solved_until_ns, detections.stamp_ns)
             return self._locate(detections, seq=seq)
 
     def _locate(self, detections: SonarDetections, *, seq: int) -> RovFix:
@@ -364,6 +381,7 @@ def main(config: Config) -> int:
     with ServiceRunner("locator", config) as runner:
         fixes: Publisher[RovFix] = runner.publisher(topics.ROV_FIX)
         stage = runner.latency("fix")  # detections arrival to fix put
+        runner.add_counters(lambda: {"late_inputs": locator.late_inputs})
 
         def on_detections(detections: SonarDetections) -> None:
             received_ns = runner.received_ns()

@@ -27,6 +27,11 @@ class Timeline(Generic[T]):
 
     `at(t)` interpolates between the samples around t; past the newest sample it
     extrapolates from the last two only up to `max_extrapolation_ns`, else it refuses.
+    With `use="before"` only samples stamped strictly before t count (extrapolated from the
+    last two of them): the value then does not depend on anything that may arrive with or
+    after the ping (Zenoh runs different subscribers' callbacks on different threads, so a
+    sample stamped at the ping itself can race the ping), and a replay gives the very same
+    value as live.
     """
 
     def __init__(
@@ -61,13 +66,15 @@ class Timeline(Generic[T]):
                 return Lookup(None, None, "no_samples")
             return Lookup(self._values[-1], self._stamps[-1])
 
-    def at(self, stamp_ns: int) -> Lookup[T]:
+    def at(self, stamp_ns: int, *, use: Literal["around", "before"] = "around") -> Lookup[T]:
         with self._lock:
             n = len(self._stamps)
             if n == 0:
                 return Lookup(None, None, "no_samples")
             i = bisect.bisect_left(self._stamps, stamp_ns)
-            if i < n and self._stamps[i] == stamp_ns:
+            if use == "before":
+                n = i  # samples stamped at t or later are not looked at
+            elif i < n and self._stamps[i] == stamp_ns:
                 return Lookup(self._values[i], stamp_ns)
             if i == 0:
                 return Lookup(None, self._stamps[0], "too_old")
@@ -75,9 +82,9 @@ class Timeline(Generic[T]):
                 t0, t1 = self._stamps[i - 1], self._stamps[i]
                 frac = (stamp_ns - t0) / (t1 - t0)
                 return Lookup(self._interpolate(self._values[i - 1], self._values[i], frac), t0)
-            newest = self._stamps[-1]
+            newest = self._stamps[n - 1]
             if stamp_ns - newest > self._max_extrapolation_ns or n < 2:
                 return Lookup(None, newest, "too_new")
-            t0 = self._stamps[-2]
+            t0 = self._stamps[n - 2]
             frac = (stamp_ns - t0) / (newest - t0)
-            return Lookup(self._interpolate(self._values[-2], self._values[-1], frac), newest)
+            return Lookup(self._interpolate(self._values[n - 2], self._values[n - 1], frac), newest)

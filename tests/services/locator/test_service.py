@@ -9,7 +9,7 @@ import numpy as np
 from capsd.geometry import Transform
 from capsd.payloads import AsvPose, Detection, RovAttitude, RovDepth, SonarDetections
 from capsd.sonar_geometry import to_polar
-from services.locator.service import Config, Locator, TankBounds
+from services.locator.service import Config, Locator, MethodConfig, TankBounds
 
 SECOND = 1_000_000_000
 IDENTITY_Q = (0.0, 0.0, 0.0, 1.0)
@@ -64,6 +64,11 @@ def test_fix_at_the_true_position() -> None:
     assert fix.quality == "good"
     assert fix.raw_position_m is not None
     assert np.allclose(fix.raw_position_m, ROV, atol=1e-6)
+    # Causal matching: the newest input stamped before the ping (the one at it could race it).
+    assert fix.asv_pose_stamp_ns == SECOND // 2 - SECOND // 50
+    interpolating = _locator(method=MethodConfig(preset="custom", matching="interpolate"))
+    _feed_inputs(interpolating, until_s=1.0)
+    fix = interpolating.locate(_ping(SECOND // 2, _detection_of(interpolating, ROV)), seq=0)
     assert fix.asv_pose_stamp_ns == SECOND // 2
 
 

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from hypothesis import given
+from hypothesis import strategies as st
+
 from services.locator.timeline import Timeline
 
 
@@ -37,3 +40,34 @@ def test_bounded_and_duplicates_replace() -> None:
     line.add(90, 99.0)
     assert line.at(60).failure == "too_old"
     assert line.at(90).value == 99.0
+
+
+@given(
+    st.lists(st.integers(min_value=0, max_value=1000), min_size=2, max_size=30, unique=True),
+    st.integers(min_value=0, max_value=1100),
+)
+def test_before_ignores_whatever_arrived_after_the_stamp(stamps: list[int], at_ns: int) -> None:
+    """use="before" gives the same answer whether or not the later samples are in yet."""
+    early: Timeline[float] = Timeline(_lerp, capacity=100, max_extrapolation_ns=200)
+    full: Timeline[float] = Timeline(_lerp, capacity=100, max_extrapolation_ns=200)
+    for s in stamps:
+        full.add(s, float(s) * 0.01 + (s % 7))
+        if s < at_ns:
+            early.add(s, float(s) * 0.01 + (s % 7))
+    a, b = early.at(at_ns, use="before"), full.at(at_ns, use="before")
+    if early.at(at_ns).failure == "no_samples":
+        assert b.failure in ("too_old", "no_samples")
+    else:
+        assert (a.value, a.stamp_ns, a.failure) == (b.value, b.stamp_ns, b.failure)
+
+
+def test_before_extrapolates_from_the_last_two_before_the_stamp() -> None:
+    line: Timeline[float] = Timeline(_lerp, capacity=10, max_extrapolation_ns=100)
+    for stamp, value in ((100, 1.0), (200, 2.0), (300, 5.0)):
+        line.add(stamp, value)
+    assert line.at(250).value == 3.5  # interpolated with the sample after the ping
+    before = line.at(250, use="before")
+    assert before.value == 2.5
+    assert before.stamp_ns == 200
+    assert line.at(300).value == 5.0
+    assert line.at(300, use="before").value == 3.0  # the sample at the ping is not used
