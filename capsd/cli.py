@@ -534,6 +534,12 @@ def _cmd_train_detector(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_bench_faults(args: argparse.Namespace) -> int:
+    from capsd.bench import faults
+
+    return faults.bench(out=args.out, baseline_s=args.baseline, skew_s=args.skew_duration)
+
+
 def _cmd_bench_latency(args: argparse.Namespace) -> int:
     from capsd.bench import latency
 
@@ -792,6 +798,19 @@ def build_parser() -> argparse.ArgumentParser:
     blat.add_argument("--warmup", type=float, default=5.0, help="seconds after the first VPE")
     blat.add_argument("--out", type=Path, default=Path("reports/latency"), help="report folder")
     blat.set_defaults(func=_cmd_bench_latency)
+    bfault = bench_sub.add_parser(
+        "faults",
+        help="inject faults (kill -9, router restart, dropouts, clock skew); judge ArduSub input",
+        description="Run the demo pipeline and inject one fault at a time; print per fault the "
+        "recovery time, good fixes lost, and the estimates the autopilot received that were "
+        "stale, invalid or wrong by more than 3 sigma against the simulator's truth.",
+    )
+    bfault.add_argument("--baseline", type=float, default=10.0, help="seconds without a fault")
+    bfault.add_argument(
+        "--skew-duration", type=float, default=25.0, help="seconds per clock-skew run"
+    )
+    bfault.add_argument("--out", type=Path, default=Path("reports/faults"), help="report folder")
+    bfault.set_defaults(func=_cmd_bench_faults)
     rec = sub.add_parser(
         "record",
         help="record key expressions into an MCAP file (JSON schemas; Foxglove reads it)",

@@ -28,6 +28,7 @@ class Subject(StrEnum):
     ROV_FIX = "locator/fix"
     SIM_TRUTH = "sim/truth"
     SIM_LABEL = "sim/label"
+    SIM_CONTROL = "sim/control"  # fault injection into the simulator (tests, benches)
 
 
 def check_name(kind: str, name: str) -> str:

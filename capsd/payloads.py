@@ -403,6 +403,16 @@ class SonarLabel(Payload, frozen=True, kw_only=True):
     rov_position_m: Vec3
 
 
+class SimControl(Payload, frozen=True, kw_only=True):
+    """Fault injection: the simulator stops publishing these streams for `for_s` seconds.
+
+    A stream is named as in the simulator's Health counters, e.g. "asv/scan@asv".
+    """
+
+    mute: tuple[str, ...]
+    for_s: Annotated[float, msgspec.Meta(ge=0.0, le=600.0)]
+
+
 ALL_PAYLOADS: tuple[type[Payload], ...] = (
     Health,
     Log,
@@ -418,4 +428,5 @@ ALL_PAYLOADS: tuple[type[Payload], ...] = (
     RovFix,
     GroundTruth,
     SonarLabel,
+    SimControl,
 )

@@ -35,8 +35,10 @@ ROV_STATUS = Topic(Subject.ROV_STATUS, pl.RovStatus)
 ROV_FIX = Topic(Subject.ROV_FIX, pl.RovFix)
 SIM_TRUTH = Topic(Subject.SIM_TRUTH, pl.GroundTruth)
 SIM_LABEL = Topic(Subject.SIM_LABEL, pl.SonarLabel)
+SIM_CONTROL = Topic(Subject.SIM_CONTROL, pl.SimControl)
 
 ALL_TOPICS: tuple[Topic[Any], ...] = (
     ASV_POSE, ASV_POSE_EXTERNAL, ASV_IMU, ASV_SCAN, SONAR_FRAME, SONAR_DETECTIONS,
     ROV_DEPTH, ROV_ATTITUDE, ROV_VELOCITY, ROV_STATUS, ROV_FIX, SIM_TRUTH, SIM_LABEL,
+    SIM_CONTROL,
 )  # fmt: skip

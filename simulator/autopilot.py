@@ -9,11 +9,13 @@ and depth come from a callable, so a simulator can drive it. For tests and the d
 
 from __future__ import annotations
 
+import json
 import math
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Self
 
 from services.mav_bridge.mavlink import (
@@ -218,6 +220,12 @@ def main(argv: list[str] | None = None) -> int:
         description="An ArduSub stand-in on tcpin:127.0.0.1:PORT.",
     )
     parser.add_argument("--port", type=int, default=5777)
+    parser.add_argument(
+        "--estimates-out",
+        type=Path,
+        default=None,
+        help="write every VISION_POSITION_ESTIMATE received as a JSON line here on exit",
+    )
     args = parser.parse_args(argv)
     stop = threading.Event()
     for signum in (signal.SIGINT, signal.SIGTERM):
@@ -229,6 +237,10 @@ def main(argv: list[str] | None = None) -> int:
         with autopilot.lock:
             estimates = list(autopilot.recorded.estimates)
             texts = [s.text for s in autopilot.recorded.statustexts]
+    if args.estimates_out is not None:
+        with args.estimates_out.open("w") as out:
+            for arrival_s, e in estimates:
+                out.write(json.dumps({"arrival_s": arrival_s, **asdict(e)}) + "\n")
     rate = len(estimates) / elapsed if elapsed > 0 else 0.0
     print(
         f"autopilot stand-in: {len(estimates)} VISION_POSITION_ESTIMATE in {elapsed:.0f} s "

@@ -8,6 +8,7 @@ publishing) and worst lateness are reported in the service's Health counters, wh
 
 from __future__ import annotations
 
+import logging
 import queue
 import threading
 import time
@@ -15,12 +16,16 @@ from collections import defaultdict
 from collections.abc import Iterator
 from typing import Any
 
-from capsd.payloads import Payload, SonarFrame
+from capsd import topics
+from capsd.logs import log_fields
+from capsd.payloads import Payload, SimControl, SonarFrame
 from capsd.runner import Publisher, ServiceRunner
 from simulator.config import Config
 from simulator.sim import Event, Simulation
 
 __all__ = ["Config", "main"]
+
+logger = logging.getLogger(__name__)
 
 
 class _Accounting:
@@ -102,12 +107,29 @@ def main(config: Config) -> int:
         start = time.monotonic()
         ahead = _Lookahead(simulation.events(start_ns=start_ns), runner.stop_event)
         ahead.start()
+        muted_until: dict[str, float] = {}  # stream -> monotonic time its dropout ends
+
+        def on_control(control: SimControl) -> None:
+            until = time.monotonic() + control.for_s
+            for stream in control.mute:
+                muted_until[stream] = until
+            logger.warning(
+                "dropout injected",
+                extra=log_fields(streams=",".join(control.mute), s=control.for_s),
+            )
+
+        runner.subscribe(topics.SIM_CONTROL, on_control)
+        muted = {"count": 0}
+        runner.add_counters(lambda: {"muted_messages": muted["count"]})
 
         def step() -> None:
             while (item := ahead.due(time.monotonic() - start)) is not None:
                 event, event_cpu_ns = item
                 cpu0 = time.thread_time_ns()
                 stream = f"{event.topic.subject.value}@{event.vehicle}"
+                if muted_until.get(stream, 0.0) > time.monotonic():
+                    muted["count"] += 1
+                    continue
                 publisher = publishers.get(stream)
                 if publisher is None:
                     publisher = publishers[stream] = runner.publisher(

@@ -22,6 +22,7 @@ from capsd.payloads import (
     RovVelocity,
     SonarDetections,
     SonarFrame,
+    SimControl,
     SonarLabel,
     StreamStats,
 )
@@ -73,4 +74,5 @@ SAMPLES: tuple[Payload, ...] = (
     GroundTruth(stamp_ns=STAMP, seq=1, asv_position_m=(1.0, 1.0, 0.0),
                 asv_orientation_xyzw=_IDENTITY,
                 rov_position_m=(3.0, 4.0, -2.0), rov_orientation_xyzw=_IDENTITY),
+    SimControl(stamp_ns=STAMP, seq=1, mute=("asv/scan@asv",), for_s=5.0),
 )  # fmt: skip

@@ -1,0 +1,405 @@
+"""`capsd bench faults`: inject faults into the running pipeline and judge what reached ArduSub.
+
+The pipeline of `capsd demo` runs (each service its own process on 127.0.0.1, the ArduSub
+stand-in at the end of the MAVLink link). Faults are injected one at a time, each after the
+system has settled again:
+- kill -9 of a service, restarted 1 s later (the units' Restart=on-failure, RestartSec=1);
+- the router killed and restarted on its port;
+- sensor dropouts through the simulator's control key: no sonar 5 s, no LiDAR 5 s, no depth 2 s;
+- clock skew (separate runs): the ASV's clock 0.5 s ahead, 0.5 s behind, drifting 200 ppm.
+For each: recovery time (fault to the first good fix after it; for the router, until every
+service answers again), good fixes lost against the undisturbed rate, and every estimate the
+autopilot received in the fault's window judged against the simulator's truth of its ping:
+stale (older than the bridge's 0.3 s when it arrived), invalid (not finite), or wrong by more
+than 3 sigma on an axis (sigma from the covariance it was sent with). Those must be 0.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+import yaml
+import zenoh
+
+from capsd import topics
+from capsd.bus import open_session
+from capsd.codec import Codec
+from capsd.config import BusConfig
+from capsd.demo import Child, Processes, _free_port, _write_configs
+from capsd.health import query_health
+from capsd.keys import is_concrete
+from capsd.payloads import RovFix, SimControl, SonarLabel
+
+SERVICES = ("asv_pose", "sonar_detect", "locator", "mav_bridge")
+VEHICLES = {
+    "sim": "sim",
+    "asv_pose": "asv",
+    "sonar_detect": "asv",
+    "locator": "topside",
+    "mav_bridge": "rov_ap",
+}
+RESTART_S = 1.0  # the systemd units' RestartSec
+MAX_AGE_S = 0.3  # the bridge gate's default max_age_s: older on arrival is stale
+TARGET_SERVICE_RECOVERY_S = 3.0
+TARGET_ROUTER_RECOVERY_S = 5.0
+
+
+@dataclass
+class Window:
+    """One fault: when it was injected, when it was over, what it measured."""
+
+    name: str
+    start: float  # wall clock, s
+    end: float = 0.0
+    recovery_s: float | None = None
+    recovery_target_s: float | None = None
+    note: str = ""
+    judged: dict[str, int] = field(default_factory=dict)
+    good_fixes: int = 0
+    expected_fixes: float = 0.0
+
+
+@dataclass
+class Observed:
+    """What the bench's own Zenoh client saw: fixes by arrival, labels by ping stamp."""
+
+    fixes: list[tuple[float, str]] = field(default_factory=list)  # (wall s, quality)
+    labels: dict[int, tuple[float, float, float]] = field(default_factory=dict)
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def first_good_after(self, t: float) -> float | None:
+        with self.lock:
+            return next((a for a, q in self.fixes if a > t and q == "good"), None)
+
+    def good_between(self, t0: float, t1: float) -> int:
+        with self.lock:
+            return sum(1 for a, q in self.fixes if t0 <= a < t1 and q == "good")
+
+
+def _decoder(codec: Codec[Any], sink: Callable[[Any], None]) -> Callable[[zenoh.Sample], None]:
+    def on_sample(sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        if not is_concrete(key):
+            return
+        try:
+            sink(
+                codec.decode(sample.payload.to_bytes(), encoding=str(sample.encoding), key_expr=key)
+            )
+        except Exception:
+            return  # the services count bad input; the bench only watches
+
+    return on_sample
+
+
+class Pipeline:
+    """The demo's processes, with handles to kill, restart and mute them."""
+
+    def __init__(self, out: Path, *, sim_clock: dict[str, float] | None = None):
+        self.out = out
+        out.mkdir(parents=True, exist_ok=True)
+        self.port = _free_port()
+        self.endpoint = f"tcp/127.0.0.1:{self.port}"
+        mav_port = _free_port()
+        self.configs = _write_configs(
+            out, self.endpoint, trajectory="square", tank="nfp", seed=0, mav_port=mav_port
+        )
+        if sim_clock is not None:
+            body = yaml.safe_load(self.configs["sim"].read_text())
+            body["clocks"] = {"asv": sim_clock}
+            self.configs["sim"].write_text(yaml.safe_dump(body, sort_keys=False))
+        self.procs = Processes(out)
+        self.estimates_file = out / "estimates.jsonl"
+        self._mav_port = mav_port
+        self.observed = Observed()
+        self._session: zenoh.Session | None = None
+        self._subs: list[Any] = []
+
+    def _service_args(self, name: str) -> list[str]:
+        return ["-m", "capsd", "run", name, "--config", str(self.configs[name])]
+
+    def start(self) -> None:
+        self.start_router()
+        self.procs.start(
+            "autopilot",
+            [
+                "-m",
+                "simulator.autopilot",
+                "--port",
+                str(self._mav_port),
+                "--estimates-out",
+                str(self.estimates_file),
+            ],
+        )
+        time.sleep(1.0)
+        for name in ("sim", *SERVICES):
+            self.procs.start(name, self._service_args(name))
+        self._session = open_session(BusConfig(connect=(self.endpoint,)))
+        obs = self.observed
+
+        def on_fix(fix: RovFix) -> None:
+            with obs.lock:
+                obs.fixes.append((time.time(), fix.quality))
+
+        def on_label(label: SonarLabel) -> None:
+            with obs.lock:
+                obs.labels[label.stamp_ns // 1000] = label.rov_position_m
+
+        self._subs = [
+            self._session.declare_subscriber(
+                topics.ROV_FIX.key("tank", "topside"), _decoder(Codec(RovFix), on_fix)
+            ),
+            self._session.declare_subscriber(
+                topics.SIM_LABEL.key("tank", "sim"), _decoder(Codec(SonarLabel), on_label)
+            ),
+        ]
+
+    def start_router(self) -> Child:
+        return self.procs.start("router", ["-m", "capsd", "router", "--listen", self.endpoint])
+
+    def child(self, name: str) -> Child:
+        return next(c for c in reversed(self.procs.children) if c.name == name)
+
+    def kill(self, name: str) -> None:
+        child = self.child(name)
+        child.popen.send_signal(signal.SIGKILL)
+        child.popen.wait()
+        self.procs.children.remove(child)
+
+    def restart(self, name: str) -> None:
+        if name == "router":
+            self.start_router()
+        else:
+            self.procs.start(name, self._service_args(name))
+
+    def mute(self, streams: tuple[str, ...], for_s: float) -> None:
+        assert self._session is not None
+        codec = Codec(SimControl)
+        control = SimControl(stamp_ns=time.time_ns(), seq=0, mute=streams, for_s=for_s)
+        self._session.put(
+            topics.SIM_CONTROL.key("tank", "sim"),
+            codec.encode(control),
+            encoding=zenoh.Encoding(codec.encoding),
+        )
+
+    def all_answer(self) -> bool:
+        assert self._session is not None
+        return all(
+            query_health(self._session, site="tank", vehicle=VEHICLES[s], service=s, timeout_s=0.3)
+            is not None
+            for s in ("sim", *SERVICES)
+        )
+
+    def stop(self) -> dict[str, int | None]:
+        for sub in self._subs:
+            sub.undeclare()
+        if self._session is not None:
+            self._session.close()
+        return self.procs.stop()
+
+
+def judge(
+    estimates: list[dict[str, Any]], labels: dict[int, tuple[float, float, float]], ned: Any
+) -> list[tuple[float, str]]:
+    """(arrival wall s, verdict) per estimate: ok, stale, invalid, wrong_3sigma, no_truth."""
+    out = []
+    for e in estimates:
+        arrival = float(e["arrival_s"])
+        values = [e["x"], e["y"], e["z"], *e["covariance"]]
+        if not all(math.isfinite(v) for v in values):
+            out.append((arrival, "invalid"))
+            continue
+        if arrival - e["usec"] / 1e6 > MAX_AGE_S:
+            out.append((arrival, "stale"))
+            continue
+        truth = labels.get(int(e["usec"]))
+        if truth is None:
+            out.append((arrival, "no_truth"))
+            continue
+        truth_ned = ned.position(np.array(truth))
+        cov = e["covariance"]
+        sigmas = (math.sqrt(cov[0]), math.sqrt(cov[6]), math.sqrt(cov[11]))
+        errors = np.array([e["x"], e["y"], e["z"]]) - truth_ned
+        wrong = any(abs(err) > 3.0 * s for err, s in zip(errors, sigmas, strict=True))
+        out.append((arrival, "wrong_3sigma" if wrong else "ok"))
+    return out
+
+
+def _wait_settled(pipe: Pipeline, *, timeout_s: float = 60.0) -> bool:
+    """Until good fixes flow (3 in the last second)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        now = time.time()
+        if pipe.observed.good_between(now - 1.0, now) >= 3:
+            return True
+        time.sleep(0.2)
+    return False
+
+
+def _recover(pipe: Pipeline, w: Window, *, after: float, timeout_s: float = 20.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        t = pipe.observed.first_good_after(after)
+        if t is not None:
+            w.recovery_s = t - w.start
+            return
+        time.sleep(0.05)
+
+
+def run_main(out: Path, stream: TextIO, *, baseline_s: float) -> tuple[list[Window], Pipeline]:
+    pipe = Pipeline(out)
+    windows: list[Window] = []
+    pipe.start()
+    try:
+        if not _wait_settled(pipe):
+            raise RuntimeError("the pipeline never gave good fixes")
+        base = Window("baseline (no fault)", time.time())
+        time.sleep(baseline_s)
+        base.end = time.time()
+        windows.append(base)
+        rate = pipe.observed.good_between(base.start, base.end) / baseline_s
+        print(f"  baseline: {rate:.1f} good fixes/s", file=stream, flush=True)
+        for name in (*SERVICES, "router"):
+            w = Window(f"kill -9 {name}, restart after {RESTART_S:g} s", time.time())
+            w.recovery_target_s = (
+                TARGET_ROUTER_RECOVERY_S if name == "router" else TARGET_SERVICE_RECOVERY_S
+            )
+            pipe.kill(name)
+            time.sleep(RESTART_S)
+            pipe.restart(name)
+            _recover(pipe, w, after=w.start + RESTART_S)
+            if name == "router":
+                t0 = time.monotonic()
+                while not pipe.all_answer() and time.monotonic() - t0 < 20:
+                    time.sleep(0.2)
+                w.note = f"every service answering {time.time() - w.start:.1f} s after the kill"
+            _wait_settled(pipe, timeout_s=30)
+            time.sleep(2.0)
+            w.end = time.time()
+            windows.append(w)
+            print(f"  {w.name}: recovered in {w.recovery_s}", file=stream, flush=True)
+        for label, streams, for_s in (
+            ("no sonar 5 s", ("sonar/frame@asv",), 5.0),
+            ("no LiDAR 5 s", ("asv/scan@asv",), 5.0),
+            ("no depth 2 s", ("rov/depth@rov",), 2.0),
+        ):
+            w = Window(label, time.time())
+            pipe.mute(streams, for_s)
+            time.sleep(for_s)
+            _recover(pipe, w, after=w.start + for_s)
+            w.recovery_s = None if w.recovery_s is None else w.recovery_s - for_s
+            w.note = "recovery counted from the end of the dropout"
+            _wait_settled(pipe, timeout_s=30)
+            time.sleep(2.0)
+            w.end = time.time()
+            windows.append(w)
+            print(f"  {w.name}: recovered in {w.recovery_s}", file=stream, flush=True)
+        for w in windows:
+            w.good_fixes = pipe.observed.good_between(w.start, w.end)
+            w.expected_fixes = rate * (w.end - w.start)
+    finally:
+        codes = pipe.stop()
+    bad = {n: c for n, c in codes.items() if c not in (0, None) and n != "autopilot"}
+    if bad:
+        windows[-1].note += f" exit codes {bad}"
+    return windows, pipe
+
+
+def run_skew(
+    out: Path, name: str, clock: dict[str, float], duration_s: float
+) -> tuple[Window, Pipeline]:
+    pipe = Pipeline(out, sim_clock=clock)
+    pipe.start()
+    w = Window(name, time.time())
+    try:
+        time.sleep(duration_s)
+        w.end = time.time()
+        w.good_fixes = pipe.observed.good_between(w.start, w.end)
+        first = pipe.observed.first_good_after(w.start)
+        w.note = (
+            "no good fix at all"
+            if first is None
+            else f"first good fix after {first - w.start:.1f} s"
+        )
+    finally:
+        pipe.stop()
+    return w, pipe
+
+
+def _judge_into(windows: list[Window], pipe: Pipeline) -> None:
+    from services.mav_bridge.service import NedConfig
+
+    ned = NedConfig().tank_to_ned()
+    estimates = [json.loads(line) for line in pipe.estimates_file.read_text().splitlines()]
+    with pipe.observed.lock:
+        labels = dict(pipe.observed.labels)
+    verdicts = judge(estimates, labels, ned)
+    for w in windows:
+        counts: dict[str, int] = {}
+        for arrival, verdict in verdicts:
+            if w.start <= arrival < w.end:
+                counts[verdict] = counts.get(verdict, 0) + 1
+        w.judged = counts
+
+
+def bench(
+    *, out: Path, baseline_s: float = 10.0, skew_s: float = 25.0, stream: TextIO = sys.stdout
+) -> int:
+    print("capsd bench faults: the demo pipeline, one fault at a time", file=stream, flush=True)
+    windows, pipe = run_main(out / "main", stream, baseline_s=baseline_s)
+    _judge_into(windows, pipe)
+    for name, clock in (
+        ("ASV clock +0.5 s", {"offset_s": 0.5}),
+        ("ASV clock -0.5 s", {"offset_s": -0.5}),
+        ("ASV clock drifting 200 ppm", {"drift_ppm": 200.0}),
+    ):
+        print(f"  {name}: {skew_s:g} s run", file=stream, flush=True)
+        w, p = run_skew(out / name.replace(" ", "_"), name, clock, skew_s)
+        _judge_into([w], p)
+        windows.append(w)
+    lines = report(windows)
+    for line in lines:
+        print(line, file=stream)
+    (out / "faults.md").write_text("```\n" + "\n".join(lines) + "\n```\n")
+    (out / "faults.json").write_text(
+        json.dumps([w.__dict__ for w in windows], indent=1, sort_keys=True) + "\n"
+    )
+    print(f"report: {out}/faults.md, faults.json", file=stream)
+    failures = [
+        w
+        for w in windows
+        if sum(w.judged.get(k, 0) for k in ("stale", "invalid", "wrong_3sigma"))
+        or (
+            w.recovery_target_s is not None
+            and (w.recovery_s is None or w.recovery_s > w.recovery_target_s)
+        )
+    ]
+    return 1 if failures else 0
+
+
+def report(windows: list[Window]) -> list[str]:
+    lines = [
+        f"{'fault':<40} {'recovery s':>10} {'target':>7} {'good fixes':>10} {'lost':>6} "
+        f"{'sent':>5} {'stale':>5} {'invalid':>7} {'>3sigma':>7}  note"
+    ]
+    for w in windows:
+        j = w.judged
+        sent = sum(j.values())
+        lost = max(0, round(w.expected_fixes - w.good_fixes)) if w.expected_fixes else "-"
+        rec = "-" if w.recovery_s is None else f"{w.recovery_s:.2f}"
+        tgt = "-" if w.recovery_target_s is None else f"{w.recovery_target_s:g}"
+        lines.append(
+            f"{w.name:<40} {rec:>10} {tgt:>7} {w.good_fixes:>10} {lost!s:>6} {sent:>5} "
+            f"{j.get('stale', 0):>5} {j.get('invalid', 0):>7} {j.get('wrong_3sigma', 0):>7}  "
+            f"{w.note}"
+        )
+    return lines
