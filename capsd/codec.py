@@ -104,6 +104,6 @@ def to_builtins(payload: Payload, *, bytes_as: str = "summary") -> dict[str, Any
     if bytes_as == "summary":
         for name in payload.__struct_fields__:
             value = getattr(payload, name)
-            if isinstance(value, bytes):
+            if isinstance(value, bytes | memoryview):
                 result[name] = f"<{len(value)} bytes>"
     return result

@@ -225,7 +225,8 @@ class SonarFrame(Payload, frozen=True, kw_only=True):
     n_ranges: Annotated[int, msgspec.Meta(ge=1)]
     n_beams: Annotated[int, msgspec.Meta(ge=1)]
     sample_bits: Literal[8, 16]
-    image: bytes
+    # A memoryview: decoding makes it a view into the received buffer, not a second copy.
+    image: memoryview
     azimuths_rad: tuple[float, ...]
     range_start_m: NonNegFloat
     range_resolution_m: PosFloat

@@ -293,7 +293,7 @@ class SonarRenderer:
             n_ranges=m.n_ranges,
             n_beams=m.n_beams,
             sample_bits=8,
-            image=ping.image.tobytes(),
+            image=memoryview(ping.image.tobytes()),
             azimuths_rad=self._azimuth_tuple,
             range_start_m=0.0,
             range_resolution_m=m.range_resolution_m,

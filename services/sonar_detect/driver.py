@@ -107,7 +107,7 @@ def to_frame(ping: Ping, *, config: Config, stamp_ns: int, seq: int) -> SonarFra
         n_ranges=ping.n_ranges,
         n_beams=ping.n_beams,
         sample_bits=bits,
-        image=raw,
+        image=memoryview(raw),
         azimuths_rad=tuple(float(a) for a in azimuths),
         range_start_m=0.0,
         range_resolution_m=ping.range_resolution_m,

@@ -20,9 +20,9 @@ from capsd.payloads import (
     RovFix,
     RovStatus,
     RovVelocity,
+    SimControl,
     SonarDetections,
     SonarFrame,
-    SimControl,
     SonarLabel,
     StreamStats,
 )
@@ -53,9 +53,9 @@ SAMPLES: tuple[Payload, ...] = (
     LidarScan(stamp_ns=STAMP, seq=1, angle_min_rad=-math.radians(135), angle_increment_rad=0.0058,
               range_min_m=0.05, range_max_m=25.0, ranges_m=(1.0, 0.0, 2.5)),
     SonarFrame(stamp_ns=STAMP, seq=7, ping_id=7, n_ranges=4, n_beams=4, sample_bits=8,
-               image=bytes(range(16)), azimuths_rad=(-0.2, -0.05, 0.05, 0.2), range_start_m=0.0,
-               range_resolution_m=0.0025, sound_speed_m_s=1480.0, gain_percent=50.0,
-               frequency_hz=1.2e6, vertical_aperture_rad=math.radians(20)),
+               image=memoryview(bytes(range(16))), azimuths_rad=(-0.2, -0.05, 0.05, 0.2),
+               range_start_m=0.0, range_resolution_m=0.0025, sound_speed_m_s=1480.0,
+               gain_percent=50.0, frequency_hz=1.2e6, vertical_aperture_rad=math.radians(20)),
     SonarDetections(stamp_ns=STAMP, seq=7, ping_id=7, detector="cnn", detections=(
         Detection(range_m=5.2, azimuth_rad=0.1, range_sigma_m=0.02, azimuth_sigma_rad=0.003,
                   confidence=0.9, range_extent_m=0.4, azimuth_extent_rad=0.08),)),
