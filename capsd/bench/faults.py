@@ -19,6 +19,7 @@ from __future__ import annotations
 import json
 import math
 import signal
+import socket
 import sys
 import threading
 import time
@@ -32,6 +33,7 @@ import yaml
 import zenoh
 
 from capsd import topics
+from capsd.bench.lossy_link import LossyLink
 from capsd.bus import open_session
 from capsd.codec import Codec
 from capsd.config import BusConfig
@@ -41,6 +43,14 @@ from capsd.keys import is_concrete
 from capsd.payloads import RovFix, SimControl, SonarLabel
 
 SERVICES = ("asv_pose", "sonar_detect", "locator", "mav_bridge")
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
 VEHICLES = {
     "sim": "sim",
     "asv_pose": "asv",
@@ -104,7 +114,13 @@ def _decoder(codec: Codec[Any], sink: Callable[[Any], None]) -> Callable[[zenoh.
 class Pipeline:
     """The demo's processes, with handles to kill, restart and mute them."""
 
-    def __init__(self, out: Path, *, sim_clock: dict[str, float] | None = None):
+    def __init__(
+        self,
+        out: Path,
+        *,
+        sim_clock: dict[str, float] | None = None,
+        degraded_link: bool = False,
+    ):
         self.out = out
         out.mkdir(parents=True, exist_ok=True)
         self.port = _free_port()
@@ -117,6 +133,17 @@ class Pipeline:
             body = yaml.safe_load(self.configs["sim"].read_text())
             body["clocks"] = {"asv": sim_clock}
             self.configs["sim"].write_text(yaml.safe_dump(body, sort_keys=False))
+        self.degraded_link = degraded_link
+        self.link: LossyLink | None = None
+        if degraded_link:
+            # The ASV side (sensors, pose, detector) has its own router, joined to topside's
+            # over a UDP link through the lossy relay: ASV -> topside is the degraded link.
+            self.asv_endpoint = f"tcp/127.0.0.1:{_free_port()}"
+            self._udp_topside, self._udp_relay = _free_udp_port(), _free_udp_port()
+            for name in ("sim", "asv_pose", "sonar_detect"):
+                body = yaml.safe_load(self.configs[name].read_text())
+                body["bus"] = {"connect": [self.asv_endpoint]}
+                self.configs[name].write_text(yaml.safe_dump(body, sort_keys=False))
         self.procs = Processes(out)
         self.estimates_file = out / "estimates.jsonl"
         self._mav_port = mav_port
@@ -128,7 +155,19 @@ class Pipeline:
         return ["-m", "capsd", "run", name, "--config", str(self.configs[name])]
 
     def start(self) -> None:
-        self.start_router()
+        if self.degraded_link:
+            udp = f"udp/127.0.0.1:{self._udp_topside}"
+            self.procs.start(
+                "router",
+                ["-m", "capsd", "router", "--listen", self.endpoint, "--listen", udp],
+            )
+            self.link = LossyLink(listen_port=self._udp_relay, target_port=self._udp_topside)
+            self.link.start()
+            relay = f"udp/127.0.0.1:{self._udp_relay}"
+            args = ["router", "--listen", self.asv_endpoint, "--connect", relay]
+            self.procs.start("asv_router", ["-m", "capsd", *args, "--vehicle", "asv"])
+        else:
+            self.start_router()
         self.procs.start(
             "autopilot",
             [
@@ -204,7 +243,10 @@ class Pipeline:
             sub.undeclare()
         if self._session is not None:
             self._session.close()
-        return self.procs.stop()
+        codes = self.procs.stop()
+        if self.link is not None:
+            self.link.__exit__()
+        return codes
 
 
 def judge(
@@ -314,10 +356,16 @@ def run_main(out: Path, stream: TextIO, *, baseline_s: float) -> tuple[list[Wind
     return windows, pipe
 
 
-def run_skew(
-    out: Path, name: str, clock: dict[str, float], duration_s: float
+def run_separate(
+    out: Path,
+    name: str,
+    duration_s: float,
+    *,
+    clock: dict[str, float] | None = None,
+    degraded_link: bool = False,
 ) -> tuple[Window, Pipeline]:
-    pipe = Pipeline(out, sim_clock=clock)
+    """A whole pipeline run under one condition; the window is all of it after start-up."""
+    pipe = Pipeline(out, sim_clock=clock, degraded_link=degraded_link)
     pipe.start()
     w = Window(name, time.time())
     try:
@@ -325,11 +373,13 @@ def run_skew(
         w.end = time.time()
         w.good_fixes = pipe.observed.good_between(w.start, w.end)
         first = pipe.observed.first_good_after(w.start)
-        w.note = (
-            "no good fix at all"
-            if first is None
-            else f"first good fix after {first - w.start:.1f} s"
-        )
+        w.note = "no good fix" if first is None else f"first good fix after {first - w.start:.1f} s"
+        if pipe.link is not None:
+            c = pipe.link.counts
+            w.note += (
+                f"; link: {c.forwarded} datagrams through, {c.dropped} dropped, "
+                f"{c.reordered} out of order"
+            )
     finally:
         pipe.stop()
     return w, pipe
@@ -357,14 +407,20 @@ def bench(
     print("capsd bench faults: the demo pipeline, one fault at a time", file=stream, flush=True)
     windows, pipe = run_main(out / "main", stream, baseline_s=baseline_s)
     _judge_into(windows, pipe)
-    for name, clock in (
-        ("ASV clock +0.5 s", {"offset_s": 0.5}),
-        ("ASV clock -0.5 s", {"offset_s": -0.5}),
-        ("ASV clock drifting 200 ppm", {"drift_ppm": 200.0}),
-    ):
+    runs: list[tuple[str, dict[str, float] | None, bool]] = [
+        ("ASV-topside link: 200 ms, 10% loss, reorder", None, True),
+        ("ASV clock +0.5 s", {"offset_s": 0.5}, False),
+        ("ASV clock -0.5 s", {"offset_s": -0.5}, False),
+        ("ASV clock drifting 200 ppm", {"drift_ppm": 200.0}, False),
+    ]
+    base = windows[0]
+    base_rate = base.good_fixes / max(base.end - base.start, 1e-9)
+    for name, clock, degraded in runs:
         print(f"  {name}: {skew_s:g} s run", file=stream, flush=True)
-        w, p = run_skew(out / name.replace(" ", "_"), name, clock, skew_s)
+        folder = out / "".join(c if c.isalnum() else "_" for c in name)
+        w, p = run_separate(folder, name, skew_s, clock=clock, degraded_link=degraded)
         _judge_into([w], p)
+        w.expected_fixes = base_rate * (w.end - w.start)
         windows.append(w)
     lines = report(windows)
     for line in lines:
