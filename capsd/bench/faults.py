@@ -254,6 +254,20 @@ class Pipeline:
             encoding=zenoh.Encoding(codec.encoding),
         )
 
+    def bridge_refusals(self) -> dict[str, int]:
+        """The bridge gate's refusals so far, by reason (from its Health)."""
+        assert self._session is not None
+        health = query_health(
+            self._session, site="tank", vehicle="rov_ap", service="mav_bridge", timeout_s=1.0
+        )
+        if health is None:
+            return {}
+        return {
+            k.removeprefix("gate_"): n
+            for k, n in sorted(health.counters.items())
+            if k.startswith("gate_") and k != "gate_sent" and n > 0
+        }
+
     def all_answer(self) -> bool:
         assert self._session is not None
         return all(
@@ -403,6 +417,9 @@ def run_separate(
         w.note = "no good fix" if first is None else f"first good fix after {first - w.start:.1f} s"
         if reason := pipe.observed.top_reason(w.start, w.end):
             w.note += f"; commonest no-fix reason {reason}"
+        refused = pipe.bridge_refusals()
+        if refused:
+            w.note += "; the bridge refused " + ", ".join(f"{k} {n}" for k, n in refused.items())
         if pipe.link is not None:
             c = pipe.link.counts
             w.note += (
