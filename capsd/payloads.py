@@ -96,6 +96,8 @@ class StreamStats(msgspec.Struct, frozen=True, kw_only=True):
     # seq went backwards: a publisher restarted, or two publishers share the key (a fault).
     seq_regressions: NonNegInt = 0
     last_stamp_ns: NonNegInt | None = None
+    # Inputs that arrived in Zenoh shared memory (same host, large payloads), not copied in.
+    shared_memory: NonNegInt = 0
 
 
 class LatencyStats(msgspec.Struct, frozen=True, kw_only=True):

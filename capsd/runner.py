@@ -69,6 +69,7 @@ class StreamCounter:
         self.errors = 0
         self.dropped = 0
         self.seq_regressions = 0
+        self.shared_memory = 0
         self._recent_regressions: deque[float] = deque(maxlen=64)
         self.last_stamp_ns: int | None = None
         self._last_seq: int | None = None
@@ -127,6 +128,7 @@ class StreamCounter:
                 dropped=self.dropped,
                 seq_regressions=self.seq_regressions,
                 last_stamp_ns=self.last_stamp_ns,
+                shared_memory=self.shared_memory,
             )
 
 
@@ -330,6 +332,8 @@ class ServiceRunner:
             sent_ns = put_time_ns(sample)
             if sent_ns is not None:
                 transport.record_ns(received_ns - sent_ns)
+            if sample.payload.as_shm() is not None:
+                counter.shared_memory += 1
             self._arrival.ns = received_ns
             sample_key = str(sample.key_expr)
             try:

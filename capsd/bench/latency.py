@@ -291,10 +291,20 @@ def measure_rate(
         for s in (detect_first.inputs if detect_first else ())
         if s.key.endswith("sonar/frame")
     )
+    frames_shm = sum(
+        s.shared_memory
+        for s in (detect_last.inputs if detect_last else ())
+        if s.key.endswith("sonar/frame")
+    ) - sum(
+        s.shared_memory
+        for s in (detect_first.inputs if detect_first else ())
+        if s.key.endswith("sonar/frame")
+    )
     result.frames = {
         "published": _counter(det_h, "sonar/frame@asv:count")
         - _counter(sim_h, "sonar/frame@asv:count"),
         "received": frames_in,
+        "received_in_shared_memory": frames_shm,
         "detected": _counter(detect_last, "frames") - _counter(detect_first, "frames"),
         "dropped_stale": _counter(detect_last, "dropped_stale_frames")
         - _counter(detect_first, "dropped_stale_frames"),
@@ -347,7 +357,8 @@ def _report(
         )
         f = r.frames
         lines.append(
-            f"  frames: published {f['published']}, received {f['received']}, detected "
+            f"  frames: published {f['published']}, received {f['received']} "
+            f"({f['received_in_shared_memory']} in shared memory), detected "
             f"{f['detected']}, dropped as stale {f['dropped_stale']}; VPE sent {f['vpe_sent']}"
         )
         cpu = "  ".join(f"{n} {c:.2f}" for n, c in sorted(r.cpu_cores.items()))
