@@ -8,8 +8,9 @@ system has settled again:
 - sensor dropouts through the simulator's control key: no sonar 5 s, no LiDAR 5 s, no depth 2 s;
 - separate runs: the ASV-topside link through a UDP relay (200 ms, 10% loss; and with 40 ms
   of jitter, which reorders); the ASV's clock 0.5 s ahead, 0.5 s behind, drifting 200 ppm.
-For each: recovery time (fault to the first good fix after it; for the router, until every
-service answers again), good fixes lost against the undisturbed rate, and every estimate the
+For each: recovery time (from the restart, or the end of the dropout, to the next estimate at
+the autopilot) and outage (from the fault to that estimate); for the router also until every
+service answers again; good fixes lost against the undisturbed rate; and every estimate the
 autopilot received in the fault's window judged against the simulator's truth of its ping:
 stale (older than the bridge's 0.3 s limit when it arrived, plus 5 ms for the MAVLink hop
 after the gate's decision), invalid (not finite), or wrong by more than 3 sigma on an axis
@@ -77,7 +78,9 @@ class Window:
     name: str
     start: float  # wall clock, s
     end: float = 0.0
-    recovery_s: float | None = None
+    resume_from: float | None = None  # wall s: the restart, or the end of the dropout
+    recovery_s: float | None = None  # from resume_from to the next estimate at the autopilot
+    outage_s: float | None = None  # from the fault to the next estimate after resume_from
     recovery_target_s: float | None = None
     note: str = ""
     judged: dict[str, int] = field(default_factory=dict)
@@ -325,16 +328,6 @@ def _wait_settled(pipe: Pipeline, *, timeout_s: float = 60.0) -> bool:
     return False
 
 
-def _recover(pipe: Pipeline, w: Window, *, after: float, timeout_s: float = 20.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        t = pipe.observed.first_good_after(after)
-        if t is not None:
-            w.recovery_s = t - w.start
-            return
-        time.sleep(0.05)
-
-
 def run_main(out: Path, stream: TextIO, *, baseline_s: float) -> tuple[list[Window], Pipeline]:
     pipe = Pipeline(out)
     windows: list[Window] = []
@@ -355,18 +348,20 @@ def run_main(out: Path, stream: TextIO, *, baseline_s: float) -> tuple[list[Wind
             )
             pipe.kill(name)
             time.sleep(RESTART_S)
+            w.resume_from = time.time()
             pipe.restart(name)
-            _recover(pipe, w, after=w.start + RESTART_S)
             if name == "router":
                 t0 = time.monotonic()
                 while not pipe.all_answer() and time.monotonic() - t0 < 20:
                     time.sleep(0.2)
-                w.note = f"every service answering {time.time() - w.start:.1f} s after the kill"
+                w.note = (
+                    f"every service answering {time.time() - w.resume_from:.1f} s after the restart"
+                )
             _wait_settled(pipe, timeout_s=30)
             time.sleep(2.0)
             w.end = time.time()
             windows.append(w)
-            print(f"  {w.name}: recovered in {w.recovery_s}", file=stream, flush=True)
+            print(f"  {w.name}: done", file=stream, flush=True)
         for label, streams, for_s in (
             ("no sonar 5 s", ("sonar/frame@asv",), 5.0),
             ("no LiDAR 5 s", ("asv/scan@asv",), 5.0),
@@ -375,14 +370,12 @@ def run_main(out: Path, stream: TextIO, *, baseline_s: float) -> tuple[list[Wind
             w = Window(label, time.time())
             pipe.mute(streams, for_s)
             time.sleep(for_s)
-            _recover(pipe, w, after=w.start + for_s)
-            w.recovery_s = None if w.recovery_s is None else w.recovery_s - for_s
-            w.note = "recovery counted from the end of the dropout"
+            w.resume_from = time.time()
             _wait_settled(pipe, timeout_s=30)
             time.sleep(2.0)
             w.end = time.time()
             windows.append(w)
-            print(f"  {w.name}: recovered in {w.recovery_s}", file=stream, flush=True)
+            print(f"  {w.name}: done", file=stream, flush=True)
         for w in windows:
             w.good_fixes = pipe.observed.good_between(w.start, w.end)
             w.expected_fixes = rate * (w.end - w.start)
@@ -439,7 +432,13 @@ def _judge_into(windows: list[Window], pipe: Pipeline) -> None:
     with pipe.observed.lock:
         labels = dict(pipe.observed.labels)
     verdicts = judge(estimates, labels, ned)
+    arrivals = sorted(float(e["arrival_s"]) for e in estimates)
     for w in windows:
+        if w.resume_from is not None:
+            after = [a for a in arrivals if w.resume_from < a < w.end]
+            if after:
+                w.recovery_s = after[0] - w.resume_from
+                w.outage_s = after[0] - w.start
         counts: dict[str, int] = {}
         for arrival, verdict in verdicts:
             if w.start <= arrival < w.end:
@@ -491,7 +490,8 @@ def bench(
 
 def report(windows: list[Window]) -> list[str]:
     lines = [
-        f"{'fault':<40} {'recovery s':>10} {'target':>7} {'good fixes':>10} {'lost':>6} "
+        f"{'fault':<40} {'outage s':>8} {'recovery s':>10} {'target':>7} {'good fixes':>10} "
+        f"{'lost':>6} "
         f"{'sent':>5} {'stale':>5} {'invalid':>7} {'>3sigma':>7}  note"
     ]
     for w in windows:
@@ -499,9 +499,10 @@ def report(windows: list[Window]) -> list[str]:
         sent = sum(j.values())
         lost = max(0, round(w.expected_fixes - w.good_fixes)) if w.expected_fixes else "-"
         rec = "-" if w.recovery_s is None else f"{w.recovery_s:.2f}"
+        outage = "-" if w.outage_s is None else f"{w.outage_s:.2f}"
         tgt = "-" if w.recovery_target_s is None else f"{w.recovery_target_s:g}"
         lines.append(
-            f"{w.name:<40} {rec:>10} {tgt:>7} {w.good_fixes:>10} {lost!s:>6} {sent:>5} "
+            f"{w.name:<40} {outage:>8} {rec:>10} {tgt:>7} {w.good_fixes:>10} {lost!s:>6} {sent:>5} "
             f"{j.get('stale', 0):>5} {j.get('invalid', 0):>7} {j.get('wrong_3sigma', 0):>7}  "
             f"{w.note}"
         )
