@@ -109,6 +109,12 @@ class Observed:
             "" if not counts else f"{counts.most_common(1)[0][0]} ({counts.most_common(1)[0][1]})"
         )
 
+    def qualities(self, t0: float, t1: float) -> str:
+        """Fix qualities between t0 and t1, e.g. 'good 3, unsure 40, invalid 60'."""
+        with self.lock:
+            counts = Counter(q for a, q in self.fixes if t0 <= a < t1)
+        return ", ".join(f"{q} {n}" for q, n in counts.most_common()) or "none"
+
     def good_between(self, t0: float, t1: float) -> int:
         with self.lock:
             return sum(1 for a, q in self.fixes if t0 <= a < t1 and q == "good")
@@ -379,6 +385,9 @@ def run_main(out: Path, stream: TextIO, *, baseline_s: float) -> tuple[list[Wind
         for w in windows:
             w.good_fixes = pipe.observed.good_between(w.start, w.end)
             w.expected_fixes = rate * (w.end - w.start)
+            if w.resume_from is not None:
+                during = pipe.observed.qualities(w.start, w.resume_from)
+                w.note = "; ".join(x for x in (w.note, f"fixes during the fault: {during}") if x)
     finally:
         codes = pipe.stop()
     bad = {n: c for n, c in codes.items() if c not in (0, None) and n != "autopilot"}
