@@ -7,10 +7,10 @@ order; a fixed number of steps, never a time budget). Stages:
    Gaussian at the ROV centre (sized by the echo), frames without the ROV all negative;
 3. train the refiner on the crops: binary cross-entropy for ROV / not, a Laplace negative
    log-likelihood for the centre offsets (it learns its own sigma), L1 on the log extents;
-4. hard examples: fresh runs seen through the trained detector (its proposals as negatives);
-   the ROV crops it doubts and the clutter crops it believes are repeated `hard_repeat` times
-   in a short fine-tune of the refiner (the ROV against a floor or wall echo, or seen only by
-   the skirts of the vertical beam, is what it misses);
+4. hard examples, `hard_rounds` times: fresh runs seen through the trained detector (its
+   proposals as negatives); the ROV crops it doubts and the clutter crops it believes are
+   repeated `hard_repeat` times in a short fine-tune of the refiner (the ROV against a floor
+   or wall echo, or seen only by the skirts of the vertical beam, is what it misses);
 5. set the operating point on validation runs (calibrate);
 6. evaluate the whole detector on held-out runs (bench/detect's scoring) and write
    `polar_net.pt` (weights) and `polar_net.json` (the training config and the evaluation).
@@ -54,7 +54,8 @@ class TrainConfig:
     refine_epochs: int = 6
     refine_batch: int = 128
     refine_lr: float = 2e-3
-    hard_runs: int = 32
+    hard_runs: int = 32  # per round
+    hard_rounds: int = 2
     hard_epochs: int = 2
     hard_repeat: int = 3
     hard_lr: float = 5e-4
@@ -265,29 +266,35 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
     samples.crops.extend(mined.crops)
     samples.crop_targets.extend(mined.crop_targets)
     refine_losses = _train_refine(net, samples, config, gen)
-    hard_set = plan_runs(
-        runs=config.hard_runs,
-        seed=config.seed + 2,
-        duration_s=config.duration_s,
-        sonar_hz=config.sonar_hz,
-    )
-    fresh = render(hard_set, workers=config.workers, proposal_state=buffer.getvalue())
-    hard = _hard_indices(
-        net,
-        torch.from_numpy(np.stack(fresh.crops)),
-        torch.tensor(fresh.crop_targets, dtype=torch.float32),
-    )
-    print(f"hard examples: {len(hard)} of {len(fresh.crops)} fresh crops")
-    hard_losses = _train_refine(
-        net,
-        fresh,
-        config,
-        gen,
-        label="fine-tuning on hard examples",
-        epochs=config.hard_epochs,
-        lr=config.hard_lr,
-        repeat=hard.repeat(config.hard_repeat - 1),
-    )
+    hard_losses: list[float] = []
+    hard_counts: list[tuple[int, int]] = []  # per round: hard examples, fresh crops
+    for round_index in range(config.hard_rounds):
+        hard_set = plan_runs(
+            runs=config.hard_runs,
+            seed=config.seed + 2 + round_index,
+            duration_s=config.duration_s,
+            sonar_hz=config.sonar_hz,
+        )
+        fresh = render(hard_set, workers=config.workers, proposal_state=buffer.getvalue())
+        hard = _hard_indices(
+            net,
+            torch.from_numpy(np.stack(fresh.crops)),
+            torch.tensor(fresh.crop_targets, dtype=torch.float32),
+        )
+        hard_counts.append((len(hard), len(fresh.crops)))
+        print(
+            f"hard examples, round {round_index + 1}: {len(hard)} of {len(fresh.crops)} fresh crops"
+        )
+        hard_losses += _train_refine(
+            net,
+            fresh,
+            config,
+            gen,
+            label=f"fine-tuning on hard examples, round {round_index + 1}",
+            epochs=config.hard_epochs,
+            lr=config.hard_lr,
+            repeat=hard.repeat(config.hard_repeat - 1),
+        )
     trained_s = time.monotonic() - started
     out_dir.mkdir(parents=True, exist_ok=True)
     weights = out_dir / "polar_net.pt"
@@ -299,8 +306,7 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
             "crops": len(samples.crops),
             "crops_on_rov": n_pos,
             "mined_crops": len(mined.crops),
-            "hard_stage_crops": len(fresh.crops),
-            "hard_examples": len(hard),
+            "hard_examples_and_fresh_crops_per_round": hard_counts,
         },
         "loss": {
             "proposal_first_last": [_mean(proposal_losses[:50]), _mean(proposal_losses[-50:])],

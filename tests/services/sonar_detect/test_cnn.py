@@ -117,6 +117,7 @@ def test_training_is_deterministic_for_a_seed(tmp_path: Path) -> None:
         refine_epochs=1,
         mining_runs=2,
         hard_runs=2,
+        hard_rounds=1,
         hard_epochs=1,
         eval_duration_s=0.3,
     )
