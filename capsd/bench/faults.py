@@ -67,6 +67,7 @@ MAX_AGE_S = 0.3  # the bridge gate's default max_age_s
 # The gate applies max_age_s when it decides; the MAVLink hop to the autopilot comes after it
 # (under 1 ms on loopback): an estimate is stale if it arrives older than the limit plus this.
 HOP_ALLOWANCE_S = 0.005
+VERDICTS = ("ok", "stale", "invalid", "wrong_3sigma", "no_truth")
 TARGET_SERVICE_RECOVERY_S = 3.0
 TARGET_ROUTER_RECOVERY_S = 5.0
 
@@ -433,6 +434,45 @@ def run_separate(
     return w, pipe
 
 
+# A wrong value for a key every service has, and one that is not a mapping at all.
+BAD_CONFIGS = {
+    "bad value": "site: tank\nhealth_period_s: -1\n",
+    "not yaml": "site: [tank\n",
+}
+
+
+def malformed_configs(out: Path) -> Window:
+    """Each service started with each bad config: exit 2 naming the file (and key), quickly."""
+    import subprocess
+
+    w = Window("malformed configs (every service)", time.time())
+    results = []
+    for name in ("sim", *SERVICES):
+        for label, body in BAD_CONFIGS.items():
+            path = out / f"bad_{name}_{label.replace(' ', '_')}.yaml"
+            path.write_text(body)
+            t0 = time.monotonic()
+            done = subprocess.run(
+                [sys.executable, "-m", "capsd", "run", name, "--config", str(path)],
+                capture_output=True,
+                text=True,
+                timeout=60,
+            )
+            named = str(path) in done.stderr and (
+                label != "bad value" or "health_period_s" in done.stderr
+            )
+            results.append((done.returncode == 2 and named, time.monotonic() - t0))
+    w.end = time.time()
+    good = sum(ok for ok, _ in results)
+    slowest = max(t for _, t in results)
+    w.note = (
+        f"{good} of {len(results)} exited 2 naming the file and key (slowest {slowest:.1f} s); "
+        "the units' RestartPreventExitStatus=2: no restart loop"
+    )
+    w.judged = {"config_not_refused": len(results) - good}
+    return w
+
+
 def _judge_into(windows: list[Window], pipe: Pipeline) -> None:
     from services.mav_bridge.service import NedConfig
 
@@ -477,6 +517,7 @@ def bench(
         _judge_into([w], p)
         w.expected_fixes = base_rate * (w.end - w.start)
         windows.append(w)
+    windows.append(malformed_configs(out))
     lines = report(windows)
     for line in lines:
         print(line, file=stream)
@@ -489,6 +530,7 @@ def bench(
         w
         for w in windows
         if sum(w.judged.get(k, 0) for k in ("stale", "invalid", "wrong_3sigma"))
+        or w.judged.get("config_not_refused", 0)
         or (
             w.recovery_target_s is not None
             and (w.recovery_s is None or w.recovery_s > w.recovery_target_s)
@@ -505,7 +547,7 @@ def report(windows: list[Window]) -> list[str]:
     ]
     for w in windows:
         j = w.judged
-        sent = sum(j.values())
+        sent = sum(n for k, n in j.items() if k in VERDICTS)
         lost = max(0, round(w.expected_fixes - w.good_fixes)) if w.expected_fixes else "-"
         rec = "-" if w.recovery_s is None else f"{w.recovery_s:.2f}"
         outage = "-" if w.outage_s is None else f"{w.outage_s:.2f}"
