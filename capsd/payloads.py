@@ -98,6 +98,9 @@ class StreamStats(msgspec.Struct, frozen=True, kw_only=True):
     last_stamp_ns: NonNegInt | None = None
     # Inputs that arrived in Zenoh shared memory (same host, large payloads), not copied in.
     shared_memory: NonNegInt = 0
+    # Median over the last 32 of arrival (this computer's clock) minus stamp_ns: negative
+    # means stamped in this clock's future; large means old on arrival (skew or a slow link).
+    age_ms: float | None = None
 
 
 class LatencyStats(msgspec.Struct, frozen=True, kw_only=True):

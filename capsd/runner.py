@@ -45,6 +45,10 @@ logger = logging.getLogger(__name__)
 
 _ERROR_LOG_INTERVAL_S = 1.0
 _SHUTDOWN_LIMIT_S = 1.5
+# An input whose stamps are this far in the future, or this old on arrival (the bridge's
+# freshness limit), makes the service "degraded" with the reason.
+INPUT_FUTURE_LIMIT_MS = 50.0
+INPUT_AGE_LIMIT_MS = 300.0
 _PUT_TIME_BYTES = 8  # the attachment of every put: the wall clock (ns) when it was put
 
 
@@ -59,6 +63,14 @@ def put_time_ns(sample: zenoh.Sample) -> int | None:
     return int.from_bytes(raw, "little")
 
 
+def _median(values: deque[float]) -> float | None:
+    """The median of at least 10 values, else None (too few to say)."""
+    if len(values) < 10:
+        return None
+    ordered = sorted(values)
+    return ordered[len(ordered) // 2]
+
+
 class StreamCounter:
     """Thread-safe counters of one stream: messages, errors, sequence gaps, rate."""
 
@@ -70,6 +82,7 @@ class StreamCounter:
         self.dropped = 0
         self.seq_regressions = 0
         self.shared_memory = 0
+        self._ages_ms: deque[float] = deque(maxlen=32)
         self._recent_regressions: deque[float] = deque(maxlen=64)
         self.last_stamp_ns: int | None = None
         self._last_seq: int | None = None
@@ -80,7 +93,9 @@ class StreamCounter:
         self._suppressed = 0
 
     def record(self, payload: Payload) -> None:
+        age_ms = (time.time_ns() - payload.stamp_ns) / 1e6
         with self._lock:
+            self._ages_ms.append(age_ms)
             self.count += 1
             self._rate_count += 1
             self.last_stamp_ns = payload.stamp_ns
@@ -91,6 +106,11 @@ class StreamCounter:
                     self.seq_regressions += 1
                     self._recent_regressions.append(time.monotonic())
             self._last_seq = payload.seq
+
+    def age_ms(self) -> float | None:
+        """Median of the recent (arrival - stamp), ms; None before 10 messages."""
+        with self._lock:
+            return _median(self._ages_ms)
 
     def interleaved(self, *, window_s: float = 5.0, threshold: int = 3) -> bool:
         """True when seq went backwards repeatedly of late: more than one publisher."""
@@ -129,6 +149,7 @@ class StreamCounter:
                 seq_regressions=self.seq_regressions,
                 last_stamp_ns=self.last_stamp_ns,
                 shared_memory=self.shared_memory,
+                age_ms=_median(self._ages_ms),
             )
 
 
@@ -189,7 +210,7 @@ class ServiceRunner:
         self._counter_sources: list[Callable[[], Mapping[str, int]]] = []
         self._latencies: list[LatencyRecorder] = []
         self._arrival = threading.local()
-        self._inputs_shared = False
+        self._input_problem: str | None = None
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -454,20 +475,41 @@ class ServiceRunner:
             )
 
     def _check_inputs(self) -> None:
-        """Two publishers on one input key silently mix two measurements: say so, loudly."""
+        """Say so, loudly, when an input is suspect (the service goes "degraded" with why).
+
+        Two publishers on one key silently mix two measurements; stamps in this clock's future
+        or old on arrival mean clock skew or a slow link.
+        """
         with self._lock:
             inputs = list(self._inputs)
+        message = None
         shared = [c.key for c in inputs if c.interleaved()]
         if shared:
             message = (
                 f"input '{shared[0]}' has more than one publisher (its seq keeps going backwards)"
             )
+        for c in inputs:
+            age = c.age_ms()
+            if message is not None or age is None:
+                continue
+            if age < -INPUT_FUTURE_LIMIT_MS:
+                message = (
+                    f"input '{c.key}' is stamped {-age:.0f} ms ahead of this computer's clock "
+                    "(clock skew?)"
+                )
+            elif age > INPUT_AGE_LIMIT_MS:
+                message = (
+                    f"input '{c.key}' arrives {age:.0f} ms after its stamp (clock skew or a slow "
+                    "link?)"
+                )
+        if message is not None:
+            if message != self._input_problem:
+                self._set_last_error(message)
+                logger.warning(message)
             self.set_state("degraded", message)
-            self._set_last_error(message)
-            logger.warning(message)
-            self._inputs_shared = True
-        elif self._inputs_shared:
-            self._inputs_shared = False
+            self._input_problem = message
+        elif self._input_problem is not None:
+            self._input_problem = None
             self.set_state("ok")
 
     def _health_loop(self) -> None:

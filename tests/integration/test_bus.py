@@ -381,6 +381,48 @@ def test_two_publishers_on_one_input_are_flagged(
     assert depth_input.seq_regressions >= 30
 
 
+@pytest.mark.parametrize(("skew_ms", "words"), [(500, "ahead of this computer"), (-800, "after")])
+def test_skewed_input_stamps_are_flagged(
+    spawn: Callable[..., Proc], client: zenoh.Session, endpoint: str, skew_ms: int, words: str
+) -> None:
+    from capsd.payloads import RovDepth
+
+    spawn("run", "locator", "--connect", endpoint)
+    wait_for(
+        lambda: _health(client, "topside", "locator") is not None,
+        timeout_s=15,
+        what="locator health",
+    )
+    codec = Codec(RovDepth)
+    key = topics.ROV_DEPTH.key("tank", "rov")
+    # The ROV's clock runs `skew_ms` ahead of the locator's (negative: behind).
+    for i in range(30):
+        stamp = time.time_ns() + skew_ms * 1_000_000
+        client.put(
+            key,
+            codec.encode(RovDepth(stamp_ns=stamp, seq=i, depth_m=1.0)),
+            encoding=zenoh.Encoding(codec.encoding),
+        )
+        time.sleep(0.02)
+
+    def flagged() -> bool:
+        health = _health(client, "topside", "locator")
+        return (
+            health is not None
+            and health.state == "degraded"
+            and health.last_error is not None
+            and key in health.last_error
+            and words in health.last_error
+        )
+
+    wait_for(flagged, timeout_s=5, what="the skewed input flagged")
+    health = _health(client, "topside", "locator")
+    assert health is not None
+    age = next(s.age_ms for s in health.inputs if s.key == key)
+    assert age is not None
+    assert abs(age + skew_ms) < 100
+
+
 def test_asv_pose_service_tracks_the_simulated_asv(
     spawn: Callable[..., Proc], client: zenoh.Session, endpoint: str, tmp_path: Path
 ) -> None:
