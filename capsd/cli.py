@@ -912,7 +912,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="train the polar CNN detector on simulated runs",
         description="Render simulator runs, train the proposal and refinement networks "
         "(deterministic for a seed), evaluate on held-out runs, write polar_net.pt and "
-        "polar_net.json into --out. Defaults: about 30 minutes on 2 CPU cores.",
+        "polar_net.json into --out. Defaults: about 29 minutes on 2 CPU cores.",
     )
     tdet.add_argument("--out", type=Path, default=Path("services/sonar_detect/weights"))
     tdet.add_argument("--seed", type=int, default=0)
@@ -924,7 +924,7 @@ def build_parser() -> argparse.ArgumentParser:
     tdet.add_argument("--refine-epochs", type=int, default=6)
     tdet.add_argument("--mining-runs", type=int, default=24, help="runs for hard negatives")
     tdet.add_argument("--hard-runs", type=int, default=32, help="runs per hard-example round")
-    tdet.add_argument("--hard-rounds", type=int, default=2, help="hard-example rounds")
+    tdet.add_argument("--hard-rounds", type=int, default=1, help="hard-example rounds")
     tdet.add_argument("--hard-epochs", type=int, default=2)
     tdet.add_argument("--eval-duration", type=float, default=20.0, help="seconds per held-out run")
     tdet.set_defaults(func=_cmd_train_detector)

@@ -55,7 +55,9 @@ class TrainConfig:
     refine_batch: int = 128
     refine_lr: float = 2e-3
     hard_runs: int = 32  # per round
-    hard_rounds: int = 2
+    # One round keeps training under 30 min on 2 cores (29 min); a second round raised
+    # overlap detection 71.9 -> 76.4 % (clear 97.6 % both) but took the total to 32 min.
+    hard_rounds: int = 1
     hard_epochs: int = 2
     hard_repeat: int = 3
     hard_lr: float = 5e-4
