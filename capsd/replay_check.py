@@ -100,7 +100,7 @@ def compare(recorded: dict[int, RovFix], replayed: dict[int, RovFix]) -> Compari
         a, b = recorded[stamp], replayed[stamp]
         inputs_ok = _inputs(a) == _inputs(b)
         quality_ok = a.quality == b.quality
-        raw_ok = a.raw_position_m == b.raw_position_m
+        raw_ok = a.raw_position_m == b.raw_position_m and a.raw_covariance_m2 == b.raw_covariance_m2
         tracked_ok = a.position_m == b.position_m and a.covariance_m2 == b.covariance_m2
         inputs_differed = inputs_differed or not inputs_ok
         if not inputs_differed and not tracked_ok:

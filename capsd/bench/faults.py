@@ -41,7 +41,7 @@ from capsd.bench.lossy_link import LossyLink
 from capsd.bus import open_session
 from capsd.codec import Codec
 from capsd.config import BusConfig
-from capsd.demo import Child, Processes, _free_port, _write_configs
+from capsd.demo import SIM_NICENESS, Child, Processes, _free_port, _write_configs
 from capsd.health import query_health
 from capsd.keys import is_concrete
 from capsd.payloads import RovFix, SimControl, SonarLabel
@@ -212,7 +212,9 @@ class Pipeline:
         )
         time.sleep(1.0)
         for name in ("sim", *SERVICES):
-            self.procs.start(name, self._service_args(name))
+            self.procs.start(
+                name, self._service_args(name), niceness=SIM_NICENESS if name == "sim" else 0
+            )
         self._session = open_session(BusConfig(connect=(self.endpoint,)))
         obs = self.observed
 

@@ -29,7 +29,7 @@ from capsd.bench.footprint import status_kb
 from capsd.bus import open_session
 from capsd.codec import Codec
 from capsd.config import BusConfig
-from capsd.demo import Processes, Watch, _free_port, _write_configs
+from capsd.demo import SIM_NICENESS, Processes, Watch, _free_port, _write_configs
 from capsd.latency import LatencyRecorder, count_above_ms, difference, percentile_ms
 from capsd.payloads import Detection, Health, LatencyStats, RovFix, SonarDetections, SonarFrame
 from capsd.runner import put_time_ns
@@ -235,7 +235,11 @@ def measure_rate(
         procs.start("autopilot", ["-m", "simulator.autopilot", "--port", str(mav_port)])
         time.sleep(1.0)
         for name in ("sim", *SERVICES):
-            procs.start(name, ["-m", "capsd", "run", name, "--config", str(configs[name])])
+            procs.start(
+                name,
+                ["-m", "capsd", "run", name, "--config", str(configs[name])],
+                niceness=SIM_NICENESS if name == "sim" else 0,
+            )
         with open_session(BusConfig(connect=(endpoint,))) as session:
             watch = Watch(session)
             started = time.monotonic()

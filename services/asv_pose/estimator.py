@@ -41,6 +41,12 @@ class EstimatorSettings:
     max_jump_m: float = 0.5
     max_jump_rad: float = math.radians(5.0)
     lost_after: int = 10
+    # Without a scan match for this long the pose is "degraded" (coasting on the last
+    # velocity), and after `coast_limit_s` "lost": a floating ASV is not held by an IMU, and a
+    # fix from a drifting pose is wrong by more than its covariance says (measured: a 5 s
+    # LiDAR dropout gave 19 estimates off by > 3 sigma while the pose still said "ok").
+    coast_degraded_s: float = 0.25
+    coast_limit_s: float = 1.0
     search_interval_s: float = 1.0
     lidar_xy_m: tuple[float, float] = (0.0, 0.0)
     track_fit_scans: int = 11  # ~0.7 s at 15 Hz
@@ -270,9 +276,13 @@ class AsvPoseEstimator:
         cov[3, 3] = cov[4, 4] = math.radians(0.2) ** 2
         cov[5, 5] = self.match_cov[2, 2] + (math.radians(0.5) * age) ** 2
         status: AsvPoseStatus
-        if self.failures >= self.settings.lost_after or self.match_ns is None:
+        if (
+            self.failures >= self.settings.lost_after
+            or self.match_ns is None
+            or age > self.settings.coast_limit_s
+        ):
             status = "lost"
-        elif self.failures > 0:
+        elif self.failures > 0 or age > self.settings.coast_degraded_s:
             status = "degraded"
         else:
             status = "ok"

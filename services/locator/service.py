@@ -148,12 +148,18 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     unmodelled_sigma_m: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.015
 
 
-def _lerp_pose(a: tuple[Array, Array], b: tuple[Array, Array], f: float) -> tuple[Array, Array]:
-    return a[0] + f * (b[0] - a[0]), quat_slerp(a[1], b[1], f)
+# A pose sample: position, orientation (xyzw), 6 x 6 covariance; a depth: metres, sigma.
+PoseSample = tuple[Array, Array, Array]
+DepthSample = tuple[float, float]
 
 
-def _lerp_float(a: float, b: float, f: float) -> float:
-    return a + f * (b - a)
+def _lerp_pose(a: PoseSample, b: PoseSample, f: float) -> PoseSample:
+    # The uncertainty is the later sample's: the newest that went into the value.
+    return a[0] + f * (b[0] - a[0]), quat_slerp(a[1], b[1], f), b[2]
+
+
+def _lerp_depth(a: DepthSample, b: DepthSample, f: float) -> DepthSample:
+    return a[0] + f * (b[0] - a[0]), b[1]
 
 
 def _vec3(v: Array) -> tuple[float, float, float]:
@@ -182,17 +188,17 @@ class Locator:
         )
         extrap = int(config.inputs.max_extrapolation_s * 1e9)
         buffer_s = config.inputs.buffer_s
-        self.poses: Timeline[tuple[Array, Array]] = Timeline(
+        # Each sample keeps its own uncertainty, so a fix uses the one of the samples it used
+        # (never whatever arrived last: a replay would then differ).
+        self.poses: Timeline[PoseSample] = Timeline(
             _lerp_pose, capacity=int(buffer_s * 200), max_extrapolation_ns=extrap
         )
-        self.depths: Timeline[float] = Timeline(
-            _lerp_float, capacity=int(buffer_s * 100), max_extrapolation_ns=extrap
+        self.depths: Timeline[DepthSample] = Timeline(
+            _lerp_depth, capacity=int(buffer_s * 100), max_extrapolation_ns=extrap
         )
         self.attitudes: Timeline[Array] = Timeline(
             quat_slerp, capacity=int(buffer_s * 100), max_extrapolation_ns=extrap
         )
-        self.pose_cov: Array = np.eye(6) * 1e-4
-        self.depth_sigma_m = 0.01
         self.tracker = Tracker(config.tracking.settings())
         # Velocities wait here until the ping they precede, so the tracker sees time in order.
         self._velocities: list[tuple[int, Array, Array]] = []
@@ -211,13 +217,18 @@ class Locator:
         if pose.status == "lost":
             return  # a lost pose is not a pose: fixes needing it are refused as missing
         self._note_arrival(pose.stamp_ns)
-        self.poses.add(pose.stamp_ns, (np.array(pose.position_m), np.array(pose.orientation_xyzw)))
-        self.pose_cov = np.array(pose.covariance).reshape(6, 6)
+        self.poses.add(
+            pose.stamp_ns,
+            (
+                np.array(pose.position_m),
+                np.array(pose.orientation_xyzw),
+                np.array(pose.covariance).reshape(6, 6),
+            ),
+        )
 
     def on_depth(self, depth: RovDepth) -> None:
         self._note_arrival(depth.stamp_ns)
-        self.depths.add(depth.stamp_ns, depth.depth_m)
-        self.depth_sigma_m = depth.sigma_m
+        self.depths.add(depth.stamp_ns, (depth.depth_m, depth.sigma_m))
 
     def on_attitude(self, attitude: RovAttitude) -> None:
         self._note_arrival(attitude.stamp_ns)
@@ -245,7 +256,7 @@ class Locator:
         return line.at(stamp_ns, use="before" if self.method.matching == "causal" else "around")
 
     def _solve(
-        self, detection: Detection, asv: Transform, depth_m: float, attitude: Array
+        self, detection: Detection, asv: Transform, depth: DepthSample, attitude: Array, cov: Array
     ) -> tuple[Array, Array | None] | str:
         """(position, covariance) of one candidate, or why it is no fix."""
         if self.method.geometry == "paper":
@@ -253,7 +264,7 @@ class Locator:
                 sonar_pose=asv.compose(self.mount),
                 range_m=detection.range_m,
                 azimuth_rad=detection.azimuth_rad,
-                depth_m=depth_m,
+                depth_m=depth[0],
             )
             if position is None:
                 return "no_intersection"
@@ -261,28 +272,28 @@ class Locator:
                 return position, None  # the paper's method: no uncertainty at all
             # The paper's geometry under our tracker (the ablation): the tracker needs a
             # covariance; the exact model's at the same inputs is the honest stand-in.
-            exact = self._solve_exact(detection, asv, depth_m, attitude)
-            cov = exact[1] if not isinstance(exact, str) else np.eye(3) * 0.1**2
-            return position, cov
-        return self._solve_exact(detection, asv, depth_m, attitude)
+            exact = self._solve_exact(detection, asv, depth, attitude, cov)
+            fix_cov = exact[1] if not isinstance(exact, str) else np.eye(3) * 0.1**2
+            return position, fix_cov
+        return self._solve_exact(detection, asv, depth, attitude, cov)
 
     def _solve_exact(
-        self, detection: Detection, asv: Transform, depth_m: float, attitude: Array
+        self, detection: Detection, asv: Transform, depth: DepthSample, attitude: Array, cov: Array
     ) -> tuple[Array, Array] | str:
         result = solve_fix(
             asv_pose=asv,
             sonar_mount=self.mount,
             range_m=detection.range_m,
             azimuth_rad=detection.azimuth_rad,
-            rov_z_m=rov_centre_z(depth_m, quat_to_matrix(attitude), self.lever_arm),
+            rov_z_m=rov_centre_z(depth[0], quat_to_matrix(attitude), self.lever_arm),
             vertical_aperture_rad=self.aperture_rad,
             beam_model=self.config.sonar.beam_model,
             max_conditioning=self.config.max_conditioning,
             uncertainty=FixUncertainty(
                 range_sigma_m=max(detection.range_sigma_m, 1e-4),
                 azimuth_sigma_rad=max(detection.azimuth_sigma_rad, 1e-5),
-                rov_z_sigma_m=self.depth_sigma_m,
-                asv_pose_covariance=self.pose_cov,
+                rov_z_sigma_m=depth[1],
+                asv_pose_covariance=cov,
             ),
         )
         if result.position_m is None or result.covariance_m2 is None:
@@ -321,7 +332,7 @@ class Locator:
         if pose.value is not None and depth.value is not None and attitude.value is not None:
             asv = Transform(quat_to_matrix(pose.value[1]), pose.value[0])
             for detection in candidates:
-                solved = self._solve(detection, asv, depth.value, attitude.value)
+                solved = self._solve(detection, asv, depth.value, attitude.value, pose.value[2])
                 if isinstance(solved, str):
                     reasons.append(solved)
                 elif self.config.tank is not None and not self.config.tank.contains(solved[0]):

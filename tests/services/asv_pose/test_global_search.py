@@ -150,3 +150,23 @@ def test_bad_scans_and_imu_gaps_are_counted_and_survived() -> None:
     est = estimator.estimate(int(t * 1e9))
     assert est.status == "ok"
     assert math.hypot(est.position_m[0] - 14.0, est.position_m[1] - 8.0) < 0.05
+
+
+def test_without_scans_the_pose_coasts_briefly_then_is_lost_and_comes_back() -> None:
+    tank = make_tank("nfp")
+    estimator = AsvPoseEstimator(tank_walls(tank.length_m, tank.width_m), heading_prior_rad=0.0)
+    angles = LidarModel().angles()
+    statuses: dict[float, str] = {}
+    for k in range(1200):  # 6 s of IMU at 200 Hz; scans at 15 Hz except from 2 s to 4 s
+        t = k * 0.005
+        stamp = int(t * 1e9)
+        estimator.on_imu(stamp, np.zeros(3), GRAVITY)
+        if k % 13 == 0 and not 2.0 <= t < 4.0:
+            estimator.on_scan(stamp, _scan("nfp", 14.0, 8.0, 0.0, k), angles)
+        if k % 20 == 0:
+            statuses[round(t, 2)] = estimator.estimate(stamp).status
+    assert statuses[1.9] == "ok"
+    assert statuses[2.1] == "ok"  # one missed scan is nothing
+    assert statuses[2.5] == "degraded"  # coasting
+    assert statuses[3.5] == "lost"  # honest: no pose without the LiDAR
+    assert statuses[5.0] == "ok"  # scans back, the match goes on where it was
