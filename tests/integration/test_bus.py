@@ -48,13 +48,14 @@ def test_router_two_services_tap_list_and_sigterm(
         "--connect",
         endpoint,
         "--count",
-        "3",
+        "10",
         "--duration",
         "30",
     )
     assert tap.popen.wait(timeout=40) == 0
     lines = capsd_json_lines(tap.output())
-    assert len(lines) == 3
+    # The first pings may come before two samples of every input (causal matching needs two).
+    assert len(lines) == 10
     assert {line["schema"] for line in lines} == {"RovFix"}
     fixes = [msgspec.convert(line["payload"], RovFix) for line in lines]
     assert any(fix.quality == "good" and fix.raw_position_m is not None for fix in fixes)
