@@ -42,6 +42,7 @@ STAGES: tuple[tuple[str, str, str, str | None], ...] = (
     ("sonar: ping -> frame put", "sim", "sonar frame put after ping", None),
     ("frame transport", "sonar_detect", "transport sonar/frame", "frame"),
     ("detection (arrival -> put)", "sonar_detect", "detection", None),
+    ("  of which detect() itself", "sonar_detect", "detector compute", None),
     ("detections transport", "locator", "transport sonar/detections", "detections"),
     ("fix (arrival -> put)", "locator", "fix", None),
     ("fix transport", "mav_bridge", "transport locator/fix", "fix"),
@@ -312,6 +313,8 @@ def measure_rate(
         "detected": _counter(detect_last, "frames") - _counter(detect_first, "frames"),
         "dropped_stale": _counter(detect_last, "dropped_stale_frames")
         - _counter(detect_first, "dropped_stale_frames"),
+        "dropped_older_than_period": _counter(detect_last, "dropped_older_than_period")
+        - _counter(detect_first, "dropped_older_than_period"),
         "vpe_sent": _counter(last.health.get("mav_bridge"), "gate_sent")
         - _counter(first.health.get("mav_bridge"), "gate_sent"),
     }
@@ -363,7 +366,8 @@ def _report(
         lines.append(
             f"  frames: published {f['published']}, received {f['received']} "
             f"({f['received_in_shared_memory']} in shared memory), detected "
-            f"{f['detected']}, dropped as stale {f['dropped_stale']}; VPE sent {f['vpe_sent']}"
+            f"{f['detected']}, replaced by a newer one {f['dropped_stale']}, older than a period "
+            f"when the detector was free {f['dropped_older_than_period']}; VPE sent {f['vpe_sent']}"
         )
         cpu = "  ".join(f"{n} {c:.2f}" for n, c in sorted(r.cpu_cores.items()))
         services_cpu = sum(r.cpu_cores.get(n, 0.0) for n in SERVICES)

@@ -30,7 +30,12 @@ from services.sonar_detect.polar_input import (
     crop_pair,
     unit_image,
 )
-from services.sonar_detect.polar_net import OFFSET_SCALE_M, PolarNet, load
+from services.sonar_detect.polar_net import (
+    OFFSET_SCALE_M,
+    PolarNet,
+    fused_for_inference,
+    load,
+)
 
 DEFAULT_WEIGHTS = Path(__file__).with_name("weights") / "polar_net.pt"
 LAPLACE_SIGMA = math.sqrt(2.0)  # standard deviation of a Laplace law per unit scale
@@ -60,6 +65,8 @@ class CnnDetector:
         torch.set_num_threads(self.settings.threads)
         self.net = net if net is not None else load(self.settings.weights)
         self.net.eval()
+        self._proposal_net = fused_for_inference(self.net.proposal)
+        self._refine_net = fused_for_inference(self.net.refine)
 
     def detect(self, frame: SonarFrame) -> list[Detection]:
         s = self.settings
@@ -77,7 +84,7 @@ class CnnDetector:
     def _propose(self, frame: SonarFrame, image: Image, table: BeamTable) -> list[Candidate]:
         s = self.settings
         return propose(
-            self.net.proposal,
+            self._proposal_net,
             frame,
             image,
             table,
@@ -103,7 +110,7 @@ class CnnDetector:
                 ]
             )[:, None]
         with torch.inference_mode():
-            out = self.net.refine(torch.from_numpy(crops)).numpy().astype(np.float64)
+            out = self._refine_net(torch.from_numpy(crops)).numpy().astype(np.float64)
         half_fov = table.half_fov_rad
         offset = float(self.net.logit_offset)
         found = []

@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Literal
@@ -95,6 +96,37 @@ class Mailbox:
             return item
 
 
+class Cadence:
+    """The sonar's ping period from the frames' stamps; a frame older than it is stale.
+
+    A newer frame is then already on its way: detecting the old one would only delay it (and
+    hand the locator a ping whose inputs it may have let go). Applied only while the stamps
+    make sense here (frames arrive less than a period after their stamp, and the period is
+    a sonar's, >= 5 ms); skewed clocks or replayed stamps leave only the mailbox's rule.
+    """
+
+    MIN_PERIOD_NS = 5_000_000
+
+    def __init__(self) -> None:
+        self._last_stamp_ns: int | None = None
+        self._periods_ns: deque[int] = deque(maxlen=9)
+        self._arrival_ages_ns: deque[int] = deque(maxlen=9)
+
+    def too_old(self, stamp_ns: int, *, received_ns: int, now_ns: int) -> bool:
+        if self._last_stamp_ns is not None and stamp_ns > self._last_stamp_ns:
+            self._periods_ns.append(stamp_ns - self._last_stamp_ns)
+        self._last_stamp_ns = stamp_ns
+        self._arrival_ages_ns.append(received_ns - stamp_ns)
+        if len(self._periods_ns) < 3:
+            return False
+        # Medians: a dropped frame makes one gap look long, one slow frame one age.
+        period = sorted(self._periods_ns)[len(self._periods_ns) // 2]
+        typical_age = sorted(self._arrival_ages_ns)[len(self._arrival_ages_ns) // 2]
+        if period < self.MIN_PERIOD_NS or not 0 <= typical_age <= period:
+            return False
+        return now_ns - stamp_ns > period
+
+
 def make_detector(config: Config) -> Detect:
     """The configured detector, its weights loaded: a bad weights file is a config error."""
     if config.detector == "classical":
@@ -124,7 +156,14 @@ def main(config: Config) -> int:
     """Run the detector until stopped."""
     detect = make_detector(config)
     mailbox = Mailbox()
-    counts = {"frames": 0, "detections": 0, "snapshots": 0, "errors": 0}
+    counts = {
+        "frames": 0,
+        "detections": 0,
+        "snapshots": 0,
+        "errors": 0,
+        "dropped_older_than_period": 0,
+    }
+    cadence = Cadence()
     with ServiceRunner("sonar_detect", config) as runner:
         out: Publisher[SonarDetections] = runner.publisher(topics.SONAR_DETECTIONS)
         runner.add_counters(lambda: {**counts, "dropped_stale_frames": mailbox.dropped})
@@ -132,6 +171,7 @@ def main(config: Config) -> int:
         age_at_start = runner.latency("frame age at detection start")
         # Frame arrival to detections put: decoding, waiting for the worker, detecting, encoding.
         stage = runner.latency("detection")
+        inference = runner.latency("detector compute")  # the detect() call alone
         runner.subscribe(
             topics.SONAR_FRAME,
             lambda frame: mailbox.put(frame, runner.received_ns()),
@@ -146,9 +186,17 @@ def main(config: Config) -> int:
                 if item is None:
                     continue
                 frame, received_ns = item
-                age_at_start.record_ns(time.time_ns() - frame.stamp_ns)
+                now_ns = time.time_ns()
+                age_ns = now_ns - frame.stamp_ns
+                if cadence.too_old(frame.stamp_ns, received_ns=received_ns, now_ns=now_ns):
+                    counts["dropped_older_than_period"] += 1
+                    continue
+                age_at_start.record_ns(age_ns)
                 try:
-                    found = [d for d in detect(frame) if d.confidence >= config.min_confidence]
+                    started_ns = time.time_ns()
+                    candidates = detect(frame)
+                    inference.record_ns(time.time_ns() - started_ns)
+                    found = [d for d in candidates if d.confidence >= config.min_confidence]
                     out.put(
                         SonarDetections(
                             stamp_ns=frame.stamp_ns,

@@ -130,3 +130,27 @@ def test_bad_recording_or_weights_is_a_config_error(
     proc = spawn("run", service, "--config", str(config), "--connect", endpoint)
     assert proc.popen.wait(timeout=30) == 2
     assert where in proc.output()
+
+
+def test_cadence_refuses_a_frame_older_than_the_ping_period() -> None:
+    from services.sonar_detect.service import Cadence
+
+    cadence = Cadence()
+    period, ms = 25_000_000, 1_000_000  # 40 Hz
+    t0 = 10**18
+
+    def old(k: int, *, waited_ms: float) -> bool:
+        stamp = t0 + k * period
+        received = stamp + 3 * ms
+        return cadence.too_old(stamp, received_ns=received, now_ns=received + int(waited_ms * ms))
+
+    for k in range(5):
+        assert not old(k, waited_ms=1)
+    assert not old(5, waited_ms=20)  # 23 ms after its ping
+    assert old(6, waited_ms=23)  # 26 ms after its ping: a newer one is on its way
+    assert old(8, waited_ms=23)  # a dropped frame (one long gap) does not change the period
+    # Stamps from another clock (or a replay): ages mean nothing, only the mailbox rule holds.
+    skewed = Cadence()
+    for k in range(6):
+        stamp = t0 + k * period
+        assert not skewed.too_old(stamp, received_ns=stamp + 900 * ms, now_ns=stamp + 990 * ms)
