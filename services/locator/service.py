@@ -70,9 +70,9 @@ class MethodConfig(ConfigSection, frozen=True, kw_only=True):
 
     preset: Literal["capsd", "paper", "custom"] = "capsd"
     geometry: Literal["exact", "paper"] = "exact"
-    # causal: inputs stamped before the ping, extrapolated to it (deterministic under replay:
-    # nothing that arrives with or after the ping counts); interpolate: also the samples at or
-    # after it when they are in by then; latest: the newest sample (the paper's matching).
+    # causal: inputs stamped at or before the ping, extrapolated to it (deterministic under
+    # replay: nothing stamped after the ping counts); interpolate: also the samples after it
+    # when they are in by then; latest: the newest sample (the paper's matching).
     matching: Literal["causal", "interpolate", "latest"] = "causal"
     lever_arm: Literal["correct", "ignore"] = "correct"
     tracking: Literal["filter", "per_frame"] = "filter"

@@ -27,11 +27,12 @@ class Timeline(Generic[T]):
 
     `at(t)` interpolates between the samples around t; past the newest sample it
     extrapolates from the last two only up to `max_extrapolation_ns`, else it refuses.
-    With `use="before"` only samples stamped strictly before t count (extrapolated from the
-    last two of them): the value then does not depend on anything that may arrive with or
-    after the ping (Zenoh runs different subscribers' callbacks on different threads, so a
-    sample stamped at the ping itself can race the ping), and a replay gives the very same
-    value as live.
+    With `use="before"` only samples stamped at or before t count (one at t itself, or an
+    extrapolation from the last two before it): the value then does not depend on anything
+    that arrives after the ping, and a replay gives the very same value as live. (A sample
+    stamped exactly at the ping can still race it when both are put at the same instant, as
+    the simulator's truth detections are: Zenoh runs different subscribers' callbacks on
+    different threads. Real detections come a detection time after their ping.)
     """
 
     def __init__(
@@ -72,10 +73,10 @@ class Timeline(Generic[T]):
             if n == 0:
                 return Lookup(None, None, "no_samples")
             i = bisect.bisect_left(self._stamps, stamp_ns)
-            if use == "before":
-                n = i  # samples stamped at t or later are not looked at
-            elif i < n and self._stamps[i] == stamp_ns:
+            if i < n and self._stamps[i] == stamp_ns:
                 return Lookup(self._values[i], stamp_ns)
+            if use == "before":
+                n = i  # samples stamped after t are not looked at
             if i == 0:
                 return Lookup(None, self._stamps[0], "too_old")
             if i < n:

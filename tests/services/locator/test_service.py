@@ -64,12 +64,14 @@ def test_fix_at_the_true_position() -> None:
     assert fix.quality == "good"
     assert fix.raw_position_m is not None
     assert np.allclose(fix.raw_position_m, ROV, atol=1e-6)
-    # Causal matching: the newest input stamped before the ping (the one at it could race it).
-    assert fix.asv_pose_stamp_ns == SECOND // 2 - SECOND // 50
+    assert fix.asv_pose_stamp_ns == SECOND // 2  # causal matching: the sample at the ping
+    # Between samples, causal matching extrapolates from the two before the ping.
+    fix = locator.locate(_ping(SECOND // 2 + SECOND // 100, _detection_of(locator, ROV)), seq=1)
+    assert fix.asv_pose_stamp_ns == SECOND // 2
     interpolating = _locator(method=MethodConfig(preset="custom", matching="interpolate"))
     _feed_inputs(interpolating, until_s=1.0)
-    fix = interpolating.locate(_ping(SECOND // 2, _detection_of(interpolating, ROV)), seq=0)
-    assert fix.asv_pose_stamp_ns == SECOND // 2
+    ping = _ping(SECOND // 2 + SECOND // 100, _detection_of(interpolating, ROV))
+    assert interpolating.locate(ping, seq=0).asv_pose_stamp_ns == SECOND // 2
 
 
 def test_stale_and_missing_inputs_give_reasons_not_fixes() -> None:
