@@ -78,8 +78,11 @@ def test_record_then_replay_into_a_fresh_locator_gives_the_same_fixes(
 
     # Replayed into a fresh locator (its own router), twice as fast: the very same fixes,
     # bit for bit (causal input matching makes a fix independent of later arrivals), except
-    # where the live locator solved a ping before an input stamped ahead of it arrived (a
-    # loaded machine): then that fix names other inputs, and the track after it may differ.
+    # where the live locator solved a ping before an input stamped at or before it arrived:
+    # then that fix names other inputs, and the track after it may differ. Here that is
+    # common: the simulator's truth detections are put at the ping's instant, right after
+    # the depth and attitude sampled at that instant, and Zenoh may hand the locator either
+    # first (real detections come a detection time later: the demo replays 100 % identical).
     check = _capsd(
         "replay-check",
         str(mcap_file),
@@ -93,7 +96,7 @@ def test_record_then_replay_into_a_fresh_locator_gives_the_same_fixes(
     assert f"recorded {counts[FIX_KEY]}, replayed {counts[FIX_KEY]}," in check.stdout
     assert "same inputs but a different fix (must be 0): 0" in check.stdout
     identical = int(check.stdout.split("raw fix identical")[1].split()[0])
-    assert identical >= 0.95 * counts[FIX_KEY]
+    assert identical >= 0.8 * counts[FIX_KEY]
 
 
 def test_bad_recordings_are_named(tmp_path: Path) -> None:
