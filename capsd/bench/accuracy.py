@@ -87,7 +87,7 @@ def report(figures: dict[str, Any]) -> str:
         f"(two_floor {LONGER['two_floor'] * figures['duration_s']:g} s, to reach the lower floor), "
         f"simulator seed {figures['seed']}, default sensor noise. The paper's method: per-frame "
         "fix, planar beam, perfect fan-image box centre, latest-value inputs, no lever arm, "
-        "accelerometer-trusting tilt. Ours: polar CNN, exact conical geometry, interpolated "
+        "accelerometer-trusting tilt. Ours: polar CNN, exact conical geometry, causally matched "
         "inputs, lever arm, tracking filter, gyro-dominant tilt. Errors are of what the "
         "autopilot would be sent (good fixes only); availability is the share of pings with one.",
         "",
