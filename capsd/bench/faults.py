@@ -483,6 +483,11 @@ def _judge_into(windows: list[Window], pipe: Pipeline) -> None:
     with pipe.observed.lock:
         labels = dict(pipe.observed.labels)
     verdicts = judge(estimates, labels, ned)
+    # Kept for a look at any estimate judged wrong: what was sent, the verdict, the truth.
+    with (pipe.out / "verdicts.jsonl").open("w") as out:
+        for e, (_, verdict) in zip(estimates, verdicts, strict=True):
+            truth = labels.get(int(e["usec"]))
+            out.write(json.dumps({**e, "verdict": verdict, "truth_tank_m": truth}) + "\n")
     arrivals = sorted(float(e["arrival_s"]) for e in estimates)
     for w in windows:
         if w.resume_from is not None:
