@@ -20,6 +20,7 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
@@ -153,6 +154,43 @@ def _write_configs(
     return paths
 
 
+def decoder(
+    codec: Codec[Any],
+    sink: Callable[[Any], None],
+    *,
+    on_error: Callable[[], None] = lambda: None,
+) -> Callable[[zenoh.Sample], None]:
+    """A Zenoh callback that decodes each concrete-keyed sample into `sink` (bad ones: on_error)."""
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        if not is_concrete(key):
+            return
+        try:
+            value = codec.decode(
+                sample.payload.to_bytes(), encoding=str(sample.encoding), key_expr=key
+            )
+        except PayloadError:
+            on_error()
+            return
+        sink(value)
+
+    return on_sample
+
+
+def start_service(procs: Processes, name: str, config: Path) -> Child:
+    """`capsd run NAME --config CONFIG` as a child; the simulator niced.
+
+    It stands in for sensors with processors of their own: it renders ahead and yields the CPU
+    to the system it feeds (its lateness is measured).
+    """
+    return procs.start(
+        name,
+        ["-m", "capsd", "run", name, "--config", str(config)],
+        niceness=SIM_NICENESS if name == "sim" else 0,
+    )
+
+
 class Watch:
     """The demo's own Zenoh client: fixes and labels paired, health polled."""
 
@@ -172,20 +210,10 @@ class Watch:
         ]
 
     def _decoder(self, codec: Codec[Any], sink: Any) -> Any:
-        def on_sample(sample: zenoh.Sample) -> None:
-            key = str(sample.key_expr)
-            if not is_concrete(key):
-                return
-            try:
-                value = codec.decode(
-                    sample.payload.to_bytes(), encoding=str(sample.encoding), key_expr=key
-                )
-            except PayloadError:
-                self.decode_errors += 1  # reported in the summary; the services count theirs
-                return
-            sink(value)
+        def on_error() -> None:
+            self.decode_errors += 1  # reported in the summary; the services count theirs
 
-        return on_sample
+        return decoder(codec, sink, on_error=on_error)
 
     def _on_fix(self, fix: RovFix) -> None:
         self.pairing.add_fix(fix)
@@ -257,14 +285,8 @@ def main(
             args = ["cap/**", "-o", str(record), "--exclude", "cap/*/*/sonar/frame"]
             procs.start("recorder", ["-m", "capsd", "record", *args, "--connect", endpoint])
         time.sleep(1.0)
-        for name in ("sim", "asv_pose", "sonar_detect", "locator", "mav_bridge"):
-            # The simulator stands in for sensors with their own processors: it renders ahead
-            # and yields the CPU to the system it feeds (its lateness is measured).
-            procs.start(
-                name,
-                ["-m", "capsd", "run", name, "--config", str(configs[name])],
-                niceness=SIM_NICENESS if name == "sim" else 0,
-            )
+        for _, name in SERVICES:
+            start_service(procs, name, configs[name])
         with open_session(BusConfig(connect=(endpoint,))) as session:
             watch = Watch(session)
             t0 = time.monotonic()

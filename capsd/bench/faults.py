@@ -27,7 +27,6 @@ import sys
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
@@ -41,9 +40,9 @@ from capsd.bench.lossy_link import LossyLink
 from capsd.bus import open_session
 from capsd.codec import Codec
 from capsd.config import BusConfig
-from capsd.demo import SIM_NICENESS, Child, Processes, _free_port, _write_configs
+from capsd.demo import SERVICES as DEMO_SERVICES
+from capsd.demo import Child, Processes, _free_port, _write_configs, decoder, start_service
 from capsd.health import query_health
-from capsd.keys import is_concrete
 from capsd.payloads import RovFix, SimControl, SonarLabel
 
 SERVICES = ("asv_pose", "sonar_detect", "locator", "mav_bridge")
@@ -55,13 +54,7 @@ def _free_udp_port() -> int:
         return int(sock.getsockname()[1])
 
 
-VEHICLES = {
-    "sim": "sim",
-    "asv_pose": "asv",
-    "sonar_detect": "asv",
-    "locator": "topside",
-    "mav_bridge": "rov_ap",
-}
+VEHICLES = {service: vehicle for vehicle, service in DEMO_SERVICES}
 RESTART_S = 1.0  # the systemd units' RestartSec
 MAX_AGE_S = 0.3  # the bridge gate's default max_age_s
 # The gate applies max_age_s when it decides; the MAVLink hop to the autopilot comes after it
@@ -121,21 +114,6 @@ class Observed:
             return sum(1 for a, q in self.fixes if t0 <= a < t1 and q == "good")
 
 
-def _decoder(codec: Codec[Any], sink: Callable[[Any], None]) -> Callable[[zenoh.Sample], None]:
-    def on_sample(sample: zenoh.Sample) -> None:
-        key = str(sample.key_expr)
-        if not is_concrete(key):
-            return
-        try:
-            sink(
-                codec.decode(sample.payload.to_bytes(), encoding=str(sample.encoding), key_expr=key)
-            )
-        except Exception:
-            return  # the services count bad input; the bench only watches
-
-    return on_sample
-
-
 class Pipeline:
     """The demo's processes, with handles to kill, restart and mute them."""
 
@@ -176,9 +154,6 @@ class Pipeline:
         self._session: zenoh.Session | None = None
         self._subs: list[Any] = []
 
-    def _service_args(self, name: str) -> list[str]:
-        return ["-m", "capsd", "run", name, "--config", str(self.configs[name])]
-
     def start(self) -> None:
         if self.link_jitter_s is not None:
             udp = f"udp/127.0.0.1:{self._udp_topside}"
@@ -212,9 +187,7 @@ class Pipeline:
         )
         time.sleep(1.0)
         for name in ("sim", *SERVICES):
-            self.procs.start(
-                name, self._service_args(name), niceness=SIM_NICENESS if name == "sim" else 0
-            )
+            start_service(self.procs, name, self.configs[name])
         self._session = open_session(BusConfig(connect=(self.endpoint,)))
         obs = self.observed
 
@@ -231,10 +204,10 @@ class Pipeline:
 
         self._subs = [
             self._session.declare_subscriber(
-                topics.ROV_FIX.key("tank", "topside"), _decoder(Codec(RovFix), on_fix)
+                topics.ROV_FIX.key("tank", "topside"), decoder(Codec(RovFix), on_fix)
             ),
             self._session.declare_subscriber(
-                topics.SIM_LABEL.key("tank", "sim"), _decoder(Codec(SonarLabel), on_label)
+                topics.SIM_LABEL.key("tank", "sim"), decoder(Codec(SonarLabel), on_label)
             ),
         ]
 
@@ -254,7 +227,7 @@ class Pipeline:
         if name == "router":
             self.start_router()
         else:
-            self.procs.start(name, self._service_args(name))
+            start_service(self.procs, name, self.configs[name])
 
     def mute(self, streams: tuple[str, ...], for_s: float) -> None:
         assert self._session is not None

@@ -29,7 +29,7 @@ from capsd.bench.footprint import status_kb
 from capsd.bus import open_session
 from capsd.codec import Codec
 from capsd.config import BusConfig
-from capsd.demo import SIM_NICENESS, Processes, Watch, _free_port, _write_configs
+from capsd.demo import Processes, Watch, _free_port, _write_configs, start_service
 from capsd.latency import LatencyRecorder, count_above_ms, difference, percentile_ms
 from capsd.payloads import Detection, Health, LatencyStats, RovFix, SonarDetections, SonarFrame
 from capsd.runner import put_time_ns
@@ -56,13 +56,6 @@ TARGET_E2E_P99_MS = 60.0
 TARGET_CPU_CORES = 1.2
 TARGET_BRIDGE_RSS_MB = 80.0
 TARGET_DETECTOR_RSS_MB = 400.0
-VEHICLES = {
-    "sim": "sim",
-    "asv_pose": "asv",
-    "sonar_detect": "asv",
-    "locator": "topside",
-    "mav_bridge": "rov_ap",
-}
 
 
 @dataclass
@@ -236,11 +229,7 @@ def measure_rate(
         procs.start("autopilot", ["-m", "simulator.autopilot", "--port", str(mav_port)])
         time.sleep(1.0)
         for name in ("sim", *SERVICES):
-            procs.start(
-                name,
-                ["-m", "capsd", "run", name, "--config", str(configs[name])],
-                niceness=SIM_NICENESS if name == "sim" else 0,
-            )
+            start_service(procs, name, configs[name])
         with open_session(BusConfig(connect=(endpoint,))) as session:
             watch = Watch(session)
             started = time.monotonic()
