@@ -13,7 +13,7 @@ import torch
 from capsd.errors import CapsdError
 from capsd.geometry import Transform, euler_zyx_to_matrix
 from capsd.payloads import SonarFrame
-from services.sonar_detect.cnn import DEFAULT_WEIGHTS, CnnDetector
+from services.sonar_detect.cnn import DEFAULT_WEIGHTS, CnnDetector, CnnSettings
 from services.sonar_detect.polar_net import PolarNet, load
 from services.sonar_detect.train import TrainConfig, focal_loss, refine_loss, train
 from simulator.scene import BLUEROV2_SEMI_AXES, Ellipsoid
@@ -68,6 +68,47 @@ def test_quiet_on_an_empty_fan(detector: CnnDetector) -> None:
         for seed in range(10)
     )
     assert alarms / 10 <= 0.1
+
+
+def test_tracks_between_whole_frame_searches() -> None:
+    """At 40 Hz the proposal net runs every 0.1 s; the tracked frames are as precise."""
+    tank = make_tank("nfp")
+    renderer = SonarRenderer(SonarModel(range_max_m=20.0, n_ranges=1000), tank)
+    sonar = Transform(euler_zyx_to_matrix(0.0, math.radians(30.0), 0.0), np.array([6.0, 8.0, -0.2]))
+    tracking = CnnDetector()
+    every_frame = CnnDetector(CnnSettings(search_every_s=0.0))
+
+    def frame_at(k: int, *, rov: bool = True) -> tuple[SonarFrame, float]:
+        range_m = 4.0 + 1.0 * k * 0.025  # 1 m/s away from the sonar
+        body = Ellipsoid(
+            sonar.apply(range_m * np.array([math.cos(0.2), math.sin(0.2), 0.0])),
+            euler_zyx_to_matrix(0.6, 0.0, 0.0),
+            BLUEROV2_SEMI_AXES,
+        )
+        ping = renderer.render(sonar, body if rov else None, np.random.default_rng(k))
+        stamp_ns = 1_000_000_000 + k * 25_000_000
+        return renderer.frame(ping, stamp_ns=stamp_ns, seq=k, ping_id=k), range_m
+
+    for k in range(12):
+        frame, range_m = frame_at(k)
+        tracked = [d for d in tracking.detect(frame) if d.confidence > 0.5]
+        searched = [d for d in every_frame.detect(frame) if d.confidence > 0.5]
+        assert tracked, f"ping {k}: the ROV must stay detected"
+        assert abs(tracked[0].range_m - range_m) < 0.05
+        assert abs(tracked[0].range_m - searched[0].range_m) < 0.03
+        assert abs(tracked[0].azimuth_rad - searched[0].azimuth_rad) * range_m < 0.03
+    assert (tracking.searches, tracking.tracked) == (3, 9)  # pings 0, 4 and 8 searched
+    assert every_frame.searches == 12
+
+    # A stamp going backwards (a replay, a restarted sonar) is searched whole.
+    tracking.detect(frame_at(0)[0])
+    assert tracking.searches == 4
+    # The ROV gone (tracked, nothing confident found): the next ping is searched whole.
+    empty, _ = frame_at(1, rov=False)
+    assert not [d for d in tracking.detect(empty) if d.confidence > 0.5]
+    assert (tracking.searches, tracking.tracked) == (4, 10)
+    tracking.detect(frame_at(2)[0])
+    assert tracking.searches == 5
 
 
 def test_shipped_weights_are_small_and_documented() -> None:
