@@ -11,7 +11,7 @@ back to (R, theta).
 
 Throughput (`--throughput`): per-frame latency of each detector on 512-beam x 1000-bin frames,
 pinned to one CPU core (one torch and one OpenCV thread), median and p99; the CNN both with
-the service's tracking (frames 25 ms apart) and searching every frame (the worst case).
+the service's tracking (frames 25 ms apart) and searching every frame alone (the worst case).
 """
 
 from __future__ import annotations
@@ -183,10 +183,11 @@ def _detectors(which: str) -> dict[str, Detector]:
     if which in ("all", "cnn"):
         from services.sonar_detect.cnn import CnnDetector, CnnSettings
 
-        # The service's settings (tracking between whole-frame searches), and the network on
-        # every frame alone (what the weights' stored evaluation measures).
+        # The service's settings (tracking between whole-frame searches, the track's prior),
+        # and the network searching every frame alone (what the weights' evaluation measures).
         out["cnn"] = CnnDetector().detect
-        out["cnn, search every frame"] = CnnDetector(CnnSettings(search_every_s=0.0)).detect
+        every_frame = CnnSettings(search_every_s=0.0, track_prior_logit=0.0)
+        out["cnn, every frame alone"] = CnnDetector(every_frame).detect
     return out
 
 
@@ -194,8 +195,8 @@ def evaluate_cnn(net: Any, *, duration_s: float) -> dict[str, Any]:
     """The evaluation stored with trained weights: the CNN and the baseline, as JSON figures."""
     from services.sonar_detect.cnn import CnnDetector, CnnSettings
 
-    # The network alone, on every frame (no tracking between searches).
-    detector = CnnDetector(CnnSettings(search_every_s=0.0), net=net)
+    # The network alone, on every frame (no tracking between searches, no track prior).
+    detector = CnnDetector(CnnSettings(search_every_s=0.0, track_prior_logit=0.0), net=net)
     tallies = evaluate({"cnn": detector.detect}, duration_s=duration_s)
     return {
         "runs": [list(r) for r in RUNS],
@@ -270,7 +271,7 @@ def run_throughput(*, frames: int = 200, which: str = "all") -> int:
         median = statistics.median(times)
         p99 = float(np.percentile(times, 99))
         verdict = ""
-        if name == "cnn, search every frame":  # the worst case: the target applies to it
+        if name == "cnn, every frame alone":  # the worst case: the target applies to it
             verdict = f"  (target median <= 15 ms: {'met' if median <= 15.0 else 'NOT met'})"
         print(
             f"{name:<24} {shape}, one core: median {median:.1f} ms, p99 {p99:.1f} ms, "

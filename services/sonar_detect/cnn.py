@@ -23,6 +23,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+import msgspec
 import numpy as np
 import torch
 from torch.nn import functional
@@ -58,6 +59,14 @@ class CnnSettings:
     threads: int = 1  # torch intra-op threads: one core keeps the service's CPU predictable
     search_every_s: float = 0.1  # ping time between whole-frame searches; 0: every frame
     track_confidence: float = 0.5  # detections at least this confident are tracked
+    # Hysteresis: a candidate within `track_gate_m` of a tracked detection of a ping at most
+    # `track_max_gap_s` before has this added to its logit (an ROV seen 25 ms ago is likelier
+    # there than anywhere else the proposal net points to). 2.0 was chosen on the validation
+    # runs (seeds 301-306, 30 s each): clear-ping detection 98.4 -> 99.1 %, false alarms per
+    # frame flat at 0.001 (they rose at 3.0); the held-out runs were not looked at for it.
+    track_prior_logit: float = 2.0
+    track_gate_m: float = 0.3
+    track_max_gap_s: float = 0.2
 
 
 @dataclass(frozen=True)
@@ -127,6 +136,14 @@ class CnnDetector:
             found = self._refine(frame, image, table, candidates)
             candidates = [Candidate(d.range_m, d.azimuth_rad) for d in found]
         merged = self._merge(found)
+        if (
+            track is not None
+            and s.track_prior_logit != 0.0
+            and track.geometry == _geometry(frame)
+            and 0 < frame.stamp_ns - track.stamp_ns <= s.track_max_gap_s * 1e9
+        ):
+            prior = [self._with_prior(d, track.candidates) for d in merged]
+            merged = sorted(prior, key=lambda d: -d.confidence)
         self._track = _Track(
             [
                 Candidate(d.range_m, d.azimuth_rad)
@@ -138,6 +155,17 @@ class CnnDetector:
             _geometry(frame),
         )
         return merged
+
+    def _with_prior(self, d: Detection, tracked: list[Candidate]) -> Detection:
+        """`d` with the track's prior added to its logit when it continues a tracked one."""
+        s = self.settings
+        if not any(_distance_to(d, c) < s.track_gate_m for c in tracked):
+            return d
+        c = min(max(d.confidence, 1e-12), 1.0 - 1e-12)
+        logit = math.log(c / (1.0 - c)) + s.track_prior_logit
+        return msgspec.structs.replace(
+            d, confidence=1.0 / (1.0 + math.exp(-min(max(logit, -30.0), 30.0)))
+        )
 
     def _propose(self, frame: SonarFrame, image: Image, table: BeamTable) -> list[Candidate]:
         s = self.settings
@@ -240,6 +268,12 @@ def propose(
             )
         )
     return out
+
+
+def _distance_to(d: Detection, c: Candidate) -> float:
+    dx = d.range_m * math.cos(d.azimuth_rad) - c.range_m * math.cos(c.azimuth_rad)
+    dy = d.range_m * math.sin(d.azimuth_rad) - c.range_m * math.sin(c.azimuth_rad)
+    return math.hypot(dx, dy)
 
 
 def _distance(a: Detection, b: Detection) -> float:

@@ -53,6 +53,9 @@ class CnnConfig(ConfigSection, frozen=True, kw_only=True):
     # Ping time between whole-frame searches; between them only the last ping's confident
     # detections are refined (a quarter of the work at 40 Hz). 0: search every frame.
     search_every_s: Annotated[float, msgspec.Meta(ge=0.0, le=10.0)] = 0.1
+    # Added to the logit of a candidate that continues a detection of the last ping (<= 0.2 s
+    # before, within 0.3 m): hysteresis, so a ROV at the beam's edge is not dropped. 0: none.
+    track_prior_logit: Annotated[float, msgspec.Meta(ge=0.0, le=10.0)] = 2.0
     threads: Annotated[int, msgspec.Meta(ge=1, le=64)] = 1
 
 
@@ -149,6 +152,7 @@ def make_detector(config: Config) -> Detect:
         refine_passes=c.refine_passes,
         threads=c.threads,
         search_every_s=c.search_every_s,
+        track_prior_logit=c.track_prior_logit,
         track_confidence=config.min_confidence,
     )
     try:

@@ -353,8 +353,8 @@ def calibrate(net: PolarNet, *, duration_s: float) -> dict[str, Any]:
     from simulator.sim import Simulation
 
     net.logit_offset.zero_()
-    # Every frame searched: the refiner's logits on every proposal, tracking or not.
-    detector = CnnDetector(CnnSettings(search_every_s=0.0), net=net)
+    # Every frame searched, no track prior: the refiner's own logits on every proposal.
+    detector = CnnDetector(CnnSettings(search_every_s=0.0, track_prior_logit=0.0), net=net)
     false_logits: list[float] = []
     hit_logits: list[float] = []  # per visible ping: the best matching candidate, or -inf
     frames = 0

@@ -100,6 +100,16 @@ def test_tracks_between_whole_frame_searches() -> None:
     assert (tracking.searches, tracking.tracked) == (3, 9)  # pings 0, 4 and 8 searched
     assert every_frame.searches == 12
 
+    # The track's prior: the same candidates, 2.0 added to the logit of those continuing one.
+    with_prior = CnnDetector(CnnSettings(track_prior_logit=2.0))
+    without = CnnDetector(CnnSettings(track_prior_logit=0.0))
+    for k in range(3):
+        frame, _ = frame_at(k)
+        a, b = with_prior.detect(frame)[0], without.detect(frame)[0]
+        assert (a.range_m, a.azimuth_rad) == (b.range_m, b.azimuth_rad)
+        logit = math.log(b.confidence / (1.0 - b.confidence)) + (2.0 if k > 0 else 0.0)
+        assert a.confidence == pytest.approx(1.0 / (1.0 + math.exp(-logit)), rel=1e-9)
+
     # A stamp going backwards (a replay, a restarted sonar) is searched whole.
     tracking.detect(frame_at(0)[0])
     assert tracking.searches == 4
