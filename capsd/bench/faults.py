@@ -152,6 +152,7 @@ class Pipeline:
         self._mav_port = mav_port
         self.observed = Observed()
         self._session: zenoh.Session | None = None
+        self._truth_session: zenoh.Session | None = None
         self._subs: list[Any] = []
 
     def start(self) -> None:
@@ -189,6 +190,13 @@ class Pipeline:
         for name in ("sim", *SERVICES):
             start_service(self.procs, name, self.configs[name])
         self._session = open_session(BusConfig(connect=(self.endpoint,)))
+        # The simulator's truth is read where it is published: on a degraded link it would
+        # cross the link too, and estimates whose labels were lost could not be judged.
+        self._truth_session = (
+            self._session
+            if self.link_jitter_s is None
+            else open_session(BusConfig(connect=(self.asv_endpoint,)))
+        )
         obs = self.observed
 
         def on_fix(fix: RovFix) -> None:
@@ -206,7 +214,7 @@ class Pipeline:
             self._session.declare_subscriber(
                 topics.ROV_FIX.key("tank", "topside"), decoder(Codec(RovFix), on_fix)
             ),
-            self._session.declare_subscriber(
+            self._truth_session.declare_subscriber(
                 topics.SIM_LABEL.key("tank", "sim"), decoder(Codec(SonarLabel), on_label)
             ),
         ]
@@ -264,6 +272,8 @@ class Pipeline:
     def stop(self) -> dict[str, int | None]:
         for sub in self._subs:
             sub.undeclare()
+        if self._truth_session is not None and self._truth_session is not self._session:
+            self._truth_session.close()
         if self._session is not None:
             self._session.close()
         codes = self.procs.stop()

@@ -331,8 +331,12 @@ class Locator:
                 reasons.append(f"{name}_{lookup.failure}")
         if pose.value is not None and depth.value is not None and attitude.value is not None:
             asv = Transform(quat_to_matrix(pose.value[1]), pose.value[0])
+            # A depth extrapolated from its last two readings carries their noise amplified
+            # (x2.2 one reading gap past the newest; more when readings are lost on a link).
+            depth_m, depth_sigma_m = depth.value
+            depth_sample = (depth_m, depth_sigma_m * depth.noise_gain)
             for detection in candidates:
-                solved = self._solve(detection, asv, depth.value, attitude.value, pose.value[2])
+                solved = self._solve(detection, asv, depth_sample, attitude.value, pose.value[2])
                 if isinstance(solved, str):
                     reasons.append(solved)
                 elif self.config.tank is not None and not self.config.tank.contains(solved[0]):

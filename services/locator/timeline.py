@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import bisect
+import math
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -20,6 +21,15 @@ class Lookup(Generic[T]):
     value: T | None
     stamp_ns: int | None
     failure: LookupFailure | None = None
+    # How far past the newest sample the value was extrapolated, in units of the gap between
+    # the two samples it came from (0: a sample or an interpolation). From two samples with
+    # independent noise sigma, the extrapolated value's noise is sigma * noise_gain.
+    extrapolation: float = 0.0
+
+    @property
+    def noise_gain(self) -> float:
+        f = self.extrapolation
+        return math.hypot(1.0 + f, f)
 
 
 class Timeline(Generic[T]):
@@ -88,4 +98,8 @@ class Timeline(Generic[T]):
                 return Lookup(None, newest, "too_new")
             t0 = self._stamps[n - 2]
             frac = (stamp_ns - t0) / (newest - t0)
-            return Lookup(self._interpolate(self._values[n - 2], self._values[n - 1], frac), newest)
+            return Lookup(
+                self._interpolate(self._values[n - 2], self._values[n - 1], frac),
+                newest,
+                extrapolation=frac - 1.0,
+            )

@@ -74,6 +74,36 @@ def test_fix_at_the_true_position() -> None:
     assert interpolating.locate(ping, seq=0).asv_pose_stamp_ns == SECOND // 2
 
 
+def test_an_extrapolated_depth_widens_the_vertical_uncertainty() -> None:
+    """Depth readings stop at 0.5 s: a ping 0.1 s later uses one extrapolated 5 gaps on."""
+    locator = _locator()
+    _feed_inputs(locator, until_s=1.0)
+    at_reading = locator.locate(_ping(SECOND // 2, _detection_of(locator, ROV)), seq=0)
+    fresh = _locator()
+    _feed_inputs(fresh, until_s=0.5)
+    for k in range(26, 31):  # pose and attitude go on, depth does not
+        stamp = k * SECOND // 50
+        fresh.on_pose(
+            AsvPose(
+                stamp_ns=stamp,
+                seq=k,
+                position_m=tuple(ASV),
+                orientation_xyzw=IDENTITY_Q,
+                covariance=COV6,
+            )
+        )
+        fresh.on_attitude(RovAttitude(stamp_ns=stamp, seq=k, orientation_xyzw=IDENTITY_Q))
+    late = fresh.locate(_ping(SECOND // 2 + SECOND // 10, _detection_of(fresh, ROV)), seq=0)
+    assert at_reading.raw_covariance_m2 is not None
+    assert late.raw_covariance_m2 is not None
+    # z variance: the 15 mm floor plus the depth's 5 mm, then 5 mm x hypot(6, 5) = 39 mm.
+    floor = 0.015**2
+    assert math.isclose(at_reading.raw_covariance_m2[8] - floor, 0.005**2, rel_tol=0.05)
+    assert math.isclose(
+        late.raw_covariance_m2[8] - floor, (0.005 * math.hypot(6, 5)) ** 2, rel_tol=0.05
+    )
+
+
 def test_stale_and_missing_inputs_give_reasons_not_fixes() -> None:
     empty = _locator()
     fix = empty.locate(_ping(SECOND, _detection_of(empty, ROV)), seq=0)

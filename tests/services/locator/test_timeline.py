@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -70,3 +71,20 @@ def test_before_extrapolates_from_the_last_two_before_the_stamp() -> None:
     assert before.value == 2.5
     assert before.stamp_ns == 200
     assert line.at(300, use="before").value == 5.0  # a sample at the ping itself is used
+
+
+def test_an_extrapolation_says_how_far_and_its_noise_gain_holds() -> None:
+    """Two readings with independent noise, extrapolated 1.5 gaps on: noise x hypot(2.5, 1.5)."""
+    rng = np.random.default_rng(3)
+    values = []
+    for _ in range(4000):
+        line: Timeline[float] = Timeline(_lerp, capacity=4, max_extrapolation_ns=200)
+        line.add(100, float(rng.normal(0.0, 0.01)))
+        line.add(200, float(rng.normal(0.0, 0.01)))
+        found = line.at(350, use="before")
+        assert found.value is not None
+        values.append(found.value)
+    assert found.extrapolation == 1.5
+    assert abs(float(np.std(values)) / (0.01 * found.noise_gain) - 1.0) < 0.05
+    assert line.at(150).extrapolation == 0.0
+    assert line.at(200).noise_gain == 1.0
