@@ -18,8 +18,9 @@ ROV = np.array([8.0, 5.0, -2.0])
 ASV = np.array([4.0, 5.0, 0.0])
 
 
-def _feed_inputs(locator: Locator, *, until_s: float) -> None:
+def _feed_inputs(locator: Locator, *, until_s: float, depth_until_s: float | None = None) -> None:
     steps = int(until_s * 50)
+    depth_steps = steps if depth_until_s is None else int(depth_until_s * 50)
     for k in range(steps + 1):
         stamp = k * SECOND // 50
         locator.on_pose(
@@ -32,7 +33,9 @@ def _feed_inputs(locator: Locator, *, until_s: float) -> None:
             )
         )
         locator.on_attitude(RovAttitude(stamp_ns=stamp, seq=k, orientation_xyzw=IDENTITY_Q))
-        locator.on_depth(RovDepth(stamp_ns=stamp, seq=k, depth_m=-float(ROV[2]), sigma_m=0.005))
+        if k <= depth_steps:
+            depth = RovDepth(stamp_ns=stamp, seq=k, depth_m=-float(ROV[2]), sigma_m=0.005)
+            locator.on_depth(depth)
 
 
 def _detection_of(locator: Locator, point: np.ndarray, confidence: float = 0.9) -> Detection:
@@ -80,19 +83,7 @@ def test_an_extrapolated_depth_widens_the_vertical_uncertainty() -> None:
     _feed_inputs(locator, until_s=1.0)
     at_reading = locator.locate(_ping(SECOND // 2, _detection_of(locator, ROV)), seq=0)
     fresh = _locator()
-    _feed_inputs(fresh, until_s=0.5)
-    for k in range(26, 31):  # pose and attitude go on, depth does not
-        stamp = k * SECOND // 50
-        fresh.on_pose(
-            AsvPose(
-                stamp_ns=stamp,
-                seq=k,
-                position_m=tuple(ASV),
-                orientation_xyzw=IDENTITY_Q,
-                covariance=COV6,
-            )
-        )
-        fresh.on_attitude(RovAttitude(stamp_ns=stamp, seq=k, orientation_xyzw=IDENTITY_Q))
+    _feed_inputs(fresh, until_s=0.6, depth_until_s=0.5)  # pose and attitude go on
     late = fresh.locate(_ping(SECOND // 2 + SECOND // 10, _detection_of(fresh, ROV)), seq=0)
     assert at_reading.raw_covariance_m2 is not None
     assert late.raw_covariance_m2 is not None
