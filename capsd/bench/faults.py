@@ -6,8 +6,10 @@ system has settled again:
 - kill -9 of a service, restarted 1 s later (the units' Restart=on-failure, RestartSec=1);
 - the router killed and restarted on its port;
 - sensor dropouts through the simulator's control key: no sonar 5 s, no LiDAR 5 s, no depth 2 s;
-- separate runs: the ASV-topside link through a UDP relay (200 ms, 10% loss; and with 40 ms
-  of jitter, which reorders); the ASV's clock 0.5 s ahead, 0.5 s behind, drifting 200 ppm.
+- separate runs: the ASV-topside link degraded (200 ms, 10% loss): over TCP, the deploy
+  configs' transport, through a proxy with a lossy path's timing (losses become retransmission
+  stalls, 40 ms of jitter head-of-line waits); over UDP through a datagram relay (and with
+  40 ms of jitter, which reorders); the ASV's clock 0.5 s ahead, 0.5 s behind, drifting 200 ppm.
 For each: recovery time (from the restart, or the end of the dropout, to the next estimate at
 the autopilot) and outage (from the fault to that estimate); for the router also until every
 service answers again; good fixes lost against the undisturbed rate; and every estimate the
@@ -29,7 +31,7 @@ import time
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any, Literal, TextIO
 
 import numpy as np
 import yaml
@@ -37,6 +39,7 @@ import zenoh
 
 from capsd import topics
 from capsd.bench.lossy_link import LossyLink
+from capsd.bench.lossy_tcp_link import LossyTcpLink
 from capsd.bus import open_session
 from capsd.codec import Codec
 from capsd.config import BusConfig
@@ -52,6 +55,21 @@ def _free_udp_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
         sock.bind(("127.0.0.1", 0))
         return int(sock.getsockname()[1])
+
+
+@dataclass(frozen=True)
+class LinkFault:
+    """The ASV-topside link degraded: 200 ms each way, 10 % loss, some jitter.
+
+    udp: Zenoh's UDP link through a datagram relay (jitter reorders datagrams);
+    tcp: Zenoh's TCP link (the deploy configs') through a proxy with a lossy path's timing
+    (losses come back as retransmission stalls, jitter as head-of-line waits).
+    """
+
+    transport: Literal["udp", "tcp"]
+    jitter_s: float
+    delay_s: float = 0.2
+    loss: float = 0.1
 
 
 VEHICLES = {service: vehicle for vehicle, service in DEMO_SERVICES}
@@ -122,7 +140,7 @@ class Pipeline:
         out: Path,
         *,
         sim_clock: dict[str, float] | None = None,
-        link_jitter_s: float | None = None,
+        link: LinkFault | None = None,
     ):
         self.out = out
         out.mkdir(parents=True, exist_ok=True)
@@ -136,13 +154,16 @@ class Pipeline:
             body = yaml.safe_load(self.configs["sim"].read_text())
             body["clocks"] = {"asv": sim_clock}
             self.configs["sim"].write_text(yaml.safe_dump(body, sort_keys=False))
-        self.link_jitter_s = link_jitter_s
-        self.link: LossyLink | None = None
-        if link_jitter_s is not None:
+        self.link_fault = link
+        self.link: LossyLink | LossyTcpLink | None = None
+        if link is not None:
             # The ASV side (sensors, pose, detector) has its own router, joined to topside's
             # over a UDP link through the lossy relay: ASV -> topside is the degraded link.
             self.asv_endpoint = f"tcp/127.0.0.1:{_free_port()}"
-            self._udp_topside, self._udp_relay = _free_udp_port(), _free_udp_port()
+            if link.transport == "udp":
+                self._link_topside, self._link_relay = _free_udp_port(), _free_udp_port()
+            else:
+                self._link_topside, self._link_relay = _free_port(), _free_port()
             for name in ("sim", "asv_pose", "sonar_detect"):
                 body = yaml.safe_load(self.configs[name].read_text())
                 body["bus"] = {"connect": [self.asv_endpoint]}
@@ -156,21 +177,23 @@ class Pipeline:
         self._subs: list[Any] = []
 
     def start(self) -> None:
-        if self.link_jitter_s is not None:
-            udp = f"udp/127.0.0.1:{self._udp_topside}"
+        if (fault := self.link_fault) is not None:
+            kind = fault.transport
+            topside = f"{kind}/127.0.0.1:{self._link_topside}"
             self.procs.start(
                 "router",
-                ["-m", "capsd", "router", "--listen", self.endpoint, "--listen", udp],
+                ["-m", "capsd", "router", "--listen", self.endpoint, "--listen", topside],
             )
-            self.link = LossyLink(
-                listen_port=self._udp_relay,
-                target_port=self._udp_topside,
-                delay_s=0.2,
-                loss=0.1,
-                jitter_s=self.link_jitter_s,
+            link_class = LossyLink if kind == "udp" else LossyTcpLink
+            self.link = link_class(
+                listen_port=self._link_relay,
+                target_port=self._link_topside,
+                delay_s=fault.delay_s,
+                loss=fault.loss,
+                jitter_s=fault.jitter_s,
             )
             self.link.start()
-            relay = f"udp/127.0.0.1:{self._udp_relay}"
+            relay = f"{kind}/127.0.0.1:{self._link_relay}"
             args = ["router", "--listen", self.asv_endpoint, "--connect", relay]
             self.procs.start("asv_router", ["-m", "capsd", *args, "--vehicle", "asv"])
         else:
@@ -194,7 +217,7 @@ class Pipeline:
         # cross the link too, and estimates whose labels were lost could not be judged.
         self._truth_session = (
             self._session
-            if self.link_jitter_s is None
+            if self.link_fault is None
             else open_session(BusConfig(connect=(self.asv_endpoint,)))
         )
         obs = self.observed
@@ -388,13 +411,13 @@ def run_separate(
     duration_s: float,
     *,
     clock: dict[str, float] | None = None,
-    link_jitter_s: float | None = None,
+    link: LinkFault | None = None,
 ) -> tuple[Window, Pipeline]:
     """A whole pipeline run under one condition; the window is all of it after start-up.
 
-    `link_jitter_s` not None: the ASV-topside link is degraded (jitter > 0 reorders).
+    `link` not None: the ASV-topside link is degraded.
     """
-    pipe = Pipeline(out, sim_clock=clock, link_jitter_s=link_jitter_s)
+    pipe = Pipeline(out, sim_clock=clock, link=link)
     pipe.start()
     w = Window(name, time.time())
     try:
@@ -409,11 +432,7 @@ def run_separate(
         if refused:
             w.note += "; the bridge refused " + ", ".join(f"{k} {n}" for k, n in refused.items())
         if pipe.link is not None:
-            c = pipe.link.counts
-            w.note += (
-                f"; link: {c.forwarded} datagrams through, {c.dropped} dropped, "
-                f"{c.reordered} out of order"
-            )
+            w.note += f"; link: {pipe.link.summary()}"
     finally:
         pipe.stop()
     return w, pipe
@@ -491,19 +510,20 @@ def bench(
     print("capsd bench faults: the demo pipeline, one fault at a time", file=stream, flush=True)
     windows, pipe = run_main(out / "main", stream, baseline_s=baseline_s)
     _judge_into(windows, pipe)
-    runs: list[tuple[str, dict[str, float] | None, float | None]] = [
-        ("ASV-topside link: 200 ms, 10% loss", None, 0.0),
-        ("ASV-topside link: 200 ms, 10% loss, reorder", None, 0.04),
+    runs: list[tuple[str, dict[str, float] | None, LinkFault | None]] = [
+        ("link TCP: 200 ms, 10% loss, 40 ms jitter", None, LinkFault("tcp", 0.04)),
+        ("link UDP: 200 ms, 10% loss", None, LinkFault("udp", 0.0)),
+        ("link UDP: 200 ms, 10% loss, reorder", None, LinkFault("udp", 0.04)),
         ("ASV clock +0.5 s", {"offset_s": 0.5}, None),
         ("ASV clock -0.5 s", {"offset_s": -0.5}, None),
         ("ASV clock drifting 200 ppm", {"drift_ppm": 200.0}, None),
     ]
     base = windows[0]
     base_rate = base.good_fixes / max(base.end - base.start, 1e-9)
-    for name, clock, jitter_s in runs:
+    for name, clock, link in runs:
         print(f"  {name}: {skew_s:g} s run", file=stream, flush=True)
         folder = out / "".join(c if c.isalnum() else "_" for c in name)
-        w, p = run_separate(folder, name, skew_s, clock=clock, link_jitter_s=jitter_s)
+        w, p = run_separate(folder, name, skew_s, clock=clock, link=link)
         _judge_into([w], p)
         w.expected_fixes = base_rate * (w.end - w.start)
         windows.append(w)

@@ -64,6 +64,10 @@ class LossyLink(threading.Thread):
         self._outer.close()
         self._inner.close()
 
+    def summary(self) -> str:
+        c = self.counts
+        return f"{c.forwarded} datagrams through, {c.dropped} dropped, {c.reordered} out of order"
+
     def _schedule(self, direction: str, data: bytes) -> None:
         if self._rng.random() < self.loss:
             self.counts.dropped += 1
