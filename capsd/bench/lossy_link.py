@@ -13,9 +13,10 @@ import heapq
 import random
 import select
 import socket
-import threading
 import time
 from dataclasses import dataclass, field
+
+from capsd.bench.relay_thread import RelayThread
 
 
 @dataclass
@@ -26,7 +27,7 @@ class LinkCounts:
     by_direction: dict[str, int] = field(default_factory=lambda: {"out": 0, "back": 0})
 
 
-class LossyLink(threading.Thread):
+class LossyLink(RelayThread):
     """`with LossyLink(listen_port=..., target_port=...):` relays until the block ends."""
 
     def __init__(
@@ -39,7 +40,7 @@ class LossyLink(threading.Thread):
         loss: float = 0.1,
         seed: int = 0,
     ):
-        super().__init__(name="lossy-link", daemon=True)
+        super().__init__("lossy-link")
         self.delay_s, self.jitter_s, self.loss = delay_s, jitter_s, loss
         self.counts = LinkCounts()
         self._rng = random.Random(seed)
@@ -52,17 +53,9 @@ class LossyLink(threading.Thread):
         self._queue: list[tuple[float, int, str, bytes]] = []
         self._sent_seq = {"out": -1, "back": -1}
         self._seq = 0
-        self._halt = threading.Event()
 
-    def __enter__(self) -> LossyLink:
-        self.start()
-        return self
-
-    def __exit__(self, *_exc: object) -> None:
-        self._halt.set()
-        self.join(timeout=2.0)
-        self._outer.close()
-        self._inner.close()
+    def _sockets(self) -> list[socket.socket]:
+        return [self._outer, self._inner]
 
     def summary(self) -> str:
         c = self.counts

@@ -15,9 +15,10 @@ import heapq
 import random
 import select
 import socket
-import threading
 import time
 from dataclasses import dataclass
+
+from capsd.bench.relay_thread import RelayThread
 
 
 @dataclass
@@ -36,7 +37,7 @@ class _Direction:
     reading: bool = True  # False once the source closed: its FIN is queued behind its data
 
 
-class LossyTcpLink(threading.Thread):
+class LossyTcpLink(RelayThread):
     """`with LossyTcpLink(listen_port=..., target_port=...):` proxies until the block ends."""
 
     def __init__(
@@ -51,7 +52,7 @@ class LossyTcpLink(threading.Thread):
         segment_bytes: int = 1448,
         seed: int = 0,
     ):
-        super().__init__(name="lossy-tcp-link", daemon=True)
+        super().__init__("lossy-tcp-link")
         self.delay_s, self.jitter_s, self.loss, self.rto_s = delay_s, jitter_s, loss, rto_s
         self.segment_bytes = segment_bytes
         self.counts = TcpLinkCounts()
@@ -64,17 +65,9 @@ class LossyTcpLink(threading.Thread):
         self._directions: dict[socket.socket, _Direction] = {}
         self._queue: list[tuple[float, int, socket.socket, bytes]] = []
         self._seq = 0
-        self._halt = threading.Event()
 
-    def __enter__(self) -> LossyTcpLink:
-        self.start()
-        return self
-
-    def __exit__(self, *_exc: object) -> None:
-        self._halt.set()
-        self.join(timeout=2.0)
-        for sock in {*self._directions, self._listener}:
-            sock.close()
+    def _sockets(self) -> list[socket.socket]:
+        return [*self._directions, self._listener]
 
     def summary(self) -> str:
         c = self.counts
