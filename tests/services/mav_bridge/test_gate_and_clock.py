@@ -59,13 +59,15 @@ def test_refusals() -> None:
     assert set(gate.counts) == {"stale", "from_future", "not_good", "uncertain"}
 
 
-def test_rate_limit_and_monotonic_usec() -> None:
+def test_rate_limit_by_measurement_stamps_and_monotonic_usec() -> None:
     gate = SafetyGate(GateSettings(max_rate_hz=50.0))
-    assert isinstance(gate.check(_fix(NOW - 10 * MS), now_ns=NOW), Passed)
-    assert gate.check(_fix(NOW - 5 * MS), now_ns=NOW + 10 * MS) == "rate_limited"
-    assert isinstance(gate.check(_fix(NOW), now_ns=NOW + 21 * MS), Passed)
+    assert isinstance(gate.check(_fix(NOW - 30 * MS), now_ns=NOW), Passed)
+    # Measured 15 ms after the last one sent: faster than 50 Hz, however it arrives.
+    assert gate.check(_fix(NOW - 15 * MS), now_ns=NOW + 40 * MS) == "rate_limited"
+    # Measured 25 ms after it (a 40 Hz sonar) but arriving 5 ms after it: sent.
+    assert isinstance(gate.check(_fix(NOW - 5 * MS), now_ns=NOW + 5 * MS), Passed)
     # An older measurement arriving later would move usec backwards: refused.
-    assert gate.check(_fix(NOW - 1 * MS), now_ns=NOW + 50 * MS) == "not_monotonic"
+    assert gate.check(_fix(NOW - 6 * MS), now_ns=NOW + 50 * MS) == "not_monotonic"
 
 
 def test_raw_fix_is_used_when_there_is_no_track() -> None:
