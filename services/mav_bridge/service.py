@@ -103,7 +103,7 @@ class GateConfig(ConfigSection, frozen=True, kw_only=True):
 
     max_age_s: Annotated[float, msgspec.Meta(gt=0.0, le=0.5)] = 0.3
     max_sigma_m: Annotated[float, msgspec.Meta(gt=0.0, le=5.0)] = 0.5
-    # The EKF drops samples closer than 20 ms: more than 50 Hz is waste.
+    # EKF3 drops samples measured closer than 20 ms: more than 50 Hz is waste (by stamps).
     max_rate_hz: Annotated[float, msgspec.Meta(gt=0.0, le=50.0)] = 50.0
 
 
