@@ -93,3 +93,30 @@ def error_histograms(runs: dict[str, Accuracy], out: Path, *, title: str) -> Non
     fig.tight_layout()
     fig.savefig(out, dpi=110)
     plt.close(fig)
+
+
+def sigma_strips(groups: dict[str, list[float]], out: Path, *, title: str, limit: float) -> None:
+    """One row of dots per group: each estimate's worst error in its own sigmas, and the limit."""
+    names = [name for name, values in groups.items() if values]
+    fig, ax = plt.subplots(figsize=(9, 0.45 * len(names) + 1.6))
+    rng = np.random.default_rng(0)  # the jitter only spreads the dots; the same every time
+    for row, name in enumerate(names):
+        values = np.asarray(groups[name])
+        ax.scatter(values, row + rng.uniform(-0.25, 0.25, len(values)), s=4, alpha=0.5)
+        ax.text(
+            max(limit * 1.02, float(values.max()) + 0.1),
+            row,
+            f"{len(values)}, max {values.max():.2f}",
+            va="center",
+            fontsize=7,
+        )
+    ax.axvline(limit, color="red", lw=1.0, label=f"{limit:g} sigma")
+    ax.set_yticks(range(len(names)), names, fontsize=7)
+    ax.invert_yaxis()
+    ax.set_xlim(0.0, max(limit * 1.35, 1.0))
+    ax.set_xlabel("largest |error| / sigma over the three axes, per estimate sent")
+    ax.set_title(title)
+    ax.legend(fontsize=8, loc="lower right")
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)

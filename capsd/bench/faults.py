@@ -31,7 +31,7 @@ import time
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal, TextIO
+from typing import Any, Literal, NamedTuple, TextIO
 
 import numpy as np
 import yaml
@@ -96,6 +96,7 @@ class Window:
     recovery_target_s: float | None = None
     note: str = ""
     judged: dict[str, int] = field(default_factory=dict)
+    sigmas: list[float] = field(default_factory=list)  # each judged estimate's worst |err|/sigma
     good_fixes: int = 0
     expected_fixes: float = 0.0
 
@@ -305,30 +306,38 @@ class Pipeline:
         return codes
 
 
+class Verdict(NamedTuple):
+    """One estimate judged: when it arrived, what it was, its largest error in its own sigmas."""
+
+    arrival_s: float
+    verdict: str  # one of VERDICTS
+    sigmas: float | None  # max over axes of |error| / sigma; None without truth
+
+
 def judge(
     estimates: list[dict[str, Any]], labels: dict[int, tuple[float, float, float]], ned: Any
-) -> list[tuple[float, str]]:
-    """(arrival wall s, verdict) per estimate: ok, stale, invalid, wrong_3sigma, no_truth."""
+) -> list[Verdict]:
+    """A Verdict per estimate: ok, stale, invalid, wrong_3sigma, no_truth."""
     out = []
     for e in estimates:
         arrival = float(e["arrival_s"])
         values = [e["x"], e["y"], e["z"], *e["covariance"]]
         if not all(math.isfinite(v) for v in values):
-            out.append((arrival, "invalid"))
+            out.append(Verdict(arrival, "invalid", None))
             continue
         if arrival - e["usec"] / 1e6 > MAX_AGE_S + HOP_ALLOWANCE_S:
-            out.append((arrival, "stale"))
+            out.append(Verdict(arrival, "stale", None))
             continue
         truth = labels.get(int(e["usec"]))
         if truth is None:
-            out.append((arrival, "no_truth"))
+            out.append(Verdict(arrival, "no_truth", None))
             continue
         truth_ned = ned.position(np.array(truth))
         cov = e["covariance"]
-        sigmas = (math.sqrt(cov[0]), math.sqrt(cov[6]), math.sqrt(cov[11]))
+        sigmas = np.sqrt([cov[0], cov[6], cov[11]])
         errors = np.array([e["x"], e["y"], e["z"]]) - truth_ned
-        wrong = any(abs(err) > 3.0 * s for err, s in zip(errors, sigmas, strict=True))
-        out.append((arrival, "wrong_3sigma" if wrong else "ok"))
+        worst = float(np.max(np.abs(errors) / sigmas))
+        out.append(Verdict(arrival, "wrong_3sigma" if worst > 3.0 else "ok", worst))
     return out
 
 
@@ -487,9 +496,10 @@ def _judge_into(windows: list[Window], pipe: Pipeline) -> None:
     verdicts = judge(estimates, labels, ned)
     # Kept for a look at any estimate judged wrong: what was sent, the verdict, the truth.
     with (pipe.out / "verdicts.jsonl").open("w") as out:
-        for e, (_, verdict) in zip(estimates, verdicts, strict=True):
+        for e, v in zip(estimates, verdicts, strict=True):
             truth = labels.get(int(e["usec"]))
-            out.write(json.dumps({**e, "verdict": verdict, "truth_tank_m": truth}) + "\n")
+            row = {**e, "verdict": v.verdict, "sigmas": v.sigmas, "truth_tank_m": truth}
+            out.write(json.dumps(row) + "\n")
     arrivals = sorted(float(e["arrival_s"]) for e in estimates)
     for w in windows:
         if w.resume_from is not None:
@@ -498,9 +508,11 @@ def _judge_into(windows: list[Window], pipe: Pipeline) -> None:
                 w.recovery_s = after[0] - w.resume_from
                 w.outage_s = after[0] - w.start
         counts: dict[str, int] = {}
-        for arrival, verdict in verdicts:
-            if w.start <= arrival < w.end:
-                counts[verdict] = counts.get(verdict, 0) + 1
+        for v in verdicts:
+            if w.start <= v.arrival_s < w.end:
+                counts[v.verdict] = counts.get(v.verdict, 0) + 1
+                if v.sigmas is not None:
+                    w.sigmas.append(v.sigmas)
         w.judged = counts
 
 
@@ -532,10 +544,18 @@ def bench(
     for line in lines:
         print(line, file=stream)
     (out / "faults.md").write_text("```\n" + "\n".join(lines) + "\n```\n")
+    from capsd.plots import sigma_strips
+
+    sigma_strips(
+        {w.name: w.sigmas for w in windows},
+        out / "faults_sigmas.png",
+        title="capsd bench faults: every estimate the autopilot got, against the truth",
+        limit=3.0,
+    )
     (out / "faults.json").write_text(
         json.dumps([w.__dict__ for w in windows], indent=1, sort_keys=True) + "\n"
     )
-    print(f"report: {out}/faults.md, faults.json", file=stream)
+    print(f"report: {out}/faults.md, faults.json, faults_sigmas.png", file=stream)
     failures = [
         w
         for w in windows

@@ -32,5 +32,10 @@ def test_verdicts() -> None:
         _estimate(arrival_s=t + 0.05, usec=usec + 1, offset_m=0.0, sigma_m=0.01),  # no truth
         {**_estimate(arrival_s=t, usec=usec, offset_m=0.0, sigma_m=0.01), "x": math.nan},
     ]
-    verdicts = [v for _, v in judge(cases, labels, NED)]
-    assert verdicts == ["ok", "wrong_3sigma", "stale", "no_truth", "invalid"]
+    judged = judge(cases, labels, NED)
+    assert [v.verdict for v in judged] == ["ok", "wrong_3sigma", "stale", "no_truth", "invalid"]
+    assert [v.sigmas for v in judged[2:]] == [None, None, None]
+    assert judged[0].sigmas is not None
+    assert abs(judged[0].sigmas - 2.0) < 1e-9
+    assert judged[1].sigmas is not None
+    assert abs(judged[1].sigmas - 4.0) < 1e-9
