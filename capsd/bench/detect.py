@@ -181,22 +181,20 @@ def _detectors(which: str) -> dict[str, Detector]:
     if which in ("all", "classical"):
         out["classical"] = ClassicalDetector().detect
     if which in ("all", "cnn"):
-        from services.sonar_detect.cnn import CnnDetector, CnnSettings
+        from services.sonar_detect.cnn import NETWORK_ALONE, CnnDetector
 
         # The service's settings (tracking between whole-frame searches, the track's prior),
         # and the network searching every frame alone (what the weights' evaluation measures).
         out["cnn"] = CnnDetector().detect
-        every_frame = CnnSettings(search_every_s=0.0, track_prior_logit=0.0)
-        out["cnn, every frame alone"] = CnnDetector(every_frame).detect
+        out["cnn, every frame alone"] = CnnDetector(NETWORK_ALONE).detect
     return out
 
 
 def evaluate_cnn(net: Any, *, duration_s: float) -> dict[str, Any]:
     """The evaluation stored with trained weights: the CNN and the baseline, as JSON figures."""
-    from services.sonar_detect.cnn import CnnDetector, CnnSettings
+    from services.sonar_detect.cnn import NETWORK_ALONE, CnnDetector
 
-    # The network alone, on every frame (no tracking between searches, no track prior).
-    detector = CnnDetector(CnnSettings(search_every_s=0.0, track_prior_logit=0.0), net=net)
+    detector = CnnDetector(NETWORK_ALONE, net=net)
     tallies = evaluate({"cnn": detector.detect}, duration_s=duration_s)
     return {
         "runs": [list(r) for r in RUNS],

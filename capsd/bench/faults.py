@@ -159,7 +159,7 @@ class Pipeline:
         self.link: LossyLink | LossyTcpLink | None = None
         if link is not None:
             # The ASV side (sensors, pose, detector) has its own router, joined to topside's
-            # over a UDP link through the lossy relay: ASV -> topside is the degraded link.
+            # through the UDP relay or the TCP proxy: ASV -> topside is the degraded link.
             self.asv_endpoint = f"tcp/127.0.0.1:{_free_port()}"
             if link.transport == "udp":
                 self._link_topside, self._link_relay = _free_udp_port(), _free_udp_port()

@@ -31,7 +31,8 @@ class TcpLinkCounts:
 
 @dataclass
 class _Direction:
-    source: socket.socket
+    """One way of a proxied connection, keyed by the socket it reads from."""
+
     sink: socket.socket
     last_due: float = 0.0
     reading: bool = True  # False once the source closed: its FIN is queued behind its data
@@ -86,8 +87,8 @@ class LossyTcpLink(RelayThread):
         for sock in (outer, inner):
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             sock.settimeout(2.0)  # a peer that stops reading for 2 s is cut, never waited on
-        self._directions[outer] = _Direction(outer, inner)
-        self._directions[inner] = _Direction(inner, outer)
+        self._directions[outer] = _Direction(inner)
+        self._directions[inner] = _Direction(outer)
         self.counts.connections += 1
 
     def _cut(self, sock: socket.socket) -> None:

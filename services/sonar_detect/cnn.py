@@ -69,6 +69,10 @@ class CnnSettings:
     track_max_gap_s: float = 0.2
 
 
+# The network alone: every frame searched, no track prior (calibration, stored evaluation).
+NETWORK_ALONE = CnnSettings(search_every_s=0.0, track_prior_logit=0.0)
+
+
 @dataclass(frozen=True)
 class Candidate:
     range_m: float
@@ -112,11 +116,12 @@ class CnnDetector:
         image = unit_image(frame)
         table = BeamTable(frame.azimuths_rad)
         track = self._track
+        geometry = _geometry(frame)
         search = (
             track is None
             or s.search_every_s <= 0.0
             or not track.candidates
-            or track.geometry != _geometry(frame)
+            or track.geometry != geometry
             or frame.stamp_ns <= track.stamp_ns
             or frame.stamp_ns - track.searched_ns >= s.search_every_s * 1e9
         )
@@ -139,7 +144,7 @@ class CnnDetector:
         if (
             track is not None
             and s.track_prior_logit != 0.0
-            and track.geometry == _geometry(frame)
+            and track.geometry == geometry
             and 0 < frame.stamp_ns - track.stamp_ns <= s.track_max_gap_s * 1e9
         ):
             prior = [self._with_prior(d, track.candidates) for d in merged]
@@ -152,14 +157,14 @@ class CnnDetector:
             ],
             frame.stamp_ns,
             searched_ns,
-            _geometry(frame),
+            geometry,
         )
         return merged
 
     def _with_prior(self, d: Detection, tracked: list[Candidate]) -> Detection:
         """`d` with the track's prior added to its logit when it continues a tracked one."""
         s = self.settings
-        if not any(_distance_to(d, c) < s.track_gate_m for c in tracked):
+        if not any(_distance(d, c) < s.track_gate_m for c in tracked):
             return d
         c = min(max(d.confidence, 1e-12), 1.0 - 1e-12)
         logit = math.log(c / (1.0 - c)) + s.track_prior_logit
@@ -270,13 +275,7 @@ def propose(
     return out
 
 
-def _distance_to(d: Detection, c: Candidate) -> float:
-    dx = d.range_m * math.cos(d.azimuth_rad) - c.range_m * math.cos(c.azimuth_rad)
-    dy = d.range_m * math.sin(d.azimuth_rad) - c.range_m * math.sin(c.azimuth_rad)
-    return math.hypot(dx, dy)
-
-
-def _distance(a: Detection, b: Detection) -> float:
+def _distance(a: Detection | Candidate, b: Detection | Candidate) -> float:
     dx = a.range_m * math.cos(a.azimuth_rad) - b.range_m * math.cos(b.azimuth_rad)
     dy = a.range_m * math.sin(a.azimuth_rad) - b.range_m * math.sin(b.azimuth_rad)
     return math.hypot(dx, dy)

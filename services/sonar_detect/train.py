@@ -348,13 +348,13 @@ def calibrate(net: PolarNet, *, duration_s: float) -> dict[str, Any]:
     Confidence 0.5 becomes the lowest threshold with at most MAX_FALSE_ALARMS_PER_FRAME.
     """
     from capsd.bench.detect import MATCH_M, sonar_only
-    from services.sonar_detect.cnn import CnnDetector, CnnSettings
+    from services.sonar_detect.cnn import NETWORK_ALONE, CnnDetector
     from simulator.config import OFFLINE_START_NS
     from simulator.sim import Simulation
 
     net.logit_offset.zero_()
-    # Every frame searched, no track prior: the refiner's own logits on every proposal.
-    detector = CnnDetector(CnnSettings(search_every_s=0.0, track_prior_logit=0.0), net=net)
+    # The refiner's own logits on every proposal of every frame.
+    detector = CnnDetector(NETWORK_ALONE, net=net)
     false_logits: list[float] = []
     hit_logits: list[float] = []  # per visible ping: the best matching candidate, or -inf
     frames = 0
