@@ -19,6 +19,8 @@ from capsd.bus import open_session
 from capsd.config import BusConfig
 
 REPO = Path(__file__).resolve().parents[1]
+# Real Oculus captures (with their licence), kept inside the repository.
+OCULUS_FIXTURES = REPO / "tests" / "fixtures" / "oculus"
 
 
 def free_port() -> int:

@@ -2,7 +2,7 @@
 
 Two recordings are read:
 - `oculus`: raw Oculus protocol bytes as captured off the wire (the fixtures in
-  ../shared/fixtures/oculus are such files); parsed with the driver's stream parser (broken
+  tests/fixtures/oculus are such files); parsed with the driver's stream parser (broken
   messages are counted and skipped, as live) and played at `ping_rate_hz`;
 - `dataset`: a simulator dataset directory (simulator.dataset); its sonar frames are played
   with their recorded spacing divided by `speed`.

@@ -17,13 +17,12 @@ from capsd.health import query_health
 from capsd.payloads import Health, SonarFrame
 from services.sonar_detect.oculus import parse_ping
 from simulator.oculus_fake import FakeOculus
-from tests.conftest import Proc, free_port, wait_for
+from tests.conftest import OCULUS_FIXTURES, Proc, free_port, wait_for
 
 pytestmark = pytest.mark.integration
 
-FIXTURES = Path(__file__).resolve().parents[4] / "shared" / "fixtures" / "oculus"
-ONE = (FIXTURES / "one_ping_8bit.raw").read_bytes()
-THREE = (FIXTURES / "three_pings_8bit.raw").read_bytes()
+ONE = (OCULUS_FIXTURES / "one_ping_8bit.raw").read_bytes()
+THREE = (OCULUS_FIXTURES / "three_pings_8bit.raw").read_bytes()
 PINGS = [THREE[i * len(ONE) : (i + 1) * len(ONE)] for i in range(3)]
 
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Literal
 
 import numpy as np
@@ -19,10 +18,10 @@ from services.sonar_detect.oculus import (
     parse_ping,
     simple_fire,
 )
+from tests.conftest import OCULUS_FIXTURES
 
-FIXTURES = Path(__file__).resolve().parents[4] / "shared" / "fixtures" / "oculus"
-ONE = (FIXTURES / "one_ping_8bit.raw").read_bytes()
-THREE = (FIXTURES / "three_pings_8bit.raw").read_bytes()
+ONE = (OCULUS_FIXTURES / "one_ping_8bit.raw").read_bytes()
+THREE = (OCULUS_FIXTURES / "three_pings_8bit.raw").read_bytes()
 
 
 def _pings(stream: PingStream, chunks: list[bytes]) -> tuple[list[Ping], list[ProtocolError]]:

@@ -16,10 +16,9 @@ from capsd.codec import Codec
 from capsd.health import query_health
 from capsd.keys import is_concrete
 from capsd.payloads import SonarDetections, SonarFrame, SonarLabel
-from tests.conftest import REPO, Proc, wait_for
+from tests.conftest import OCULUS_FIXTURES, Proc, wait_for
 
 pytestmark = pytest.mark.integration
-FIXTURES = REPO.parent / "shared" / "fixtures" / "oculus"
 
 
 def _collect(client: zenoh.Session, key: str, codec: Codec[Any], into: list[Any]) -> Any:
@@ -100,7 +99,7 @@ def test_replay_of_real_oculus_bytes_reaches_the_bus(
     config = _write(
         tmp_path,
         "replay.yaml",
-        f"path: {FIXTURES / 'three_pings_8bit.raw'}\nformat: oculus\nping_rate_hz: 20\n",
+        f"path: {OCULUS_FIXTURES / 'three_pings_8bit.raw'}\nformat: oculus\nping_rate_hz: 20\n",
     )
     spawn("run", "sonar_replay", "--config", str(config), "--connect", endpoint)
     wait_for(lambda: len(frames) >= 6, timeout_s=20, what="6 replayed frames (two passes)")
