@@ -30,6 +30,7 @@ from capsd.runner import Publisher, ServiceRunner
 from services.sonar_detect.oculus import (
     DATA_PORT,
     STATUS_PORT,
+    FireFlag,
     FireSettings,
     MasterMode,
     Ping,
@@ -54,9 +55,28 @@ class FireConfig(ConfigSection, frozen=True, kw_only=True):
     gamma: Annotated[int, msgspec.Meta(ge=0, le=255)] = 127
     sound_speed_m_s: Annotated[float, msgspec.Meta(ge=0.0, le=1700.0)] = 0.0  # 0: the sonar's
     salinity_ppt: Annotated[float, msgspec.Meta(ge=0.0, le=50.0)] = 0.0
+    beams: Literal[256, 512] = 512  # an M3000d gives 512; an M1200d 256 whatever is asked
+    # off: the configured gain every ping, so intensities compare ping to ping (the detector's
+    # training assumes nothing about it, but a steady image tracks better).
+    gain_assist: Literal["on", "off"] = "off"
+    sample_bits: Literal[8, 16] = 8
+    row_gains: Literal["on", "off"] = "off"  # per-row gain prefixes (the driver drops them)
+
+    def flags(self) -> FireFlag:
+        flags = FireFlag.RANGE_IN_METRES | FireFlag.SIMPLE_RETURN
+        if self.beams == 512:
+            flags |= FireFlag.BEAMS_512
+        if self.gain_assist == "on":
+            flags |= FireFlag.GAIN_ASSIST
+        if self.sample_bits == 16:
+            flags |= FireFlag.DATA_16BIT
+        if self.row_gains == "on":
+            flags |= FireFlag.SEND_GAINS
+        return flags
 
     def settings(self) -> FireSettings:
         return FireSettings(
+            flags=self.flags(),
             master_mode=self.master_mode,
             ping_rate=self.ping_rate,
             gamma=self.gamma,

@@ -15,6 +15,7 @@ a broken message it resynchronises on the next header.
 
 from __future__ import annotations
 
+import enum
 import struct
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -43,6 +44,22 @@ _PING_RATE = {"normal": 0, "high": 1, "highest": 2, "low": 3, "lowest": 4, "stan
 MasterMode = Literal["lf", "hf"]  # 1: low frequency (1.2 MHz on an M3000d), 2: high
 
 
+class FireFlag(enum.IntFlag):
+    """SimpleFire's flag bits, as the vendor's SDK names them (FIELD-NOTES; drivers built on it)."""
+
+    RANGE_IN_METRES = 0x01  # `range` is metres (else a percentage of the maximum)
+    DATA_16BIT = 0x02  # 16-bit samples (else 8-bit)
+    SEND_GAINS = 0x04  # each image row prefixed by its 4-byte gain
+    SIMPLE_RETURN = 0x08  # reply with SimplePingResult
+    GAIN_ASSIST = 0x10  # the sonar changes its gain ping to ping
+    BEAMS_512 = 0x40  # 512 beams (else 256)
+
+
+# An M3000d as CAP-SD wants it: metres, simple return, fixed gain (intensities comparable ping
+# to ping), 512 beams, 8-bit data, no per-row gains.
+DEFAULT_FLAGS = FireFlag.RANGE_IN_METRES | FireFlag.SIMPLE_RETURN | FireFlag.BEAMS_512
+
+
 @dataclass(frozen=True)
 class FireSettings:
     """What a SimpleFire asks of the sonar."""
@@ -55,7 +72,7 @@ class FireSettings:
     gain_percent: float = 50.0
     sound_speed_m_s: float = 0.0  # 0: the sonar computes it
     salinity_ppt: float = 0.0  # fresh water (fuel ponds)
-    flags: int = 0x19  # range in metres, 8-bit data, gain assistance off, send gains off
+    flags: FireFlag = DEFAULT_FLAGS
 
 
 def simple_fire(settings: FireSettings, *, version: Literal[1, 2]) -> bytes:
@@ -66,7 +83,7 @@ def simple_fire(settings: FireSettings, *, version: Literal[1, 2]) -> bytes:
         _PING_RATE[settings.ping_rate],
         settings.network_speed,
         settings.gamma,
-        settings.flags,
+        int(settings.flags),
         settings.range_m,
         settings.gain_percent,
         settings.sound_speed_m_s,

@@ -177,3 +177,16 @@ def test_detection_service_keeps_up_and_never_processes_stale_frames(
     assert health.counters["dropped_stale_frames"] + health.counters["frames"] >= 60
     assert health.counters["dropped_stale_frames"] > 0
     sub.undeclare()
+
+
+def test_fire_config_names_each_flag() -> None:
+    from services.sonar_detect.driver import FireConfig
+    from services.sonar_detect.oculus import FireFlag
+
+    # An M3000d as deployed: metres, simple return, 512 beams, fixed gain, 8 bits.
+    assert FireConfig().flags() == 0x49
+    assert FireConfig(beams=256).flags() == 0x09
+    assert FireConfig(gain_assist="on").flags() & FireFlag.GAIN_ASSIST
+    assert FireConfig(sample_bits=16).flags() & FireFlag.DATA_16BIT
+    assert FireConfig(row_gains="on").flags() & FireFlag.SEND_GAINS
+    assert FireConfig().settings().flags == FireConfig().flags()

@@ -10,6 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from services.sonar_detect.oculus import (
+    FireFlag,
     FireSettings,
     Ping,
     PingStream,
@@ -134,3 +135,36 @@ def test_simple_fire_sizes_and_fields() -> None:
     import struct
 
     assert struct.unpack_from("<dd", v1, 21) == (12.5, 40.0)
+
+
+def test_fire_flag_bits_are_the_sdk_ones() -> None:
+    # The bit values drivers built on the vendor's SDK send (FIELD-NOTES).
+    assert int(FireFlag.RANGE_IN_METRES) == 0x01
+    assert int(FireFlag.DATA_16BIT) == 0x02
+    assert int(FireFlag.SEND_GAINS) == 0x04
+    assert int(FireFlag.SIMPLE_RETURN) == 0x08
+    assert int(FireFlag.GAIN_ASSIST) == 0x10
+    assert int(FireFlag.BEAMS_512) == 0x40
+    # The captures were fired with 0x19: metres, simple return, gain assist, 256 beams.
+    assert FireFlag(0x19) == (
+        FireFlag.RANGE_IN_METRES | FireFlag.SIMPLE_RETURN | FireFlag.GAIN_ASSIST
+    )
+
+
+@pytest.mark.parametrize("version", [1, 2])
+def test_simple_fire_carries_the_flags_byte(version: Literal[1, 2]) -> None:
+    fired = simple_fire(
+        FireSettings(flags=FireFlag.BEAMS_512 | FireFlag.DATA_16BIT), version=version
+    )
+    # 16-byte header, then masterMode, pingRate, networkSpeed, gamma, flags.
+    assert fired[20] == 0x42
+    assert simple_fire(FireSettings(), version=version)[20] == 0x49
+
+
+def test_range_lines_tile_the_fired_range() -> None:
+    # Line i stands for [i, i + 1) x resolution: n lines cover the range the sonar was fired
+    # with (2.0 m here) within one line, so the project's bin centre is (i + 0.5) x resolution.
+    ping = parse_ping(ONE)
+    covered = ping.n_ranges * ping.range_resolution_m
+    assert abs(covered - 2.0) < ping.range_resolution_m
+    assert abs((ping.n_ranges - 1) * ping.range_resolution_m - 2.0) > 0.5 * ping.range_resolution_m
