@@ -30,6 +30,7 @@ def zenoh_config(bus: BusConfig) -> zenoh.Config:
         "period_increase_factor": 2,
     }
     conf.insert_json5("connect/retry", json.dumps(retry))
+    conf.insert_json5("transport/link/rx/max_message_size", json.dumps(bus.max_message_bytes))
     if bus.tls is not None:
         tls = {
             "root_ca_certificate": bus.tls.ca_certificate,

@@ -73,6 +73,10 @@ class BusConfig(ConfigSection, frozen=True, kw_only=True):
     tls: TlsConfig | None = None
     # Routers: Zenoh's access_control object as a JSON5 file (deploy/security/).
     access_control_file: str | None = None
+    # The largest message this process accepts from a link (Zenoh's default is 1 GiB: a
+    # denied or hostile put would be held whole first). A sonar frame is at most 512 beams x
+    # 1500 bins x 2 bytes plus its header (capsd.topics.MAX_FRAME_BYTES).
+    max_message_bytes: Annotated[int, msgspec.Meta(ge=65_536, le=64 * 1024 * 1024)] = 2_097_152
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -112,11 +112,16 @@ def _write_configs(
     import yaml
 
     from capsd.geometry import matrix_to_euler_zyx
+    from capsd.signing import SiteKey, write_key
     from simulator.config import Config as SimConfig
     from simulator.sim import Simulation
     from simulator.world import make_tank
 
     bus = {"connect": [endpoint]}
+    # The site's fix key: the locator signs, the bridge checks (as deployed).
+    fix_key = folder / "fix.key"
+    if not fix_key.exists():
+        write_key(fix_key, SiteKey.generate())
     sim = {
         "bus": bus,
         "tank": tank,
@@ -139,11 +144,17 @@ def _write_configs(
             "tank_width_m": t.width_m,
         },
         "sonar_detect": {"bus": bus},
-        "locator": {"bus": bus, "tank": {**tank_box, "depth_m": t.depth_m}},
+        "locator": {
+            "bus": bus,
+            "tank": {**tank_box, "depth_m": t.depth_m},
+            "fix_key": str(fix_key),
+        },
         "mav_bridge": {
             "vehicle": "rov_ap",
             "bus": bus,
             "mavlink": {"connect": f"tcp:127.0.0.1:{mav_port}"},
+            "fix_key": str(fix_key),
+            "tank": {**tank_box, "depth_m": t.depth_m},
         },
     }
     paths = {}

@@ -42,6 +42,13 @@ def add_bus_flags(parser: argparse.ArgumentParser) -> None:
     group.add_argument(
         "--multicast-scouting", choices=["off", "on"], help="Zenoh multicast scouting"
     )
+    group.add_argument(
+        "--tls",
+        nargs=3,
+        metavar=("CA", "CERT", "KEY"),
+        help="mutual TLS to a secure site router (tls/ endpoints): the site's CA, this "
+        "identity's certificate and key (a laptop: capsd-laptop.pem/.key, read-only)",
+    )
 
 
 def add_namespace_flags(parser: argparse.ArgumentParser) -> None:
@@ -63,6 +70,9 @@ def bus_from_args(args: argparse.Namespace, base: BusConfig) -> BusConfig:
         changes["multicast_scouting"] = args.multicast_scouting
     if args.mode == "router" and args.connect is None:
         changes.setdefault("connect", ())
+    if getattr(args, "tls", None) is not None:
+        ca, cert, key = args.tls
+        changes["tls"] = {"ca_certificate": ca, "certificate": cert, "private_key": key}
     data = msgspec.to_builtins(base)
     data.update(changes)
     try:

@@ -25,6 +25,7 @@ from capsd.payloads import (
     Detection,
     ImuSample,
     LidarScan,
+    Payload,
     RovAttitude,
     RovDepth,
     RovVelocity,
@@ -33,11 +34,12 @@ from capsd.payloads import (
     SonarLabel,
 )
 from capsd.progress import Progress
+from capsd.tank import TankBounds
 from services.asv_pose.estimator import AsvPoseEstimator, EstimatorSettings, pose_payload
 from services.asv_pose.scan_match import tank_walls
 from services.asv_pose.tilt import TiltSettings
 from services.locator.service import Config as LocatorConfig
-from services.locator.service import Locator, MethodConfig, TankBounds
+from services.locator.service import Locator, MethodConfig
 from services.sonar_detect.paper_box import box_centre
 from simulator.config import OFFLINE_START_NS
 from simulator.config import Config as SimConfig
@@ -114,8 +116,13 @@ def run(
     variants: list[Variant],
     progress: Progress | None = None,
     progress_offset_s: float = 0.0,
+    sink: Callable[[Payload], None] | None = None,
 ) -> dict[str, Accuracy]:
-    """Simulate `duration_s` and score every variant on the same pings."""
+    """Simulate `duration_s` and score every variant on the same pings.
+
+    `sink` sees what a recording of the live system would hold: the sonar frames, the first
+    variant's ASV poses (one per LiDAR scan) and its fixes.
+    """
     config = msgspec.structs.replace(
         sim_config,
         streams=msgspec.structs.replace(
@@ -159,6 +166,9 @@ def run(
             )
             for estimator in estimators.values():
                 estimator.on_scan(p.stamp_ns, ranges, angles)
+            if sink is not None:
+                first = estimators[variants[0].tilt]
+                sink(pose_payload(first.estimate(p.stamp_ns), seq=pose_seq, source="scan_match"))
         elif isinstance(p, RovDepth):
             for locator in every:
                 locator.on_depth(p)
@@ -171,6 +181,8 @@ def run(
         elif isinstance(p, SonarFrame):
             frame = p
             found = {kind: d(p) for kind, d in detect.items()}
+            if sink is not None:
+                sink(p)
         elif isinstance(p, SonarLabel) and frame is not None and frame.stamp_ns == p.stamp_ns:
             found["box_centre"] = box_centre(p)
             for v in variants:
@@ -183,6 +195,8 @@ def run(
                 )
                 fix = locators[v.name].locate(detections, seq=frame.seq)
                 accuracy[v.name].add(score(fix, p))
+                if sink is not None and v is variants[0]:
+                    sink(fix)
             frame = None
             if progress is not None:
                 progress.update(progress_offset_s + event.t_s)

@@ -319,6 +319,8 @@ class RovStatus(Payload, frozen=True, kw_only=True):
     mode: str
     ekf_flags: NonNegInt = 0
     vehicle_boot_ms: NonNegInt = 0
+    # lost: the bridge has no link to the autopilot; armed and mode are then unknown.
+    link: Literal["ok", "lost"] = "ok"
 
 
 # ---------------------------------------------------------------- locator

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import faulthandler
 import logging
+import math
 import os
 import signal
 import socket
@@ -37,6 +38,7 @@ from capsd.keys import alive_key, check_name, health_key, is_concrete, log_key
 from capsd.latency import LatencyRecorder
 from capsd.logs import BusLogHandler, log_fields
 from capsd.payloads import Health, HealthState, LatencyStats, Log, Payload, StreamStats
+from capsd.signing import TAG_BYTES, SiteKey
 from capsd.topics import Topic
 
 P = TypeVar("P", bound=Payload)
@@ -58,9 +60,17 @@ def put_time_ns(sample: zenoh.Sample) -> int | None:
     if attachment is None:
         return None
     raw = attachment.to_bytes()
-    if len(raw) != _PUT_TIME_BYTES:
+    if len(raw) not in (_PUT_TIME_BYTES, _PUT_TIME_BYTES + TAG_BYTES):
         return None
-    return int.from_bytes(raw, "little")
+    return int.from_bytes(raw[:_PUT_TIME_BYTES], "little")
+
+
+def attachment_tag(sample: zenoh.Sample) -> bytes:
+    """The authentication tag after the put time in the attachment (b"" if none)."""
+    attachment = sample.attachment
+    if attachment is None:
+        return b""
+    return attachment.to_bytes()[_PUT_TIME_BYTES:]
 
 
 def _median(values: deque[float]) -> float | None:
@@ -79,6 +89,7 @@ class StreamCounter:
         self._lock = threading.Lock()
         self.count = 0
         self.errors = 0
+        self.unauthenticated = 0  # refused: no valid authentication tag (capsd.signing)
         self.dropped = 0
         self.seq_regressions = 0
         self.shared_memory = 0
@@ -156,10 +167,19 @@ class StreamCounter:
 class Publisher(Generic[P]):
     """Encodes and puts one payload type on one key; owns the stream's `seq`."""
 
-    def __init__(self, session: zenoh.Session, key: str, codec: Codec[P], counter: StreamCounter):
+    def __init__(
+        self,
+        session: zenoh.Session,
+        key: str,
+        codec: Codec[P],
+        counter: StreamCounter,
+        *,
+        signer: SiteKey | None = None,
+    ):
         self.key = key
         self.codec = codec
         self.counter = counter
+        self.signer = signer
         self._publisher = session.declare_publisher(key, encoding=zenoh.Encoding(codec.encoding))
         self._seq = 0
         self._lock = threading.Lock()
@@ -173,7 +193,10 @@ class Publisher(Generic[P]):
     def put(self, payload: P) -> None:
         # The put time travels as an attachment so receivers can measure transport latency.
         stamp = time.time_ns().to_bytes(_PUT_TIME_BYTES, "little")
-        self._publisher.put(self.codec.encode(payload), attachment=stamp)
+        data = self.codec.encode(payload)
+        if self.signer is not None:
+            stamp += self.signer.tag(self.key, data)
+        self._publisher.put(data, attachment=stamp)
         self.counter.record(payload)
 
     def undeclare(self) -> None:
@@ -194,6 +217,8 @@ class ServiceRunner:
         self._outputs: list[StreamCounter] = []
         self._last_error: str | None = None
         self._last_error_stamp_ns: int | None = None
+        # Per kind of error: when it was last logged, and how many since were not.
+        self._error_log: dict[str, tuple[float, int]] = {}
         self._lock = threading.Lock()
         self._started = time.monotonic()
         self._session: zenoh.Session | None = None
@@ -315,20 +340,30 @@ class ServiceRunner:
         return self._session
 
     def _make_publisher(
-        self, key: str, codec: Codec[P], *, count_output: bool = True
+        self,
+        key: str,
+        codec: Codec[P],
+        *,
+        count_output: bool = True,
+        signer: SiteKey | None = None,
     ) -> Publisher[P]:
         counter = StreamCounter(key)
-        publisher = Publisher(self.session, key, codec, counter)
+        publisher = Publisher(self.session, key, codec, counter, signer=signer)
         if count_output:
             with self._lock:
                 self._outputs.append(counter)
         self._publishers.append(publisher)  # type: ignore[arg-type]
         return publisher
 
-    def publisher(self, topic: Topic[P], *, vehicle: str | None = None) -> Publisher[P]:
-        """A publisher for `topic` in this service's site, under `vehicle` (default: own)."""
+    def publisher(
+        self, topic: Topic[P], *, vehicle: str | None = None, signer: SiteKey | None = None
+    ) -> Publisher[P]:
+        """A publisher for `topic` in this service's site, under `vehicle` (default: own).
+
+        With `signer`, every payload carries its authentication tag (capsd.signing).
+        """
         key = topic.key(self.config.site, vehicle or self.config.vehicle)
-        return self._make_publisher(key, Codec(topic.payload))
+        return self._make_publisher(key, Codec(topic.payload), signer=signer)
 
     def subscribe(
         self,
@@ -336,9 +371,13 @@ class ServiceRunner:
         handler: Callable[[P], None],
         *,
         vehicle: str | None = None,
+        verifier: SiteKey | None = None,
     ) -> StreamCounter:
         """Call `handler` with each valid payload of `topic`; bad input is counted and dropped.
 
+        A payload larger than the topic's `max_bytes` is refused before it is copied; with
+        `verifier`, one whose tag does not check (or has none) is refused before decoding
+        (counted in the stream's `unauthenticated`).
         The handler runs on Zenoh's callback thread: keep it short, or hand work to a thread.
         """
         key = topic.key(self.config.site, vehicle or self.config.vehicle)
@@ -362,9 +401,22 @@ class ServiceRunner:
                     raise PayloadError(
                         sample_key, codec.schema, "wildcard key expression refused on an input"
                     )
-                payload = codec.decode(
-                    sample.payload.to_bytes(), encoding=str(sample.encoding), key_expr=sample_key
-                )
+                size = len(sample.payload)
+                if size > topic.max_bytes:
+                    raise PayloadError(
+                        sample_key,
+                        codec.schema,
+                        f"{size} bytes, more than the {topic.max_bytes} this input accepts",
+                    )
+                data = sample.payload.to_bytes()
+                if verifier is not None and not verifier.verify(
+                    sample_key, data, attachment_tag(sample)
+                ):
+                    counter.unauthenticated += 1
+                    raise PayloadError(
+                        sample_key, codec.schema, "not signed with the site's key: refused"
+                    )
+                payload = codec.decode(data, encoding=str(sample.encoding), key_expr=sample_key)
             except PayloadError as exc:
                 self._input_error(counter, str(exc), kind="decode")
                 return
@@ -416,10 +468,21 @@ class ServiceRunner:
         if changed:
             logger.info("state changed", extra=log_fields(state=state, reason=reason or ""))
 
-    def report_error(self, message: str) -> None:
-        """Record `message` as the last error (shown in Health) and log it."""
+    def report_error(self, message: str, *, kind: str = "error") -> None:
+        """Record `message` as the last error (shown in Health) and log it.
+
+        At most one line a second per `kind`: a flood of bad input cannot become a log storm
+        (the line says how many were not logged; Health counts them all where they happen).
+        """
         self._set_last_error(message)
-        logger.error(message)
+        now = time.monotonic()
+        with self._lock:
+            last, suppressed = self._error_log.get(kind, (-math.inf, 0))
+            if now - last < _ERROR_LOG_INTERVAL_S:
+                self._error_log[kind] = (last, suppressed + 1)
+                return
+            self._error_log[kind] = (now, 0)
+        logger.error(message if not suppressed else f"{message} ({suppressed} more not logged)")
 
     def _set_last_error(self, message: str) -> None:
         with self._lock:

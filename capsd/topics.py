@@ -11,12 +11,23 @@ from capsd.keys import Subject, data_key
 P = TypeVar("P", bound=pl.Payload)
 
 
+# Every payload but a sonar frame is small (a LiDAR scan of 1000 points is ~30 kB of JSON).
+MAX_PAYLOAD_BYTES = 256 * 1024
+# A sonar frame: at most 512 beams x 1500 bins x 2 bytes, its bearing table and header.
+MAX_FRAME_BYTES = 512 * 1500 * 2 + 64 * 1024
+
+
 @dataclass(frozen=True)
 class Topic(Generic[P]):
-    """A subject and its payload type; `key()` places it in a site/vehicle namespace."""
+    """A subject and its payload type; `key()` places it in a site/vehicle namespace.
+
+    `max_bytes` bounds an encoded payload: a larger one is refused before it is copied or
+    decoded.
+    """
 
     subject: Subject
     payload: type[P]
+    max_bytes: int = MAX_PAYLOAD_BYTES
 
     def key(self, site: str, vehicle: str) -> str:
         return data_key(site, vehicle, self.subject)
@@ -26,7 +37,7 @@ ASV_POSE = Topic(Subject.ASV_POSE, pl.AsvPose)
 ASV_POSE_EXTERNAL = Topic(Subject.ASV_POSE_EXTERNAL, pl.AsvPose)
 ASV_IMU = Topic(Subject.ASV_IMU, pl.ImuSample)
 ASV_SCAN = Topic(Subject.ASV_SCAN, pl.LidarScan)
-SONAR_FRAME = Topic(Subject.SONAR_FRAME, pl.SonarFrame)
+SONAR_FRAME = Topic(Subject.SONAR_FRAME, pl.SonarFrame, MAX_FRAME_BYTES)
 SONAR_DETECTIONS = Topic(Subject.SONAR_DETECTIONS, pl.SonarDetections)
 ROV_DEPTH = Topic(Subject.ROV_DEPTH, pl.RovDepth)
 ROV_ATTITUDE = Topic(Subject.ROV_ATTITUDE, pl.RovAttitude)

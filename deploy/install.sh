@@ -5,11 +5,15 @@
 #   topside  topside computer: the router and the locator (and the laptop tools)
 # Usage: deploy/install.sh ROLE [--prefix /opt/capsd] [--etc /etc/capsd]
 #                               [--unit-dir /etc/systemd/system] [--no-enable] [--no-user]
+#                               [--certs DIR]
+# --certs DIR: the site's certificates (deploy/security/make-site-certs.sh DIR): the CA and this
+# role's identities go to ETC/certs, each key readable by the service user only; fix.key (the
+# fix signing key) only to the roles that sign or check fixes (topside, rov).
 # Existing configs in --etc are kept (an upgrade never overwrites a site's settings).
 set -euo pipefail
 ROLE=${1:?usage: install.sh asv|rov|topside [options]}
 shift
-PREFIX=/opt/capsd ETC=/etc/capsd UNIT_DIR=/etc/systemd/system ENABLE=1 MAKE_USER=1
+PREFIX=/opt/capsd ETC=/etc/capsd UNIT_DIR=/etc/systemd/system ENABLE=1 MAKE_USER=1 CERTS=
 while [ $# -gt 0 ]; do
   case "$1" in
     --prefix) PREFIX=$2; shift 2 ;;
@@ -17,13 +21,16 @@ while [ $# -gt 0 ]; do
     --unit-dir) UNIT_DIR=$2; shift 2 ;;
     --no-enable) ENABLE=0; shift ;;
     --no-user) MAKE_USER=0; shift ;;
+    --certs) CERTS=$2; shift 2 ;;
     *) echo "install.sh: unknown option '$1'" >&2; exit 2 ;;
   esac
 done
 case "$ROLE" in
-  asv) EXTRAS="asv,detect,ros"; UNITS="asv-pose tim5xx oculus sonar-detect ros-input" ;;
-  rov) EXTRAS="rov"; UNITS="mav-bridge" ;;
-  topside) EXTRAS="topside"; UNITS="router locator" ;;
+  asv) EXTRAS="asv,detect,ros"; UNITS="asv-pose tim5xx oculus sonar-detect ros-input"
+       IDENTITIES="capsd-asv" SECRETS="" ;;
+  rov) EXTRAS="rov"; UNITS="mav-bridge" IDENTITIES="capsd-rov" SECRETS="fix.key" ;;
+  topside) EXTRAS="topside"; UNITS="router locator"
+           IDENTITIES="capsd-router capsd-locator" SECRETS="fix.key" ;;
   *) echo "install.sh: role must be asv, rov or topside, not '$ROLE'" >&2; exit 2 ;;
 esac
 REPO=$(cd "$(dirname "$0")/.." && pwd)
@@ -47,6 +54,24 @@ done
 [ -f "$ETC/capsd.env" ] || printf '# Site settings for the CAP-SD units (KEY=value).\n' > "$ETC/capsd.env"
 if [ "$ROLE" = topside ] && [ ! -f "$ETC/access_control.json5" ]; then
   cp "$REPO/deploy/security/access_control.json5" "$ETC/access_control.json5"
+fi
+if [ -n "$CERTS" ]; then
+  [ -f "$CERTS/ca.pem" ] || { echo "install.sh: no ca.pem in '$CERTS'" >&2; exit 2; }
+  owner=root; id capsd >/dev/null 2>&1 && owner=capsd
+  install -d -m 0750 -o root -g "$owner" "$ETC/certs"
+  install -m 0444 "$CERTS/ca.pem" "$ETC/certs/ca.pem"
+  for identity in $IDENTITIES; do
+    for f in "$identity.pem" "$identity.key"; do
+      [ -f "$CERTS/$f" ] || { echo "install.sh: no $f in '$CERTS'" >&2; exit 2; }
+    done
+    install -m 0444 "$CERTS/$identity.pem" "$ETC/certs/$identity.pem"
+    install -m 0400 -o "$owner" "$CERTS/$identity.key" "$ETC/certs/$identity.key"
+  done
+  for f in $SECRETS; do
+    [ -f "$CERTS/$f" ] || { echo "install.sh: no $f in '$CERTS'" >&2; exit 2; }
+    install -m 0400 -o "$owner" "$CERTS/$f" "$ETC/certs/$f"
+  done
+  echo "certificates: $IDENTITIES${SECRETS:+ and $SECRETS} in $ETC/certs (keys 0400, $owner)"
 fi
 if [ "$ENABLE" = 1 ] && command -v systemctl >/dev/null 2>&1; then
   systemctl daemon-reload

@@ -77,6 +77,7 @@ def bridge(*, runs: int, settle_s: float) -> int:
     """Footprint of the MAVLink bridge against the autopilot stand-in and a local router."""
     from capsd.bus import open_session
     from capsd.config import BusConfig
+    from capsd.signing import SiteKey, write_key
     from simulator.autopilot import AutopilotStandIn
 
     def free_port() -> int:
@@ -93,8 +94,11 @@ def bridge(*, runs: int, settle_s: float) -> int:
         tempfile.TemporaryDirectory() as tmp,
     ):
         config = Path(tmp) / "bridge.yaml"
+        key = Path(tmp) / "fix.key"
+        write_key(key, SiteKey.generate())
         config.write_text(
             f"bus:\n  connect: [{endpoint}]\nmavlink:\n  connect: tcp:127.0.0.1:{autopilot.port}\n"
+            f"fix_key: {key}\n"
         )
         for i in range(runs):
             result = measure(["run", "mav_bridge", "--config", str(config)], settle_s=settle_s)

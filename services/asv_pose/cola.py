@@ -99,7 +99,12 @@ class ColaStream:
                 yield ColaError("telegram is not ASCII")
 
 
+MAX_HEX_DIGITS = 8  # every CoLa-A number is at most 32 bits
+
+
 def _hex(token: str, field: str, *, signed_bits: int | None = None) -> int:
+    if len(token) > MAX_HEX_DIGITS:
+        raise ColaError(f"field {field}: {len(token)} hex digits, wider than 32 bits")
     try:
         value = int(token, 16)
     except ValueError:

@@ -117,7 +117,9 @@ class Client:
         for item in self.stream.feed(chunk):
             if isinstance(item, ColaError):
                 self.counts["framing_errors"] += 1
-                self.runner.report_error(f"TiM stream: {item} (resynchronising)")
+                self.runner.report_error(
+                    f"TiM stream: {item} (resynchronising)", kind="tim framing"
+                )
                 continue
             if not item.startswith(("sSN LMDscandata", "sRA LMDscandata")):
                 self.counts["other_telegrams"] += 1
@@ -126,7 +128,7 @@ class Client:
                 scan = parse_scan(item)
             except ColaError as exc:
                 self.counts["bad_telegrams"] += 1
-                self.runner.report_error(f"TiM scan telegram dropped: {exc}")
+                self.runner.report_error(f"TiM scan telegram dropped: {exc}", kind="tim telegram")
                 continue
             period = 1.0 / scan.scan_frequency_hz if scan.scan_frequency_hz > 0 else 0.0
             stamp = arrival_ns - int((period + self.config.latency_offset_s) * 1e9)
@@ -136,7 +138,7 @@ class Client:
                 )
             except (ValueError, msgspec.ValidationError) as exc:
                 self.counts["bad_telegrams"] += 1
-                self.runner.report_error(f"TiM scan not publishable: {exc}")
+                self.runner.report_error(f"TiM scan not publishable: {exc}", kind="tim scan")
                 continue
             self.scans.put(payload)
             self._last_scan = now

@@ -13,6 +13,7 @@ import logging
 import math
 import threading
 import time
+from pathlib import Path
 from typing import Annotated, Literal, TypeVar
 
 import msgspec
@@ -34,6 +35,8 @@ from capsd.payloads import (
     SonarDetections,
 )
 from capsd.runner import Publisher, ServiceRunner
+from capsd.signing import SiteKey
+from capsd.tank import TankBounds
 from services.locator.fix import FixUncertainty, rov_centre_z, solve_fix
 from services.locator.paper import paper_fix
 from services.locator.timeline import Lookup, Timeline
@@ -92,23 +95,6 @@ class MethodConfig(ConfigSection, frozen=True, kw_only=True):
         return self
 
 
-class TankBounds(ConfigSection, frozen=True, kw_only=True):
-    """The tank's box in W (corner origin, z up); fixes outside it are ghosts."""
-
-    length_m: Positive = 28.0
-    width_m: Positive = 16.0
-    depth_m: Positive = 8.0
-    margin_m: NonNeg = 0.3
-
-    def contains(self, p: Array) -> bool:
-        m = self.margin_m
-        return bool(
-            -m <= p[0] <= self.length_m + m
-            and -m <= p[1] <= self.width_m + m
-            and -self.depth_m - m <= p[2] <= m
-        )
-
-
 class TrackingConfig(ConfigSection, frozen=True, kw_only=True):
     """Tracker tuning (services.locator.tracker)."""
 
@@ -146,6 +132,9 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     # reported covariance over-bound the errors of the simulated runs (README, issue 11):
     # with it no estimate is off by more than 3 sigma on an axis; without it 15 % were.
     unmodelled_sigma_m: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.015
+    # The site's fix key (64 hex digits, owner-only; make-site-certs.sh writes fix.key): every
+    # fix is tagged with it, and the ROV's bridge acts only on tagged fixes (capsd.signing).
+    fix_key: str | None = None
 
 
 # A pose sample: position, orientation (xyzw), 6 x 6 covariance; a depth: metres, sigma.
@@ -400,8 +389,11 @@ class Locator:
 def main(config: Config) -> int:
     """Run the locator until stopped."""
     locator = Locator(config)
+    signer = (
+        None if config.fix_key is None else SiteKey.load(Path(config.fix_key), config_key="fix_key")
+    )
     with ServiceRunner("locator", config) as runner:
-        fixes: Publisher[RovFix] = runner.publisher(topics.ROV_FIX)
+        fixes: Publisher[RovFix] = runner.publisher(topics.ROV_FIX, signer=signer)
         stage = runner.latency("fix")  # detections arrival to fix put
         runner.add_counters(lambda: {"late_inputs": locator.late_inputs})
 

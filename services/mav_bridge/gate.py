@@ -6,7 +6,7 @@ standard deviation is within `max_sigma_m`, measured at least 1 / `max_rate_hz` 
 one sent, and its time (usec) is later than the last one sent. Every decision is counted by
 reason. The rate is limited by measurement stamps, as EKF3's writeExtNavData thins external
 navigation (20 ms apart by their timestamps): pings 25 ms apart all pass, however jittered
-their arrival.
+their arrival. A position outside the tank (plus its margin), or absurdly far, is refused.
 """
 
 from __future__ import annotations
@@ -20,11 +20,14 @@ import numpy as np
 
 from capsd.geometry import Array
 from capsd.payloads import RovFix
+from capsd.tank import TankBounds
 
 Decision = Literal[
     "sent", "not_good", "no_position", "stale", "from_future", "uncertain", "rate_limited",
-    "not_monotonic",
+    "not_monotonic", "outside_tank",
 ]  # fmt: skip
+# Whatever the tank, a position further than this from W's origin is absurd (a 1e30 m fix).
+_MAX_ABS_POSITION_M = 10_000.0
 
 # Clocks are chrony-synced; a stamp further ahead than this is a clock fault, not a fix.
 _MAX_FUTURE_NS = 200_000_000
@@ -50,11 +53,19 @@ class Passed:
 class SafetyGate:
     """Stateful: remembers the last estimate sent (rate limit, monotonic usec)."""
 
-    def __init__(self, settings: GateSettings):
+    def __init__(self, settings: GateSettings, *, tank: TankBounds | None = None):
         self.settings = settings
+        self.tank = tank
         self.counts: Counter[Decision] = Counter()
         self._last_sent_stamp_ns: int | None = None
         self._last_usec = 0
+
+    def from_future(self, fix: RovFix, *, now_ns: int) -> bool:
+        """Stamped further ahead than clock skew explains (checked on arrival, and at send)."""
+        future = fix.stamp_ns - now_ns > _MAX_FUTURE_NS
+        if future:
+            self.counts["from_future"] += 1
+        return future
 
     def check(self, fix: RovFix, *, now_ns: int) -> Passed | Decision:
         decision = self._decide(fix, now_ns=now_ns)
@@ -74,6 +85,10 @@ class SafetyGate:
             return "stale"
         if age_ns < -_MAX_FUTURE_NS:
             return "from_future"
+        if not all(abs(v) <= _MAX_ABS_POSITION_M for v in position) or (
+            self.tank is not None and not self.tank.contains(position)
+        ):
+            return "outside_tank"
         cov = np.array(covariance).reshape(3, 3)
         horizontal = np.linalg.eigvalsh(cov[:2, :2])
         if not math.sqrt(max(float(horizontal[-1]), 0.0)) <= s.max_sigma_m:

@@ -285,20 +285,43 @@ class MavLink:
             device, baud = rest.rsplit(":", 1)
             self._conn = mavutil.mavlink_connection(device, baud=int(baud), **kwargs)
         elif kind == "tcp":
-            # retries: the first connect fails fast when the autopilot is not up; we retry.
+            # One attempt, no reconnecting inside pymavlink: the caller owns reconnection
+            # (with back-off). pymavlink's TCP link otherwise prints on EOF, reconnects on its
+            # own from recv/write, and swallows a failed write: all three become errors here.
             self._conn = mavutil.mavlink_connection(
-                self.connection, autoreconnect=True, retries=1, **kwargs
+                self.connection, autoreconnect=False, retries=0, **kwargs
             )
+            self._raise_on_loss(self._conn)
         else:
             self._conn = mavutil.mavlink_connection(self.connection, **kwargs)
         self._conn.mav.srcSystem = self.system_id
         self._conn.mav.srcComponent = self.component_id
 
+    def _raise_on_loss(self, conn: Any) -> None:
+        """Make a pymavlink TCP link raise ConnectionError where it would print or reconnect."""
+        where = self.connection
+
+        def lost(*_args: object) -> None:
+            raise ConnectionError(f"MAVLink link {where} closed by the other end")
+
+        def write(buf: bytes) -> None:
+            if conn.port is None:
+                raise ConnectionError(f"MAVLink link {where} is closed")
+            sent = conn.port.send(buf)  # OSError (EPIPE, ECONNRESET, EAGAIN) propagates
+            if sent != len(buf):
+                raise ConnectionError(f"MAVLink link {where}: {sent} of {len(buf)} bytes sent")
+
+        conn.handle_eof = lost
+        conn.handle_disconnect = lost
+        conn.write = write
+
     def close(self) -> None:
-        if self._conn is not None:
-            with contextlib.suppress(OSError):
-                self._conn.close()
-            self._conn = None
+        """Close the link; never raises (pymavlink's close can raise on a half-open link)."""
+        conn, self._conn = self._conn, None
+        if conn is not None:
+            # pymavlink raises AttributeError closing a link whose socket it already dropped.
+            with contextlib.suppress(OSError, AttributeError):
+                conn.close()
 
     @property
     def is_open(self) -> bool:

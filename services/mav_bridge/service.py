@@ -19,6 +19,7 @@ import math
 import threading
 import time
 from collections import Counter
+from pathlib import Path
 from typing import Annotated, Literal
 
 import msgspec
@@ -29,8 +30,11 @@ from capsd.config import ConfigSection, ServiceConfig
 from capsd.errors import ConfigError
 from capsd.geometry import matrix_to_quat
 from capsd.keys import check_name
+from capsd.mailbox import Mailbox
 from capsd.payloads import RovAttitude, RovDepth, RovFix, RovStatus
-from capsd.runner import Publisher, ServiceRunner
+from capsd.runner import Publisher, ServiceRunner, StreamCounter
+from capsd.signing import SiteKey
+from capsd.tank import TankBounds
 from services.mav_bridge.clock import BootClock
 from services.mav_bridge.gate import GateSettings, Passed, SafetyGate
 from services.mav_bridge.mavlink import (
@@ -52,6 +56,10 @@ logger = logging.getLogger(__name__)
 
 G = 9.80665
 _AUTOPILOT_COMPONENT = 1
+_REOPEN_FIRST_S = 0.25
+_REOPEN_MAX_S = 2.0
+# With the link up, depth or attitude missing for this long makes Health degraded (why).
+_INPUT_GRACE_S = 1.0
 
 
 class MavlinkConfig(ConfigSection, frozen=True, kw_only=True):
@@ -128,6 +136,12 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     ekf_origin: OriginConfig | None = None
     depth: DepthConfig = DepthConfig()
     rates: RatesConfig = RatesConfig()
+    # required: only fixes tagged with the site's fix key reach the autopilot, whatever router
+    # carried them (BlueOS's has no access control); off: a bench without keys, never a site.
+    fix_auth: Literal["required", "off"] = "required"
+    fix_key: str | None = None  # the site's fix key file (make-site-certs.sh writes fix.key)
+    # Estimates outside the tank (plus its margin) are refused; without it only absurd ones.
+    tank: TankBounds | None = None
     attitude_sigma_deg: Annotated[float, msgspec.Meta(gt=0.0, le=90.0)] = 3.0
     # After this long without a sendable estimate, the pilot is told (STATUSTEXT).
     outage_warning_s: Annotated[float, msgspec.Meta(gt=0.0, le=60.0)] = 1.0
@@ -151,8 +165,13 @@ class Bridge:
         self.runner = runner
         self.ned = config.ned.tank_to_ned()
         self.gate = SafetyGate(
-            GateSettings(config.gate.max_age_s, config.gate.max_sigma_m, config.gate.max_rate_hz)
+            GateSettings(config.gate.max_age_s, config.gate.max_sigma_m, config.gate.max_rate_hz),
+            tank=config.tank,
         )
+        # Fixes wait here for the sender: the newest only, so a flood cannot age good ones.
+        self.fixes: Mailbox[tuple[RovFix, int]] = Mailbox()
+        self.fix_stream: StreamCounter | None = None
+        self._unauthenticated_seen = 0
         self.link = MavLink(
             config.mavlink.connect,
             system_id=config.mavlink.system_id,
@@ -167,7 +186,13 @@ class Bridge:
         self.density = config.depth.water_density_kg_m3
         self._last_vehicle_heartbeat = 0.0
         self._last_heartbeat_sent = 0.0
-        self._last_open_attempt = 0.0
+        self._last_open_attempt = -math.inf
+        self._open_failures = 0
+        self._last_open_warning = -math.inf
+        self._link_opened = 0.0
+        self._last_depth = -math.inf
+        self._last_attitude = -math.inf
+        self._missing: str | None = None
         self._configured_boot = 0
         self._last_param_request = 0.0
         self._last_sent_mono: float | None = None
@@ -191,18 +216,29 @@ class Bridge:
         now = time.monotonic()
         with self.lock:
             if not self.link.is_open:
-                if now - self._last_open_attempt < 1.0:
+                # Back-off: 0.25 s after a loss, doubling to 2 s while the autopilot is away.
+                delay = min(_REOPEN_MAX_S, _REOPEN_FIRST_S * 2.0**self._open_failures)
+                if now - self._last_open_attempt < delay:
                     return
                 self._last_open_attempt = now
                 try:
                     self.link.open()
                     self._last_vehicle_heartbeat = now
+                    self._link_opened = now
+                    self._open_failures = 0
                     logger.info(
                         "MAVLink link open", extra={"fields": {"connect": self.link.connection}}
                     )
                 except OSError as exc:
                     self.counts["link_open_failed"] += 1
+                    self._open_failures += 1
                     self.runner.set_state("degraded", f"no MAVLink link: {exc}")
+                    if now - self._last_open_warning >= 10.0:
+                        self._last_open_warning = now
+                        logger.warning(
+                            "no MAVLink link yet",
+                            extra={"fields": {"error": str(exc), "failed": self._open_failures}},
+                        )
                     return
             try:
                 for _ in range(200):
@@ -220,15 +256,52 @@ class Bridge:
                 self._drop_link("no HEARTBEAT from the autopilot")
                 return
             self._configure_vehicle(now)
+            self._check_inputs(now)
         self._announce(now)
 
+    def _check_inputs(self, now: float) -> None:
+        """Health says what is missing: the depth, the attitude (with the link up)."""
+        if self.clock.boots == 0 or now - self._link_opened < _INPUT_GRACE_S:
+            return
+        missing = [
+            name
+            for name, last in (("depth", self._last_depth), ("attitude", self._last_attitude))
+            if now - last > _INPUT_GRACE_S
+        ]
+        if missing:
+            why = "no " + " and no ".join(missing) + " from the autopilot"
+            if self._missing != why:
+                logger.warning("autopilot input missing", extra={"fields": {"reason": why}})
+            self.runner.set_state("degraded", why)
+            self._missing = why
+        elif self._missing is not None:
+            self._missing = None
+            self.runner.set_state("ok")
+
     def _drop_link(self, why: str) -> None:
+        """Close the link and forget everything it told us (published as unknown)."""
         self.counts["link_lost"] += 1
         self.runner.set_state("degraded", why)
         logger.warning("MAVLink link lost, reopening", extra={"fields": {"reason": why}})
         self.link.close()
-        self._last_open_attempt = 0.0
-        self.attitude = None  # an old attitude must not go out with a new position
+        self._last_open_attempt = time.monotonic()
+        self._open_failures = 0
+        # An old attitude must not go out with a new position; the surface pressure and
+        # density may change with a reboot: read again.
+        self.attitude = None
+        self.ekf_flags = 0
+        self.surface_pressure_pa = self.config.depth.surface_pressure_pa
+        self.density = self.config.depth.water_density_kg_m3
+        self._last_depth = self._last_attitude = -math.inf
+        self.status_pub.put(
+            RovStatus(
+                stamp_ns=time.time_ns(),
+                seq=self.status_pub.next_seq(),
+                armed=False,
+                mode="unknown",
+                link="lost",
+            )
+        )
 
     def _configure_vehicle(self, now: float) -> None:
         """Once per autopilot boot: message rates, EKF origin; depth references until known."""
@@ -291,6 +364,7 @@ class Bridge:
             if not self._observe(message.time_boot_ms, arrival_ns):
                 return
             self.attitude = message
+            self._last_attitude = time.monotonic()
             r_w_r = self.ned.attitude_to_tank(message.roll, message.pitch, message.yaw)
             q = matrix_to_quat(r_w_r)
             rates = self.ned.body_rates_to_flu(
@@ -334,6 +408,7 @@ class Bridge:
             self.counts["depth_bad_pressure"] += 1
             return
         depth = (pressure_pa - self.surface_pressure_pa) / (self.density * G)
+        self._last_depth = time.monotonic()
         self.depth_pub.put(
             RovDepth(
                 stamp_ns=self.clock.to_unix_ns(message.time_boot_ms),
@@ -348,10 +423,24 @@ class Bridge:
     # ------------------------------------------------------------------ bus to vehicle
 
     def on_fix(self, fix: RovFix) -> None:
-        """Gate one estimate and, if it passes, send it to the autopilot."""
+        """Take an estimate off the bus (Zenoh's thread): refuse one from the future at once."""
         if self.config.output == "off":
             return
         received_ns = self.runner.received_ns()
+        with self.lock:
+            if self.gate.from_future(fix, now_ns=received_ns):
+                self._outage_reasons["from_future"] += 1
+                return
+        self.fixes.put((fix, received_ns))
+
+    def send_loop(self) -> None:
+        """The sender thread: the newest estimate through the gate (again) to the autopilot."""
+        while not self.runner.stop_event.is_set():
+            item = self.fixes.take(0.1)
+            if item is not None:
+                self._gate_and_send(*item)
+
+    def _gate_and_send(self, fix: RovFix, received_ns: int) -> None:
         with self.lock:
             attitude = self.attitude
             if attitude is None or not self.link.is_open:
@@ -423,6 +512,7 @@ class Bridge:
         """STATUSTEXT on a change the pilot must know: positioning OK, or lost (and why)."""
         if self.config.output == "off":
             return
+        self._warn_unauthenticated()
         if (
             self._last_sent_mono is not None
             and now - self._last_sent_mono <= self.config.outage_warning_s
@@ -452,22 +542,70 @@ class Bridge:
         self.counts[f"statustext_{state}"] += 1
         logger.info("told the pilot", extra={"fields": {"text": text}})
 
+    def _warn_unauthenticated(self) -> None:
+        """Tell the pilot (once a minute at most) that fixes without the site's tag came."""
+        stream = self.fix_stream
+        if stream is None or stream.unauthenticated == self._unauthenticated_seen:
+            return
+        self._unauthenticated_seen = stream.unauthenticated
+        now = time.monotonic()
+        if now - self._last_statustext.get("unauthenticated", -math.inf) < 60.0:
+            return
+        with self.lock:
+            if not self.link.is_open:
+                return
+            try:
+                self.link.send_statustext("warning", "CAP-SD: unsigned fixes refused")
+            except OSError:
+                return
+        self._last_statustext["unauthenticated"] = now
+        self.counts["statustext_unauthenticated"] += 1
+        logger.warning(
+            "fixes without the site's tag refused",
+            extra={"fields": {"count": stream.unauthenticated}},
+        )
+
     def counters(self) -> dict[str, int]:
         with self.lock:
             merged = {f"gate_{k}": v for k, v in self.gate.counts.items()}
             merged.update(self.counts)
+        merged["fixes_dropped_for_newer"] = self.fixes.dropped
+        if self.fix_stream is not None:
+            merged["fixes_unauthenticated"] = self.fix_stream.unauthenticated
         return merged
+
+
+def fix_verifier(config: Config) -> SiteKey | None:
+    """The key fixes must be tagged with; a config error if required and not given."""
+    if config.fix_auth == "off":
+        logger.warning("fix_auth is off: any client on the router can move the ROV")
+        return None
+    if config.fix_key is None:
+        raise ConfigError(
+            "config",
+            "fix_key",
+            "the bridge acts only on fixes signed with the site's fix key: give its path "
+            "(deploy/security/make-site-certs.sh writes fix.key), or `fix_auth: off` on a bench",
+        )
+    return SiteKey.load(Path(config.fix_key), config_key="fix_key")
 
 
 def main(config: Config) -> int:
     """Run the bridge until stopped."""
+    verifier = fix_verifier(config)
     with ServiceRunner("mav_bridge", config) as runner:
         bridge = Bridge(config, runner)
         runner.add_counters(bridge.counters)
-        runner.subscribe(topics.ROV_FIX, bridge.on_fix, vehicle=config.locator_vehicle)
+        bridge.fix_stream = runner.subscribe(
+            topics.ROV_FIX, bridge.on_fix, vehicle=config.locator_vehicle, verifier=verifier
+        )
+        sender = threading.Thread(target=bridge.send_loop, name="mav-bridge-send", daemon=True)
+        sender.start()
         try:
             runner.run(bridge.step, period_s=0.01)
         finally:
+            runner.stop_event.set()
+            sender.join(timeout=2.0)
             with bridge.lock:
                 bridge.link.close()
     return 0

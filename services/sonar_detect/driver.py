@@ -8,7 +8,11 @@ stalls is reconnected; every problem is counted in Health.
 
 Stamps: the Oculus's pingStartTime is on its own clock, so the ping's instant is taken as the
 arrival of the message minus the two-way travel time to the configured range (the sonar can
-send only after that) minus a calibrated `latency_offset_s` (processing and transfer).
+send only after that) minus a calibrated `latency_offset_s` (processing and transfer). Its
+units are undocumented and it wraps (32 bits, ~62.5 M ticks between pings at ~16 Hz in the
+fixtures), so it is not used. When several pings arrive in one read (a backlog: the driver
+was slow), only the newest is published; the older ones would be stamped late.
+With `address: auto`, the first status broadcast's sender is pinned for the process's life.
 32-bit samples are scaled to 16 bits (the top 16); per-row gain prefixes are dropped.
 """
 
@@ -184,16 +188,25 @@ class Driver:
             return
         if chunk:
             arrival = time.time_ns()
+            newest: Ping | None = None
             for item in self.stream.feed(chunk):
                 if isinstance(item, ProtocolError):
                     self.counts["protocol_errors"] += 1
-                    self.runner.report_error(f"Oculus stream: {item} (resynchronising)")
+                    self.runner.report_error(
+                        f"Oculus stream: {item} (resynchronising)", kind="oculus protocol"
+                    )
                     continue
+                if newest is not None:
+                    # A backlog (pings queued while we were slow): only the newest is stamped
+                    # with this arrival; older ones would be stamped later than they were taken.
+                    self.counts["backlog_dropped"] += 1
+                newest = item
+            if newest is not None:
                 self._last_ping = now
-                travel = 2.0 * item.range_m / (item.sound_speed_m_s or 1480.0)
+                travel = 2.0 * newest.range_m / (newest.sound_speed_m_s or 1480.0)
                 stamp = arrival - int((travel + self.config.latency_offset_s) * 1e9)
                 self.frames.put(
-                    to_frame(item, config=self.config, stamp_ns=stamp, seq=self.frames.next_seq())
+                    to_frame(newest, config=self.config, stamp_ns=stamp, seq=self.frames.next_seq())
                 )
                 self.counts["pings"] += 1
         if now - self._last_ping > self.config.stall_timeout_s:
@@ -216,6 +229,7 @@ class Driver:
         if parse_status(datagram) is None:
             self.counts["bad_status_datagrams"] += 1
             return
+        # Pinned from now on (a reconnect goes back here, never to whoever broadcasts next).
         self.address = host
         self._status.close()
         self._status = None
@@ -254,8 +268,6 @@ class Driver:
         if self.sock is not None:
             self.sock.close()
         self.sock = None
-        if self.config.address == "auto":
-            self.address = None  # it may come back elsewhere
 
     def counters(self) -> dict[str, int]:
         merged = dict(self.counts)

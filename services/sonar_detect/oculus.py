@@ -16,6 +16,7 @@ a broken message it resynchronises on the next header.
 from __future__ import annotations
 
 import enum
+import math
 import struct
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -126,8 +127,27 @@ class ProtocolError(ValueError):
     """A message that cannot be a valid SimplePingResult (the stream then resynchronises)."""
 
 
+# What a real Oculus can report; anything else is a corrupt or hostile header.
+MAX_RANGE_M = 150.0
+MAX_RANGE_RESOLUTION_M = 0.5
+SOUND_SPEED_M_S = (1300.0, 1800.0)  # or 0: not reported
+DATA_SIZE_32BIT = 3  # dataSize: 0 8-bit, 1 16-bit, 2 24-bit, 3 32-bit
+
+
 def parse_ping(message: bytes) -> Ping:
-    """Parse one whole SimplePingResult message (header included)."""
+    """Parse one whole SimplePingResult message (header included).
+
+    Every way a message can be wrong is a ProtocolError (never another exception), so a stream
+    resynchronises past it: lengths are checked before each struct is read, and header fields
+    are checked against what an Oculus can report.
+    """
+    try:
+        return _parse_ping(message)
+    except (struct.error, IndexError, OverflowError) as exc:
+        raise ProtocolError(f"malformed SimplePingResult: {exc}") from None
+
+
+def _parse_ping(message: bytes) -> Ping:
     if len(message) < HEADER.size:
         raise ProtocolError("shorter than a message header")
     oculus_id, _src, _dst, msg_id, msg_version, payload_size, _spare = HEADER.unpack_from(message)
@@ -135,6 +155,10 @@ def parse_ping(message: bytes) -> Ping:
         raise ProtocolError(f"not a SimplePingResult (id {oculus_id:#x}, msg {msg_id:#x})")
     if HEADER.size + payload_size != len(message):
         raise ProtocolError(f"payload size {payload_size} does not match {len(message)} bytes")
+    if msg_version in (0, 1) and len(message) < HEADER.size + FIRE_V1.size + RESULT_V1.size:
+        raise ProtocolError(f"{len(message)} bytes: shorter than a v1 SimplePingResult header")
+    if msg_version == 2 and len(message) < HEADER.size + FIRE_V2.size + RESULT_V2.size:
+        raise ProtocolError(f"{len(message)} bytes: shorter than a v2 SimplePingResult header")
     if msg_version in (0, 1):
         version: Literal[1, 2] = 1
         fire = FIRE_V1.unpack_from(message, HEADER.size)
@@ -147,7 +171,7 @@ def parse_ping(message: bytes) -> Ping:
             _press,
             sound_speed,
             start_time,
-            _data_size,
+            data_size,
             range_res,
             n_ranges,
             n_beams,
@@ -171,7 +195,7 @@ def parse_ping(message: bytes) -> Ping:
             _roll,
             sound_speed,
             start_time,
-            _data_size,
+            data_size,
             range_res,
             n_ranges,
             n_beams,
@@ -188,6 +212,18 @@ def parse_ping(message: bytes) -> Ping:
         raise ProtocolError(f"SimplePingResult version {msg_version} is unknown")
     if n_ranges == 0 or n_beams == 0 or n_beams > 1024:
         raise ProtocolError(f"implausible image shape {n_ranges} x {n_beams}")
+    range_m = fire[5]
+    if not (math.isfinite(range_m) and 0.0 < range_m <= MAX_RANGE_M):
+        raise ProtocolError(f"range {range_m} m is not one an Oculus fires")
+    if not (math.isfinite(range_res) and 0.0 < range_res <= MAX_RANGE_RESOLUTION_M):
+        raise ProtocolError(f"range resolution {range_res} m is implausible")
+    if not (
+        sound_speed == 0.0
+        or (math.isfinite(sound_speed) and SOUND_SPEED_M_S[0] <= sound_speed <= SOUND_SPEED_M_S[1])
+    ):
+        raise ProtocolError(f"speed of sound {sound_speed} m/s is implausible")
+    if not (math.isfinite(frequency) and frequency >= 0.0) or not math.isfinite(fire[6]):
+        raise ProtocolError("frequency or gain is not a number")
     if header_size + 2 * n_beams > image_offset or image_offset + image_size > len(message):
         raise ProtocolError("bearing table or image outside the message")
     if message_size not in (0, len(message)):
@@ -196,6 +232,9 @@ def parse_ping(message: bytes) -> Ping:
     if remainder:
         raise ProtocolError(f"imageSize {image_size} is not a whole number of {n_ranges} rows")
     layout = _row_layout(row_bytes, n_beams)
+    if layout[0] == 4 and data_size != DATA_SIZE_32BIT:
+        # 4 bytes a beam is also 4 x the beams of a 8-bit row: only dataSize tells them apart.
+        raise ProtocolError(f"{row_bytes}-byte rows of {n_beams} beams but dataSize {data_size}")
     bearings = np.frombuffer(message, dtype="<i2", count=n_beams, offset=header_size) / 100.0
     steps = np.diff(bearings)
     if np.abs(bearings).max() > 90.0 or not ((steps > 0).all() or (steps < 0).all()):
@@ -311,6 +350,7 @@ def build_ping_result(
 ) -> bytes:
     """A SimplePingResult as a sonar sends it (for the fake sonar of tests and for replays)."""
     n_ranges, n_beams = image.shape
+    data_size = {1: 0, 2: 1, 4: DATA_SIZE_32BIT}[image.dtype.itemsize]
     body = np.ascontiguousarray(image.astype(image.dtype.newbyteorder("<"))).view(np.uint8)
     rows = body.reshape(n_ranges, -1)
     if row_gains is not None:
@@ -337,7 +377,7 @@ def build_ping_result(
             0.0,
             sound_speed_m_s,
             0,
-            0,
+            data_size,
             range_resolution_m,
             n_ranges,
             n_beams,
@@ -357,7 +397,7 @@ def build_ping_result(
             0.0,
             sound_speed_m_s,
             0.0,
-            0,
+            data_size,
             range_resolution_m,
             n_ranges,
             n_beams,

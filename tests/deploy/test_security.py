@@ -126,3 +126,33 @@ def test_laptop_taps_but_cannot_move_the_vehicle(secure_router: str, certs: Path
         # (A session hears its own puts locally; the router is what must refuse them.)
         assert b"bridge-fix" not in at_laptop.payloads()
         assert b"laptop" not in at_bridge.payloads()
+
+
+def test_certificate_recipe_names_hosts_and_limits_client_certificates(tmp_path: Path) -> None:
+    out = tmp_path / "site"
+    subprocess.run(
+        ["bash", str(SECURITY / "make-site-certs.sh"), str(out), "topside"],
+        check=True,
+        capture_output=True,
+        timeout=60,
+    )
+
+    def text(name: str) -> str:
+        return subprocess.run(
+            ["openssl", "x509", "-in", str(out / f"{name}.pem"), "-noout", "-text"],
+            check=True,
+            capture_output=True,
+            text=True,
+        ).stdout
+
+    router = text("capsd-router")
+    # The topside locator connects to tls/localhost: the router must name it, and topside.
+    for name in ("DNS:localhost", "IP Address:127.0.0.1", "DNS:topside"):
+        assert name in router
+    for client in ("capsd-asv", "capsd-locator", "capsd-rov", "capsd-laptop"):
+        usage = text(client).split("Extended Key Usage:")[1].splitlines()[1]
+        assert "Client Authentication" in usage
+        assert "Server Authentication" not in usage
+    key = out / "fix.key"
+    assert key.stat().st_mode & 0o077 == 0
+    assert len(bytes.fromhex(key.read_text().strip())) == 32

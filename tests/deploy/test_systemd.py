@@ -113,3 +113,19 @@ def test_install_script_for_the_rov_role(tmp_path: Path) -> None:
             timeout=60,
         )
         assert verify.returncode == 0, verify.stderr
+
+
+@pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="systemd-analyze not installed")
+@pytest.mark.parametrize("unit", UNITS, ids=lambda p: p.name)
+def test_units_are_hardened(unit: Path) -> None:
+    proc = subprocess.run(
+        ["systemd-analyze", "security", "--offline=true", "--no-pager", str(unit)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    line = [x for x in proc.stdout.splitlines() if "Overall exposure level" in x]
+    assert line, proc.stdout + proc.stderr
+    exposure = float(line[0].split(":")[1].split()[0])
+    assert exposure <= 4.5, line[0]

@@ -73,6 +73,9 @@ def test_a_known_telegram_from_the_manual_layout() -> None:
         (_text().replace("DIST1 3F800000", "DIST1 ZZZZ"), "not hex"),
         (_text().replace(f" {SAMPLES:X} ", " FFFF ", 1), "count"),
         (_text().replace("DIST1", "DIST9"), "no DIST1"),
+        # A 400-digit number where a 32-bit one belongs (it overflowed a float before).
+        (_text().replace("DIST1 3F800000", "DIST1 " + "F" * 400), "wider than 32 bits"),
+        (_text().replace(f" {SAMPLES:X} ", " " + "1" * 400 + " ", 1), "wider than 32 bits"),
     ],
 )
 def test_bad_telegrams_name_the_field(text: str, message: str) -> None:
@@ -103,12 +106,16 @@ def test_a_cut_telegram_is_dropped_and_the_next_one_read() -> None:
 
 
 @settings(max_examples=300, deadline=None)
-@given(data=st.binary(max_size=3000))
-def test_garbage_never_raises(data: bytes) -> None:
-    for item in ColaStream().feed(data):
-        if isinstance(item, str):
-            with contextlib.suppress(ColaError):
-                parse_scan(item)
+@given(data=st.binary(max_size=3000), token=st.text("0123456789ABCDEF", max_size=500))
+def test_garbage_never_raises(data: bytes, token: str) -> None:
+    texts = [t for t in ColaStream().feed(data) if isinstance(t, str)]
+    # Any token in any field of an otherwise valid telegram.
+    fields = _text().split(" ")
+    for k in range(0, len(fields), 7):
+        texts.append(" ".join([*fields[:k], token, *fields[k + 1 :]]))
+    for text in texts:
+        with contextlib.suppress(ColaError):
+            parse_scan(text)
 
 
 # ------------------------------------------------------------------ the client process

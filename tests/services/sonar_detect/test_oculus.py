@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 from typing import Literal
 
 import numpy as np
@@ -10,6 +11,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from services.sonar_detect.oculus import (
+    FIRE_V1,
+    HEADER,
+    RESULT_V1,
     FireFlag,
     FireSettings,
     Ping,
@@ -168,3 +172,69 @@ def test_range_lines_tile_the_fired_range() -> None:
     covered = ping.n_ranges * ping.range_resolution_m
     assert abs(covered - 2.0) < ping.range_resolution_m
     assert abs((ping.n_ranges - 1) * ping.range_resolution_m - 2.0) > 0.5 * ping.range_resolution_m
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=400))
+def test_any_bytes_parse_or_raise_a_protocol_error(data: bytes) -> None:
+    for message in (data, HEADER.pack(0x4F53, 0, 0, 0x23, 0, len(data), 0) + data):
+        with contextlib.suppress(ProtocolError):
+            parse_ping(message)
+
+
+def test_a_short_ping_result_does_not_wedge_the_stream() -> None:
+    # A 26-byte message with the ping-result id (10 bytes of payload): the parser's structs
+    # would read past it. The stream skips it and the next real ping comes through.
+    short = HEADER.pack(0x4F53, 0, 0, 0x23, 0, 10, 0) + bytes(10)
+    pings, errors = _pings(PingStream(), [short + ONE])
+    assert [p.ping_id for p in pings] == [parse_ping(ONE).ping_id]
+    assert errors
+
+
+def _patched(**fields: float) -> bytes:
+    """ONE with v1 header fields replaced (by name) and nothing else changed."""
+    names = [
+        "ping_id",
+        "status",
+        "frequency",
+        "temperature",
+        "pressure",
+        "sound_speed",
+        "start_time",
+        "data_size",
+        "range_resolution",
+        "n_ranges",
+        "n_beams",
+        "image_offset",
+        "image_size",
+        "message_size",
+    ]
+    offset = HEADER.size + FIRE_V1.size
+    values = dict(zip(names, RESULT_V1.unpack_from(ONE, offset), strict=True))
+    values.update(fields)
+    out = bytearray(ONE)
+    RESULT_V1.pack_into(out, offset, *(values[n] for n in names))
+    return bytes(out)
+
+
+@pytest.mark.parametrize(
+    ("fields", "reason"),
+    [
+        ({"range_resolution": 0.0}, "range resolution"),
+        ({"range_resolution": -0.01}, "range resolution"),
+        ({"sound_speed": 150.0}, "speed of sound"),
+        ({"n_beams": 64}, "dataSize"),  # a 256-byte row read as 64 beams of 32 bits
+    ],
+)
+def test_implausible_header_fields_are_refused(fields: dict[str, float], reason: str) -> None:
+    with pytest.raises(ProtocolError, match=reason):
+        parse_ping(_patched(**fields))
+
+
+def test_a_negative_range_is_refused() -> None:
+    out = bytearray(ONE)
+    fire = list(FIRE_V1.unpack_from(ONE, HEADER.size))
+    fire[5] = -20.0
+    FIRE_V1.pack_into(out, HEADER.size, *fire)
+    with pytest.raises(ProtocolError, match="range"):
+        parse_ping(bytes(out))
