@@ -15,7 +15,9 @@ import zenoh
 
 from capsd import topics
 from capsd.bench.footprint import _heavy_mapped
+from capsd.bus import open_session
 from capsd.codec import Codec
+from capsd.config import BusConfig
 from capsd.health import query_health
 from capsd.keys import is_concrete
 from capsd.payloads import Health, RovAttitude, RovDepth, RovFix, RovStatus
@@ -484,3 +486,45 @@ def test_the_bridge_refuses_to_start_without_the_site_key(
     proc = spawn("run", "mav_bridge", "--config", str(config))
     assert proc.popen.wait(timeout=30) == 2
     assert "readable by others" in proc.output()
+
+
+def test_a_flood_of_forged_fixes_does_not_age_the_genuine_ones(
+    spawn: Callable[..., Proc],
+    client: zenoh.Session,
+    endpoint: str,
+    tmp_path: Path,
+    autopilot: AutopilotStandIn,
+) -> None:
+    import threading
+
+    _start_bridge(spawn, tmp_path, endpoint, autopilot, heading_deg=0.0)
+    site = FixSender(client, SiteKey.load(_key_path(tmp_path), config_key="fix_key"))
+    _wait_ready(autopilot, site)
+    stop = threading.Event()
+
+    def flood() -> None:
+        # Its own session, as an attacker's would be: unsigned fixes as fast as it can put.
+        with open_session(BusConfig(connect=(endpoint,))) as session:
+            forged = FixSender(session, None)
+            for _ in range(20_000):
+                if stop.is_set():
+                    return
+                forged.send(position=(5.0, 5.0, -1.0))
+
+    attacker = threading.Thread(target=flood, daemon=True)
+    before = len(autopilot.recorded.estimates)
+    attacker.start()
+    sent = 0
+    deadline = time.monotonic() + 2.0
+    while time.monotonic() < deadline:
+        site.send(position=(2.0, 2.0, -2.0))
+        sent += 1
+        time.sleep(0.05)
+    stop.set()
+    attacker.join(timeout=10)
+    time.sleep(0.3)
+    got = [e for _, e in autopilot.recorded.estimates[before:]]
+    print(f"{len(got)} of {sent} genuine fixes reached the autopilot during the flood")
+    assert len(got) >= 0.9 * sent
+    assert all(abs(e.x - got[0].x) < 1e-6 for e in got)  # none of the forged ones
+    assert _health(client).counters["fixes_unauthenticated"] > 1000
