@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+import socket
 import threading
 from pathlib import Path
 
@@ -64,10 +65,38 @@ def open_session(bus: BusConfig, *, stop: threading.Event | None = None) -> zeno
         except zenoh.ZError as exc:
             if stop is None:
                 raise BusError(f"cannot join Zenoh via {list(bus.connect)}: {exc}") from None
+            if bus.listen and _listen_taken(bus.listen):
+                # Retrying cannot help: another process holds the port (a second router).
+                raise BusError(
+                    f"cannot listen on {list(bus.listen)}: the address is in use (another "
+                    f"router?): {exc}"
+                ) from None
             if attempt == 1 or attempt % 10 == 0:
                 logger.warning(
                     "waiting for Zenoh router",
-                    extra={"fields": {"connect": ",".join(bus.connect), "attempt": attempt}},
+                    extra={
+                        "fields": {
+                            "connect": ",".join(bus.connect),
+                            "attempt": attempt,
+                            "error": str(exc),
+                        }
+                    },
                 )
         if stop.wait(0.1):
             raise BusError("stopped while waiting for the Zenoh router")
+
+
+def _listen_taken(endpoints: tuple[str, ...]) -> bool:
+    """Whether a tcp/udp listen endpoint's port is already bound by someone else."""
+    for endpoint in endpoints:
+        proto, _, address = endpoint.partition("/")
+        host, _, port = address.rpartition(":")
+        if proto not in ("tcp", "tls", "udp") or not port.isdigit():
+            continue
+        kind = socket.SOCK_DGRAM if proto == "udp" else socket.SOCK_STREAM
+        with socket.socket(socket.AF_INET, kind) as probe:
+            try:
+                probe.bind((host.strip("[]") or "0.0.0.0", int(port)))
+            except OSError:
+                return True
+    return False

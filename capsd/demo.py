@@ -77,7 +77,15 @@ class Processes:
         if niceness:
             command = ["nice", "-n", str(niceness), *command]
         with log.open("wb") as out:
-            popen = subprocess.Popen(command, stdout=out, stderr=subprocess.STDOUT, cwd=os.getcwd())
+            # A session of its own: Ctrl-C in the terminal reaches only the demo, which then
+            # stops every child cleanly (SIGTERM, exit 0) in order.
+            popen = subprocess.Popen(
+                command,
+                stdout=out,
+                stderr=subprocess.STDOUT,
+                cwd=os.getcwd(),
+                start_new_session=True,
+            )
         child = Child(name, popen, log)
         self.children.append(child)
         return child
@@ -352,12 +360,11 @@ def main(
         "",
         "## Services at the end",
         "",
-        "| service | state | exit code | last error |",
+        "| service | state | exit code | last error (when) |",
         "|---|---|---:|---|",
     ]
     for name, h in health.items():
-        last = (h.last_error or "") if h else "no answer"
-        lines.append(f"| {name} | {h.state if h else '-'} | {codes.get(name)} | {last[:80]} |")
+        lines.append(f"| {name} | {h.state if h else '-'} | {codes.get(name)} | {_last_error(h)} |")
     lines += ["", "## Autopilot stand-in", "", "```", autopilot, "```", ""]
     lines += [
         "![trajectory](trajectory_3d.png)",
@@ -377,4 +384,22 @@ def main(
         codes.get(name) == 0
         for name in ("sim", "asv_pose", "sonar_detect", "locator", "mav_bridge")
     )
+    if interrupted:
+        print("capsd demo: stopped by user", file=stream, flush=True)
+        return 0 if services_ok else 1
     return 0 if services_ok and summary.get("good", 0) > 0 else 1
+
+
+def _last_error(health: Health | None) -> str:
+    """The last error, whole words only, and how long before the end it was."""
+    if health is None:
+        return "no answer"
+    if not health.last_error:
+        return ""
+    text = health.last_error
+    if len(text) > 90:
+        text = text[:90].rsplit(" ", 1)[0] + " ..."
+    if health.last_error_stamp_ns is not None:
+        ago = max(0.0, (health.stamp_ns - health.last_error_stamp_ns) / 1e9)
+        text += f" ({ago:.0f} s before the end)"
+    return text.replace("|", "/")

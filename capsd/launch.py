@@ -8,6 +8,7 @@ RestartPreventExitStatus=2 so a bad config never becomes a restart loop).
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 from typing import TypeVar
 
@@ -21,6 +22,43 @@ EXIT_FAILURE = 1
 EXIT_CONFIG = 2
 
 S = TypeVar("S", bound=ServiceConfig)
+
+
+def positive_float(text: str) -> float:
+    """An argparse type: a finite number > 0 (durations, timeouts, speeds)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
+    if not (math.isfinite(value) and value > 0.0):
+        raise argparse.ArgumentTypeError(f"{text} must be a positive number")
+    return value
+
+
+def non_negative_float(text: str) -> float:
+    """An argparse type: a finite number >= 0 (0 meaning "no limit" where a flag says so)."""
+    if text.strip() in ("0", "0.0"):
+        return 0.0
+    return positive_float(text)
+
+
+def non_negative_int(text: str) -> int:
+    """An argparse type: a whole number >= 0 (counts; 0 meaning "no limit" where said)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a whole number") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text} must not be negative")
+    return value
+
+
+def positive_int(text: str) -> int:
+    """An argparse type: a whole number > 0 (runs, frames)."""
+    value = non_negative_int(text)
+    if value == 0:
+        raise argparse.ArgumentTypeError("0 is not allowed here")
+    return value
 
 
 def add_bus_flags(parser: argparse.ArgumentParser) -> None:

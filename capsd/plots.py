@@ -43,11 +43,29 @@ def trajectory_3d(runs: dict[str, Accuracy], out: Path, *, title: str) -> None:
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_zlabel("z (m)")
+    # Equal scale on the three axes: a 16 mm error must not look like a zig-zag because z
+    # spans centimetres while x spans metres.
+    ax.set_box_aspect((1.0, 1.0, 1.0))
+    spans = [(float(np.nanmin(v)), float(np.nanmax(v))) for v in _all_points(runs).T]
+    if spans and all(np.isfinite(lo) and np.isfinite(hi) for lo, hi in spans):
+        half = max(max(hi - lo for lo, hi in spans) / 2.0, 0.5)
+        for setter, (lo, hi) in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), spans, strict=True):
+            setter((lo + hi) / 2.0 - half, (lo + hi) / 2.0 + half)
     ax.set_title(title)
     ax.legend(loc="upper left", fontsize=8)
     fig.tight_layout()
     fig.savefig(out, dpi=110)
     plt.close(fig)
+
+
+def _all_points(runs: dict[str, Accuracy]) -> np.ndarray:
+    """Every truth and estimate point of every run (n x 3), for a common scale."""
+    parts = []
+    for accuracy in runs.values():
+        _, truth, est = _series(accuracy)
+        parts += [truth, est]
+    points = np.concatenate(parts) if parts else np.zeros((0, 3))
+    return points if len(points) else np.zeros((1, 3))
 
 
 def per_axis(runs: dict[str, Accuracy], out: Path, *, title: str) -> None:
@@ -77,15 +95,25 @@ def error_histograms(runs: dict[str, Accuracy], out: Path, *, title: str) -> Non
     fig, ax = plt.subplots(figsize=(8, 4.5))
     errors = {name: acc.errors()[1] * 1000 for name, acc in runs.items()}
     top = max((float(np.percentile(e, 99)) for e in errors.values() if len(e)), default=1.0)
-    bins = np.linspace(0.0, max(top, 1.0), 60)
+    top = max(top, 1.0)
+    # The range covers the 99th percentile; what lies beyond goes into one bar of its own,
+    # drawn apart and labelled, never piled into the last ordinary bin as a false spike.
+    bins = np.linspace(0.0, top, 60)
+    width = float(bins[1] - bins[0])
+    overflow_at = top + 2 * width
     for name, e in errors.items():
         if len(e):
             ax.hist(
-                np.clip(e, 0, bins[-1]),
+                e[e <= top],
                 bins=[float(b) for b in bins],
                 alpha=0.5,
-                label=f"{name} (MED {e.mean():.0f} mm)",
+                label=f"{name} (MED {e.mean():.0f} mm, {int((e > top).sum())} beyond {top:.0f})",
             )
+            beyond = int((e > top).sum())
+            if beyond:
+                ax.bar(overflow_at, beyond, width=width, alpha=0.5, hatch="//")
+    ax.axvline(top + width, color="grey", lw=0.8, ls=":")
+    ax.text(overflow_at, ax.get_ylim()[1] * 0.95, f"> {top:.0f}", ha="center", fontsize=7)
     ax.set_xlabel("Euclidean error (mm)")
     ax.set_ylabel("pings")
     ax.set_title(title)

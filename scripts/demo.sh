@@ -11,5 +11,7 @@ shift || true
 PY=${PYTHON:-python3.11}
 command -v "$PY" >/dev/null 2>&1 || PY=python3
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
-.venv/bin/python -m pip install --quiet --disable-pip-version-check -e '.[topside,rov,asv,detect]' 2> >(grep -v "^WARNING: Location" >&2)
+echo "installing CAP-SD and its dependencies into .venv (a few minutes the first time: torch is ~200 MB)..."
+.venv/bin/python -m pip install --progress-bar off --disable-pip-version-check -e '.[topside,rov,asv,detect]' 2> >(grep -v "^WARNING: Location" >&2) | { grep -E '^(Collecting|Successfully installed)' || true; }
+echo "installed; starting the demo"
 exec .venv/bin/capsd demo --duration "$DURATION" "$@"
