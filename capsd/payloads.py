@@ -121,6 +121,8 @@ class Health(Payload, frozen=True, kw_only=True):
 
     service: str
     state: HealthState
+    # Why the state is not "ok" (what is missing or wrong), as the service says it.
+    state_reason: str | None = None
     pid: NonNegInt
     host: str
     software_version: str

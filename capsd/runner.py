@@ -494,7 +494,7 @@ class ServiceRunner:
         with self._lock:
             inputs = tuple(c.snapshot() for c in self._inputs)
             outputs = tuple(c.snapshot() for c in self._outputs)
-            state = self._state
+            state, state_reason = self._state, self._state_reason
             last_error, last_error_stamp = self._last_error, self._last_error_stamp_ns
             counters: dict[str, int] = {}
             for source in self._counter_sources:
@@ -506,6 +506,7 @@ class ServiceRunner:
             seq=self._health_pub.next_seq() if seq is None else seq,
             service=self.name,
             state=state,
+            state_reason=state_reason if state != "ok" else None,
             pid=os.getpid(),
             host=socket.gethostname(),
             software_version=__version__,

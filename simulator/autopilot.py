@@ -1,7 +1,8 @@
 """An ArduSub stand-in on a loopback MAVLink link: telemetry out, parameters, and a recorder.
 
-It listens (`tcpin:`), sends HEARTBEAT (1 Hz), ATTITUDE, SCALED_PRESSURE2 and SYSTEM_TIME at
-the rates the bridge asks for (MAV_CMD_SET_MESSAGE_INTERVAL, acknowledged), serves parameters
+It listens (`tcpin:`), sends HEARTBEAT (1 Hz), ATTITUDE, SCALED_PRESSURE2, SYSTEM_TIME and
+EKF_STATUS_REPORT (a model of EKF3's position test ratio, see `pos_horiz_ratio`) at the rates
+the bridge asks for (MAV_CMD_SET_MESSAGE_INTERVAL, acknowledged), serves parameters
 (PARAM_REQUEST_READ/LIST, PARAM_SET echoes PARAM_VALUE), and records what it receives:
 VISION_POSITION_ESTIMATE, GPS_INPUT, STATUSTEXT, SET_GPS_GLOBAL_ORIGIN. The vehicle's attitude
 and depth come from a callable, so a simulator can drive it. For tests and the demo only.
@@ -13,6 +14,7 @@ import json
 import math
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -23,6 +25,7 @@ from services.mav_bridge.mavlink import (
     MAV_RESULT_ACCEPTED,
     Attitude,
     CommandLong,
+    EkfStatus,
     GlobalOrigin,
     GpsInput,
     Heartbeat,
@@ -50,6 +53,9 @@ DEFAULT_PARAMS: dict[str, float] = {
 }
 
 RHO_G = 1000.0 * 9.80665
+EKF_WINDOW_S = 3.0
+EKF_GATE_M = 0.3
+EKF_HEALTHY_FLAGS = 0x1FF  # attitude, velocities, positions, const-pos: what a good EKF says
 
 
 @dataclass(frozen=True)
@@ -60,6 +66,9 @@ class VehicleState:
     pitch: float = 0.0
     yaw: float = 0.0
     depth_m: float = 1.0
+    # Where the vehicle truly is (NED from the EKF origin), for the EKF model: None = unknown.
+    north_m: float | None = None
+    east_m: float | None = None
 
 
 @dataclass
@@ -92,6 +101,8 @@ class AutopilotStandIn:
         self.mode = mode
         self.recorded = Recorded()
         self.lock = threading.Lock()
+        # (arrival, estimate north, east, true north, east) of the last EKF_WINDOW_S.
+        self._innovations: deque[tuple[float, float, float, float, float]] = deque()
         self._rates_hz = {
             message_id("ATTITUDE"): 10.0,
             message_id("SCALED_PRESSURE2"): 5.0,
@@ -169,12 +180,47 @@ class AutopilotStandIn:
             )
         elif msg == message_id("SYSTEM_TIME"):
             link.send_system_time(time_unix_usec=0, time_boot_ms=boot_ms)
+        elif msg == message_id("EKF_STATUS_REPORT"):
+            link.send_ekf_status(
+                EkfStatus(
+                    EKF_HEALTHY_FLAGS,
+                    pos_horiz_variance=self.pos_horiz_ratio(),
+                    velocity_variance=0.05,
+                    compass_variance=0.05,
+                )
+            )
+
+    def pos_horiz_ratio(self) -> float:
+        """The EKF's horizontal position test ratio, modelled (units of EKF_GATE_M squared).
+
+        How far the estimates' motion strays from the vehicle's own over the last EKF_WINDOW_S.
+        A constant offset is forgiven (the EKF takes it as the origin); a rotation (a wrong
+        heading) or a scale error grows with the distance travelled, as EKF3's ratio does.
+        """
+        with self.lock:
+            now = time.time()
+            while self._innovations and now - self._innovations[0][0] > EKF_WINDOW_S:
+                self._innovations.popleft()
+            rows = list(self._innovations)
+        if len(rows) < 5:
+            return 0.05
+        first = rows[0]
+        squares = [
+            ((n - first[1]) - (tn - first[3])) ** 2 + ((e - first[2]) - (te - first[4])) ** 2
+            for _, n, e, tn, te in rows
+        ]
+        return max(0.05, (sum(squares) / len(squares)) / EKF_GATE_M**2)
 
     def _handle(self, link: MavLink, message: object) -> None:
         now = time.time()
         with self.lock:
             if isinstance(message, VisionPositionEstimate):
                 self.recorded.estimates.append((now, message))
+                truth = self.state(now)
+                if truth.north_m is not None and truth.east_m is not None:
+                    self._innovations.append(
+                        (now, message.x, message.y, truth.north_m, truth.east_m)
+                    )
             elif isinstance(message, GpsInput):
                 self.recorded.gps_inputs.append((now, message))
             elif isinstance(message, StatusText):

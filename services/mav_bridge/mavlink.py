@@ -95,6 +95,11 @@ class SystemTime:
 @dataclass(frozen=True)
 class EkfStatus:
     flags: int
+    # EKF3's innovation test ratios (1.0: at its gate); pos_horiz is the one external position
+    # feeds: ~0.1 in good flight, several when positions and the vehicle's motion disagree.
+    pos_horiz_variance: float = 0.0
+    velocity_variance: float = 0.0
+    compass_variance: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -213,7 +218,12 @@ def _convert(msg: Any) -> Message | None:
     if kind == "SYSTEM_TIME":
         return SystemTime(msg.time_unix_usec, msg.time_boot_ms)
     if kind == "EKF_STATUS_REPORT":
-        return EkfStatus(msg.flags)
+        return EkfStatus(
+            msg.flags,
+            float(msg.pos_horiz_variance),
+            float(msg.velocity_variance),
+            float(msg.compass_variance),
+        )
     if kind == "PARAM_VALUE":
         return ParamValue(
             _text(msg.param_id).rstrip("\0"),
@@ -479,6 +489,16 @@ class MavLink:
 
     def send_system_time(self, *, time_unix_usec: int, time_boot_ms: int) -> None:
         self._mav.system_time_send(time_unix_usec, time_boot_ms)
+
+    def send_ekf_status(self, status: EkfStatus) -> None:
+        self._mav.ekf_status_report_send(
+            status.flags,
+            status.velocity_variance,
+            status.pos_horiz_variance,
+            0.0,  # pos_vert_variance
+            status.compass_variance,
+            0.0,  # terrain_alt_variance
+        )
 
     def send_param_value(self, *, name: str, value: float, index: int, count: int) -> None:
         self._mav.param_value_send(

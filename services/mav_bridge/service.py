@@ -115,6 +115,16 @@ class GateConfig(ConfigSection, frozen=True, kw_only=True):
     max_rate_hz: Annotated[float, msgspec.Meta(gt=0.0, le=50.0)] = 50.0
 
 
+class EkfCheckConfig(ConfigSection, frozen=True, kw_only=True):
+    """When ArduSub's EKF and our positions disagree (a wrong heading or origin)."""
+
+    # EKF_STATUS_REPORT's horizontal position test ratio: ~0.1 in good flight (SITL p95),
+    # 5.8 with the tank frame 90 deg off; above this for `sustained_s` while estimates go out
+    # is an episode: the pilot is told once, Health says why.
+    max_pos_ratio: Annotated[float, msgspec.Meta(gt=0.0, le=100.0)] = 1.0
+    sustained_s: Annotated[float, msgspec.Meta(gt=0.0, le=60.0)] = 3.0
+
+
 class RatesConfig(ConfigSection, frozen=True, kw_only=True):
     """Message rates requested with MAV_CMD_SET_MESSAGE_INTERVAL."""
 
@@ -136,6 +146,7 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     ekf_origin: OriginConfig | None = None
     depth: DepthConfig = DepthConfig()
     rates: RatesConfig = RatesConfig()
+    ekf_check: EkfCheckConfig = EkfCheckConfig()
     # required: only fixes tagged with the site's fix key reach the autopilot, whatever router
     # carried them (BlueOS's has no access control); off: a bench without keys, never a site.
     fix_auth: Literal["required", "off"] = "required"
@@ -193,6 +204,10 @@ class Bridge:
         self._last_depth = -math.inf
         self._last_attitude = -math.inf
         self._missing: str | None = None
+        self.ekf_pos_ratio = 0.0
+        self._ekf_high_since: float | None = None
+        self._ekf_low_since: float | None = None
+        self._ekf_disagrees = False
         self._configured_boot = 0
         self._last_param_request = 0.0
         self._last_sent_mono: float | None = None
@@ -259,8 +274,48 @@ class Bridge:
             self._check_inputs(now)
         self._announce(now)
 
+    def _observe_ekf(self, ratio: float, now: float) -> None:
+        """Track the EKF's position test ratio: a sustained high one while we send is wrong."""
+        c = self.config.ekf_check
+        sending = self._last_sent_mono is not None and now - self._last_sent_mono < 1.0
+        high = ratio > c.max_pos_ratio and sending
+        self.ekf_pos_ratio = ratio
+        if high:
+            self._ekf_high_since = self._ekf_high_since or now
+            self._ekf_low_since = None
+        else:
+            self._ekf_low_since = self._ekf_low_since or now
+            self._ekf_high_since = None
+        if (
+            not self._ekf_disagrees
+            and self._ekf_high_since is not None
+            and now - self._ekf_high_since >= c.sustained_s
+        ):
+            self._ekf_disagrees = True
+            self.counts["ekf_disagreement_episodes"] += 1
+            heading = self.config.ned.heading_deg
+            logger.warning(
+                "the EKF rejects our positions",
+                extra={"fields": {"pos_ratio": round(ratio, 2), "heading_deg": heading}},
+            )
+            # Once per episode (the caller holds the link's lock).
+            try:
+                self.link.send_statustext(
+                    "warning", f"CAP-SD: EKF rejects fixes: heading {heading:g}/origin?"
+                )
+                self.counts["statustext_ekf"] += 1
+            except OSError:
+                pass
+        elif (
+            self._ekf_disagrees
+            and self._ekf_low_since is not None
+            and now - self._ekf_low_since >= c.sustained_s
+        ):
+            self._ekf_disagrees = False
+            logger.info("the EKF accepts our positions again")
+
     def _check_inputs(self, now: float) -> None:
-        """Health says what is missing: the depth, the attitude (with the link up)."""
+        """Health says what is wrong: depth or attitude missing, the EKF disagreeing."""
         if self.clock.boots == 0 or now - self._link_opened < _INPUT_GRACE_S:
             return
         missing = [
@@ -268,15 +323,22 @@ class Bridge:
             for name, last in (("depth", self._last_depth), ("attitude", self._last_attitude))
             if now - last > _INPUT_GRACE_S
         ]
+        reasons = []
         if missing:
-            why = "no " + " and no ".join(missing) + " from the autopilot"
+            reasons.append("no " + " and no ".join(missing) + " from the autopilot")
+        if self._ekf_disagrees:
+            reasons.append(
+                f"the EKF rejects our positions (test ratio {self.ekf_pos_ratio:.1f}): "
+                f"heading ({self.config.ned.heading_deg:g} deg) or origin wrong?"
+            )
+        why = "; ".join(reasons) or None
+        if why is not None:
             if self._missing != why:
-                logger.warning("autopilot input missing", extra={"fields": {"reason": why}})
+                logger.warning("autopilot check", extra={"fields": {"reason": why}})
             self.runner.set_state("degraded", why)
-            self._missing = why
         elif self._missing is not None:
-            self._missing = None
             self.runner.set_state("ok")
+        self._missing = why
 
     def _drop_link(self, why: str) -> None:
         """Close the link and forget everything it told us (published as unknown)."""
@@ -386,6 +448,7 @@ class Bridge:
             self._observe(message.time_boot_ms, arrival_ns)
         elif isinstance(message, EkfStatus):
             self.ekf_flags = message.flags
+            self._observe_ekf(message.pos_horiz_variance, time.monotonic())
         elif isinstance(message, ParamValue):
             if message.name == "BARO2_GND_PRESS" and self.surface_pressure_pa is None:
                 self.surface_pressure_pa = message.value

@@ -528,3 +528,50 @@ def test_a_flood_of_forged_fixes_does_not_age_the_genuine_ones(
     assert len(got) >= 0.9 * sent
     assert all(abs(e.x - got[0].x) < 1e-6 for e in got)  # none of the forged ones
     assert _health(client).counters["fixes_unauthenticated"] > 1000
+
+
+@pytest.mark.parametrize("heading_deg", [0.0, 90.0])
+def test_a_wrong_heading_is_told_to_the_pilot(
+    spawn: Callable[..., Proc],
+    client: zenoh.Session,
+    endpoint: str,
+    tmp_path: Path,
+    heading_deg: float,
+) -> None:
+    # The vehicle truly runs north at 0.3 m/s; W's x axis truly points north (heading 0).
+    # The bridge is told `heading_deg`: at 90 its estimates run east while the vehicle goes
+    # north, and the stand-in's EKF model sees the test ratio climb, as EKF3 does.
+    t0 = time.time()
+
+    def x_at(t: float) -> float:
+        return 1.0 + 0.3 * (t - t0)
+
+    def truth(t: float) -> VehicleState:
+        # W to NED with heading 0 and origin (10, -5): north = x + 10, east = -y - 5.
+        return VehicleState(depth_m=2.0, north_m=x_at(t) + 10.0, east_m=-2.0 - 5.0)
+
+    with AutopilotStandIn(free_port(), state=truth) as autopilot:
+        bridge = _start_bridge(spawn, tmp_path, endpoint, autopilot, heading_deg=heading_deg)
+        sender = FixSender(client, SiteKey.load(_key_path(tmp_path), config_key="fix_key"))
+        deadline = time.monotonic() + 14.0
+        warned_at = None
+        started = None
+        while time.monotonic() < deadline:
+            sender.send(position=(x_at(time.time()), 2.0, -2.0))
+            if started is None and autopilot.recorded.estimates:
+                started = time.monotonic()
+            if warned_at is None and any("EKF" in s.text for s in autopilot.recorded.statustexts):
+                warned_at = time.monotonic()
+            time.sleep(0.05)
+        health = _health(client)
+    assert started is not None
+    if heading_deg == 0.0:
+        assert warned_at is None
+        assert health.state == "ok", health.state_reason
+    else:
+        assert warned_at is not None
+        assert warned_at - started <= 10.0
+        assert health.state == "degraded"
+        assert "heading" in (health.state_reason or "")
+        assert health.counters["ekf_disagreement_episodes"] == 1  # once per episode
+    assert bridge.popen.poll() is None
