@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import faulthandler
 import json
+import os
 import signal
 import sys
 import threading
@@ -22,6 +23,10 @@ from capsd.launch import (
     add_bus_flags,
     add_namespace_flags,
     bus_from_args,
+    non_negative_float,
+    non_negative_int,
+    positive_float,
+    positive_int,
     service_config_from_args,
 )
 from capsd.logs import setup_stderr_logging
@@ -336,12 +341,20 @@ def _cmd_bench_sim(args: argparse.Namespace) -> int:
     )
 
 
+def _cmd_bench_finetune(args: argparse.Namespace) -> int:
+    from capsd.bench import finetune
+
+    if not (args.duration > 0 and args.eval_duration > 0):
+        return _fail("bench finetune: durations must be positive", EXIT_CONFIG)
+    return finetune.run(out=args.out, duration_s=args.duration, eval_duration_s=args.eval_duration)
+
+
 def _cmd_bench_detect(args: argparse.Namespace) -> int:
     from capsd.bench import detect
 
     if args.throughput:
         return detect.run_throughput(frames=args.frames, which=args.detector)
-    return detect.run(duration_s=args.duration, which=args.detector)
+    return detect.run(duration_s=args.duration, which=args.detector, fixtures=args.fixtures)
 
 
 def _cmd_record(args: argparse.Namespace) -> int:
@@ -514,8 +527,48 @@ def _cmd_train_calibrate(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_label(args: argparse.Namespace) -> int:
+    from capsd.config import load_config
+    from services.locator.service import Config as LocatorConfig
+    from services.sonar_detect.labelling import label_recording, write_labels
+
+    if not 0.0 < args.max_sigma <= 1.0:
+        return _fail(f"label: --max-sigma must be in (0, 1] m, not {args.max_sigma}", EXIT_CONFIG)
+    try:
+        locator = load_config(args.locator_config, LocatorConfig)
+        labels, summary = label_recording(
+            args.recording, sonar=locator.sonar, max_sigma_m=args.max_sigma
+        )
+    except CapsdError as exc:
+        return _fail(f"label: {exc}", EXIT_CONFIG)
+    print(
+        f"{summary.frames} frames, {summary.fixes} fixes, {summary.confident} confident and "
+        f"tracked with a pose, {summary.labelled} labelled ({summary.outside_fan} outside the "
+        f"fan, {summary.unreadable} unreadable messages)"
+    )
+    if not labels:
+        return _fail("label: no frame could be labelled (no confident tracked fix)", EXIT_FAILURE)
+    sheets = write_labels(labels, args.out)
+    print(f"labels in {args.out}: {len(sheets)} contact sheets; reject crops in rejected.txt")
+    return EXIT_OK
+
+
 def _cmd_train_detector(args: argparse.Namespace) -> int:
     from services.sonar_detect.train import TrainConfig, train
+
+    if args.finetune is not None:
+        from services.sonar_detect.finetune import FinetuneConfig, finetune
+
+        try:
+            finetune(
+                args.weights,
+                args.finetune,
+                args.out,
+                FinetuneConfig(seed=args.seed, workers=args.workers, threads=args.threads),
+            )
+        except CapsdError as exc:
+            return _fail(f"finetune: {exc}", EXIT_CONFIG)
+        return EXIT_OK
 
     config = TrainConfig(
         seed=args.seed,
@@ -607,9 +660,14 @@ def build_parser() -> argparse.ArgumentParser:
         description="Decode every payload on KEYEXPR and print one JSON line each.",
     )
     tap.add_argument("keyexpr", help="key expression, e.g. 'cap/**'")
-    tap.add_argument("--count", type=int, default=0, help="stop after N payloads (0: no limit)")
     tap.add_argument(
-        "--duration", type=float, default=0.0, help="stop after S seconds (0: no limit)"
+        "--count", type=non_negative_int, default=0, help="stop after N payloads (0: no limit)"
+    )
+    tap.add_argument(
+        "--duration",
+        type=non_negative_float,
+        default=0.0,
+        help="stop after S seconds (0: no limit)",
     )
     tap.add_argument(
         "--bytes",
@@ -626,7 +684,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Live services from their liveliness tokens, with their latest health.",
     )
     lst.add_argument("--site", help="only this site")
-    lst.add_argument("--timeout", type=float, default=1.0, help="query timeout in seconds")
+    lst.add_argument("--timeout", type=positive_float, default=1.0, help="query timeout in seconds")
     lst.add_argument("--json", action="store_true", help="one JSON object per service")
     lst.add_argument(
         "--clock-warn-ms",
@@ -668,7 +726,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="VISO_POS_M_NSE should be at most this (metres)",
     )
     check.add_argument("--delay-ms", type=float, default=50.0, help="wanted VISO_DELAY_MS")
-    check.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for answers")
+    check.add_argument(
+        "--timeout", type=positive_float, default=5.0, help="seconds to wait for answers"
+    )
     check.set_defaults(func=_cmd_mav_check)
 
     sim = sub.add_parser(
@@ -682,7 +742,7 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--offline", metavar="DIR", help="write a dataset here instead")
     sim.add_argument(
         "--duration",
-        type=float,
+        type=positive_float,
         default=60.0,
         help="seconds to simulate with --offline (default 60)",
     )
@@ -712,7 +772,9 @@ def build_parser() -> argparse.ArgumentParser:
         description="A top-view PNG of the tank with both tracks.",
     )
     _add_world_flags(top)
-    top.add_argument("--duration", type=float, default=120.0, help="seconds of track to draw")
+    top.add_argument(
+        "--duration", type=positive_float, default=120.0, help="seconds of track to draw"
+    )
     top.add_argument("--out", "-o", required=True, help="PNG file to write")
     add_namespace_flags(top)
     add_bus_flags(top)
@@ -730,7 +792,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Start the bridge against a local router and the autopilot stand-in; "
         "print start-up time to READY=1, resident memory and heavy libraries.",
     )
-    foot.add_argument("--runs", type=int, default=5, help="repetitions (median reported)")
+    foot.add_argument("--runs", type=positive_int, default=5, help="repetitions (median reported)")
     foot.add_argument("--settle", type=float, default=3.0, help="seconds running before RSS")
     foot.set_defaults(func=_cmd_bench_footprint)
     bsim = bench_sub.add_parser(
@@ -745,17 +807,25 @@ def build_parser() -> argparse.ArgumentParser:
         default="lawnmower",
         choices=["square", "lawnmower", "bouncing", "random", "two_floor"],
     )
-    bsim.add_argument("--duration", type=float, default=20.0, help="seconds measured")
-    bsim.add_argument("--warmup", type=float, default=4.0, help="seconds before measuring")
+    bsim.add_argument("--duration", type=positive_float, default=20.0, help="seconds measured")
+    bsim.add_argument("--warmup", type=positive_float, default=4.0, help="seconds before measuring")
     bsim.set_defaults(func=_cmd_bench_sim)
     bdet = bench_sub.add_parser(
         "detect",
         help="detectors on held-out simulated frames against the labels",
-        description="Detection rate, false alarms per frame, range/azimuth errors and time per "
-        "frame, with and without clutter overlapping the ROV; the paper's box-centre "
-        "pipeline as the baseline.",
+        description="Detection rate, false alarms per frame, range/azimuth errors (median, "
+        "p90) in the simulator's fixed look and in held-out look settings (docs/SONAR-"
+        "VARIETY.md), with and without clutter overlapping the ROV and by range band; the "
+        "paper's box-centre pipeline as the baseline; detections on real Oculus pings (none "
+        "allowed); or time per frame.",
     )
-    bdet.add_argument("--duration", type=float, default=15.0, help="seconds per run")
+    bdet.add_argument("--duration", type=positive_float, default=15.0, help="seconds per run")
+    bdet.add_argument(
+        "--fixtures",
+        type=Path,
+        default=Path("tests/fixtures/oculus"),
+        help="folder of raw Oculus captures without an ROV (skipped if absent)",
+    )
     bdet.add_argument(
         "--detector", choices=["all", "classical", "cnn"], default="all", help="which to run"
     )
@@ -764,15 +834,33 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="instead: per-frame latency on 512 x 1000 frames on one CPU core",
     )
-    bdet.add_argument("--frames", type=int, default=300, help="frames timed (--throughput)")
+    bdet.add_argument(
+        "--frames", type=positive_int, default=300, help="frames timed (--throughput)"
+    )
     bdet.set_defaults(func=_cmd_bench_detect)
+    bft = bench_sub.add_parser(
+        "finetune",
+        help="the fine-tune path on a sonar look outside the training variety, before/after",
+        description="A simulated first dive in a look never trained on, recorded; `capsd "
+        "label` on it; `capsd train detector --finetune`; both weights on held-out runs.",
+    )
+    bft.add_argument("--out", type=Path, default=Path("reports/finetune"), help="report folder")
+    bft.add_argument(
+        "--duration", type=positive_float, default=60.0, help="first dive, simulated s"
+    )
+    bft.add_argument(
+        "--eval-duration", type=positive_float, default=15.0, help="seconds per held-out run"
+    )
+    bft.set_defaults(func=_cmd_bench_finetune)
     bacc = bench_sub.add_parser(
         "accuracy",
         help="the paper's results table: its method vs ours on the same runs, and an ablation",
         description="Five trajectories in the nfp tank and one in the mockup through the "
         "offline pipeline; x/y/z RMSE, MED, p95, availability; targets; ablation; PNGs.",
     )
-    bacc.add_argument("--duration", type=float, default=60.0, help="simulated seconds per run")
+    bacc.add_argument(
+        "--duration", type=positive_float, default=60.0, help="simulated seconds per run"
+    )
     bacc.add_argument("--seed", type=int, default=0, help="simulator seed")
     bacc.add_argument("--out", type=Path, default=Path("reports/accuracy"), help="report folder")
     bacc.set_defaults(func=_cmd_bench_accuracy)
@@ -782,7 +870,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Run the pose estimator on simulated IMU and LiDAR (waves on), ASV stationary "
         "and following; print RMS position, yaw, roll and pitch error and the targets.",
     )
-    bpose.add_argument("--duration", type=float, default=60.0, help="seconds per run")
+    bpose.add_argument("--duration", type=positive_float, default=60.0, help="seconds per run")
     bpose.set_defaults(func=_cmd_bench_asv_pose)
     blat = bench_sub.add_parser(
         "latency",
@@ -795,8 +883,12 @@ def build_parser() -> argparse.ArgumentParser:
     blat.add_argument(
         "--rates", type=float, nargs="+", default=[10.0, 20.0, 40.0], help="sonar rates, Hz"
     )
-    blat.add_argument("--duration", type=float, default=30.0, help="seconds measured per rate")
-    blat.add_argument("--warmup", type=float, default=5.0, help="seconds after the first VPE")
+    blat.add_argument(
+        "--duration", type=positive_float, default=30.0, help="seconds measured per rate"
+    )
+    blat.add_argument(
+        "--warmup", type=positive_float, default=5.0, help="seconds after the first VPE"
+    )
     blat.add_argument("--out", type=Path, default=Path("reports/latency"), help="report folder")
     blat.set_defaults(func=_cmd_bench_latency)
     bfault = bench_sub.add_parser(
@@ -820,7 +912,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     rec.add_argument("keyexpr", help="key expression, e.g. 'cap/**'")
     rec.add_argument("-o", "--output", type=Path, required=True, help="the .mcap file")
-    rec.add_argument("--duration", type=float, default=None, help="seconds to record")
+    rec.add_argument("--duration", type=positive_float, default=None, help="seconds to record")
     rec.add_argument(
         "--exclude", action="append", default=[], help="skip keys intersecting this (repeatable)"
     )
@@ -832,7 +924,9 @@ def build_parser() -> argparse.ArgumentParser:
         description="Put every recorded sample again on its key, paced by --speed.",
     )
     rep.add_argument("file", type=Path, help="an .mcap file written by `capsd record`")
-    rep.add_argument("--speed", type=float, default=1.0, help="1 = real time, 10 = ten times")
+    rep.add_argument(
+        "--speed", type=positive_float, default=1.0, help="1 = real time, 10 = ten times"
+    )
     rep.add_argument("--include", default="**", help="only keys intersecting this expression")
     rep.add_argument("--exclude", action="append", default=[], help="skip these keys")
     rep.add_argument("--info", action="store_true", help="only print per-channel counts")
@@ -853,7 +947,9 @@ def build_parser() -> argparse.ArgumentParser:
         default=Path("deploy/config/locator.yaml"),
         help="the live locator's config (the demo writes it to its logs folder)",
     )
-    rchk.add_argument("--speed", type=float, default=1.0, help="replay speed (1 = real time)")
+    rchk.add_argument(
+        "--speed", type=positive_float, default=1.0, help="replay speed (1 = real time)"
+    )
     rchk.set_defaults(func=_cmd_replay_check)
     imp = sub.add_parser(
         "import-bag",
@@ -886,7 +982,7 @@ def build_parser() -> argparse.ArgumentParser:
         "ArduSub stand-in as separate processes on 127.0.0.1; live fix error vs truth, rates "
         "and health; stops after --duration or Ctrl-C; writes summary.md, figures.json, PNGs.",
     )
-    dem.add_argument("--duration", type=float, default=60.0, help="seconds to run")
+    dem.add_argument("--duration", type=positive_float, default=60.0, help="seconds to run")
     dem.add_argument("--out", type=Path, default=None, help="report folder (reports/demo-TIME)")
     dem.add_argument(
         "--trajectory",
@@ -916,8 +1012,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     tdet.add_argument("--out", type=Path, default=Path("services/sonar_detect/weights"))
     tdet.add_argument("--seed", type=int, default=0)
-    tdet.add_argument("--runs", type=int, default=64, help="simulated training runs")
-    tdet.add_argument("--run-duration", type=float, default=60.0, help="seconds per run")
+    tdet.add_argument("--runs", type=positive_int, default=64, help="simulated training runs")
+    tdet.add_argument("--run-duration", type=positive_float, default=60.0, help="seconds per run")
     tdet.add_argument("--workers", type=int, default=2, help="rendering processes")
     tdet.add_argument("--threads", type=int, default=2, help="torch threads for training")
     tdet.add_argument("--proposal-epochs", type=int, default=6)
@@ -926,8 +1022,42 @@ def build_parser() -> argparse.ArgumentParser:
     tdet.add_argument("--hard-runs", type=int, default=32, help="runs per hard-example round")
     tdet.add_argument("--hard-rounds", type=int, default=1, help="hard-example rounds")
     tdet.add_argument("--hard-epochs", type=int, default=2)
-    tdet.add_argument("--eval-duration", type=float, default=20.0, help="seconds per held-out run")
+    tdet.add_argument(
+        "--eval-duration", type=positive_float, default=20.0, help="seconds per held-out run"
+    )
+    tdet.add_argument(
+        "--finetune",
+        type=Path,
+        metavar="LABELS",
+        help="instead: adapt --weights to a `capsd label` folder (minutes on 2 cores)",
+    )
+    tdet.add_argument(
+        "--weights",
+        type=Path,
+        default=Path("services/sonar_detect/weights/polar_net.pt"),
+        help="the weights to fine-tune (--finetune)",
+    )
     tdet.set_defaults(func=_cmd_train_detector)
+    lab = sub.add_parser(
+        "label",
+        help="labelled sonar frames from a recording's confident tracked fixes",
+        description="Project each good, tracked fix of a recording (sonar frames, ASV poses "
+        "and fixes: `capsd record 'cap/**'`) back into its sonar frame; write labels.msgpack, "
+        "numbered PNG contact sheets to check, and rejected.txt for the crops to leave out. "
+        "`capsd train detector --finetune OUT` then adapts the detector.",
+    )
+    lab.add_argument("recording", type=Path, help="an MCAP recording")
+    lab.add_argument("-o", "--out", type=Path, required=True, help="labels folder")
+    lab.add_argument(
+        "--locator-config",
+        type=Path,
+        default=Path("deploy/config/locator.yaml"),
+        help="the locator's config during the dive (its sonar mount)",
+    )
+    lab.add_argument(
+        "--max-sigma", type=float, default=0.05, help="largest horizontal fix sigma kept (m)"
+    )
+    lab.set_defaults(func=_cmd_label)
     tcal = train.add_parser(
         "calibrate",
         help="set the polar CNN's operating point on validation runs (part of `detector`)",
@@ -938,7 +1068,9 @@ def build_parser() -> argparse.ArgumentParser:
     tcal.add_argument(
         "--weights", type=Path, default=Path("services/sonar_detect/weights/polar_net.pt")
     )
-    tcal.add_argument("--duration", type=float, default=10.0, help="seconds per validation run")
+    tcal.add_argument(
+        "--duration", type=positive_float, default=10.0, help="seconds per validation run"
+    )
     tcal.set_defaults(func=_cmd_train_calibrate)
     return parser
 
@@ -947,7 +1079,35 @@ def main(argv: Sequence[str] | None = None) -> int:
     # `kill -USR1 <pid>` dumps every thread's stack to stderr: how a wedged service is diagnosed.
     faulthandler.register(signal.SIGUSR1, all_threads=True)
     args = build_parser().parse_args(argv)
-    return int(args.func(args))
+    try:
+        return int(args.func(args))
+    except BrokenPipeError:
+        # The reader went away (`capsd list --json | head`): not an error of ours. Point
+        # stdout at nothing so the interpreter's final flush does not complain either.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_OK
+    except ModuleNotFoundError as exc:
+        extra = _EXTRA_OF.get((exc.name or "").split(".")[0])
+        if extra is None:
+            raise
+        return _fail(
+            f"`capsd {args.command}` needs {exc.name}: install the extra, "
+            f"pip install 'capsd[{extra}]'",
+            EXIT_CONFIG,
+        )
+
+
+# Which extra brings a module a command may need (pyproject.toml's optional dependencies).
+_EXTRA_OF = {
+    "torch": "detect",
+    "scipy": "asv",
+    "cv2": "asv",
+    "matplotlib": "topside",
+    "mcap": "topside",
+    "foxglove": "topside",
+    "pymavlink": "rov",
+    "rosbags": "ros",
+}
 
 
 if __name__ == "__main__":

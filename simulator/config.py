@@ -10,11 +10,13 @@ import msgspec
 from capsd.config import ConfigSection, ServiceConfig
 from capsd.geometry import Transform
 from capsd.mounts import RovConfig, SonarMountConfig
+from simulator import sonar_look
 from simulator.clock import ClockModel
 from simulator.imu import ImuModel
 from simulator.lidar import LidarModel
 from simulator.sonar import SonarModel
-from simulator.world import TankName, TrajectoryName, Waves
+from simulator.sonar_look import Look, Variety
+from simulator.world import TankName, TrajectoryName, Waves, make_tank
 
 Rate = Annotated[float, msgspec.Meta(gt=0.0, le=400.0)]
 Sigma = Annotated[float, msgspec.Meta(ge=0.0, le=10.0)]
@@ -55,6 +57,9 @@ class SonarImageConfig(ConfigSection, frozen=True, kw_only=True):
     gain_percent: Annotated[float, msgspec.Meta(ge=0.0, le=100.0)] = 50.0
     noise_level: Sigma = 0.0004
     ghost_gain: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.12
+    # off: the fixed look; train / heldout: every knob of simulator.sonar_look drawn per seed
+    # (sonar settings, image formation, ROV detail, floor, floating clutter, fish).
+    variety: Variety = "off"
 
 
 class LidarConfig(ConfigSection, frozen=True, kw_only=True):
@@ -157,10 +162,25 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
                     f"`sonar_dropouts_s[{i}]` must be [start, end] with 0 <= start < end"
                 )
 
+    def look(self) -> Look | None:
+        """The run's draw of the look knobs (None: the fixed look)."""
+        variety = self.sonar_image.variety
+        if variety == "off":
+            return None
+        tank = make_tank(self.tank, clutter="off")
+        reach = math.hypot(tank.length_m, tank.width_m)
+        return sonar_look.draw(sonar_look.look_rng(self.seed), variety, tank_reach_m=reach)
+
     def sonar_model(self) -> SonarModel:
         img = self.sonar_image
         range_max = img.range_max_m or (20.0 if self.tank == "nfp" else 8.0)
         n_ranges = img.n_ranges or (1000 if self.tank == "nfp" else 800)
+        look = self.look()
+        model = self._fixed_sonar_model(range_max, n_ranges)
+        return model if look is None else model.with_look(look)
+
+    def _fixed_sonar_model(self, range_max: float, n_ranges: int) -> SonarModel:
+        img = self.sonar_image
         return SonarModel(
             n_beams=img.n_beams,
             half_fov_rad=math.radians(img.horizontal_fov_deg / 2),

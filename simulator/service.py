@@ -105,6 +105,22 @@ def main(config: Config) -> int:
         publishers: dict[str, Publisher[Any]] = {}
         start_ns = time.time_ns()
         start = time.monotonic()
+        # A ping whose time has passed by more than one period when its turn to render comes
+        # is skipped (counted, warned), so the world holds real time instead of lagging.
+        period_s = 1.0 / config.rates.sonar_hz
+        simulation.too_late = lambda t_s: time.monotonic() - start - t_s > period_s
+        runner.add_counters(lambda: {"skipped_late_pings": simulation.skipped_pings})
+        warned = {"skipped": 0}
+
+        def warn_skips() -> None:
+            if simulation.skipped_pings > warned["skipped"]:
+                runner.report_error(
+                    f"the world is late: {simulation.skipped_pings} sonar pings skipped so far "
+                    "(rendering cannot keep up at this rate on this machine)",
+                    kind="late pings",
+                )
+                warned["skipped"] = simulation.skipped_pings
+
         ahead = _Lookahead(simulation.events(start_ns=start_ns), runner.stop_event)
         ahead.start()
         muted_until: dict[str, float] = {}  # stream -> monotonic time its dropout ends
@@ -123,6 +139,7 @@ def main(config: Config) -> int:
         runner.add_counters(lambda: {"muted_messages": muted["count"]})
 
         def step() -> None:
+            warn_skips()
             while (item := ahead.due(time.monotonic() - start)) is not None:
                 event, event_cpu_ns = item
                 cpu0 = time.thread_time_ns()

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import heapq
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -45,7 +45,15 @@ from simulator.imu import Imu
 from simulator.lidar import scan
 from simulator.scene import BLUEROV2_SEMI_AXES, Ellipsoid
 from simulator.sonar import Label, SonarRenderer
-from simulator.world import AsvMotion, RovMotion, RovState, asv_motion, make_tank, rov_motion
+from simulator.world import (
+    AsvMotion,
+    RovMotion,
+    RovState,
+    asv_motion,
+    make_tank,
+    rov_motion,
+    with_look,
+)
 
 
 @dataclass(frozen=True)
@@ -86,6 +94,9 @@ class Simulation:
         }
         clock_rng = np.random.default_rng(seeds[-1])
         self.tank = make_tank(config.tank, clutter=config.clutter)
+        look = config.look()
+        if look is not None:
+            self.tank = with_look(self.tank, look, np.random.default_rng([config.seed, 0xC1]))
         self.rov: RovMotion = rov_motion(
             self.tank,
             config.trajectory,
@@ -122,6 +133,10 @@ class Simulation:
         self.lever_arm = np.array(config.rov.pressure_sensor_m)
         self._clock_rng = clock_rng
         self._seq: dict[str, int] = {}
+        # Real time only: says whether a ping at sim time t is already too late to render
+        # (the world cannot keep up); such pings are skipped and counted, never sent late.
+        self.too_late: Callable[[float], bool] | None = None
+        self.skipped_pings = 0
 
     # ------------------------------------------------------------------ state
 
@@ -310,6 +325,9 @@ class Simulation:
         self, t: float, true_ns: int, clocks: dict[str, VehicleClock]
     ) -> Iterator[Event]:
         cfg = self.config
+        if self.too_late is not None and self.too_late(t):
+            self.skipped_pings += 1
+            return
         rov = self.rov_state(t)
         asv = self.asv_pose(t)
         sonar_pose = asv.compose(self.mount)

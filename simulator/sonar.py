@@ -18,16 +18,19 @@ comes from the same rays.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Any, Literal
 
 import cv2
 import numpy as np
+import numpy.typing as npt
 
 from capsd.geometry import Array, IndexArray, MaskArray, Transform
 from capsd.payloads import SonarFrame
 from capsd.sonar_geometry import BeamModel, to_polar
 from simulator import scene
 from simulator.scene import Ellipsoid
+from simulator.sonar_look import Look
 from simulator.world import Tank
 
 
@@ -52,6 +55,53 @@ class SonarModel:
     incidence_exponent: float = 2.0
     dynamic_range_db: float = 35.0
     gamma: float = 0.8
+    # The knobs of simulator.sonar_look; these defaults are the fixed look (variety: off).
+    tvg_residual_db: float = 0.0
+    gain_jitter_db: float = 0.0
+    compression: Literal["log", "linear"] = "log"
+    speckle_shape: float = math.inf
+    speckle_corr_beams: float = 0.0
+    speckle_corr_bins: float = 0.0
+    side_lobe_db: float = 10.0 * math.log10(0.003)
+    ringdown_m: float = 0.0
+    ringdown_db: float = -10.0
+    rov_reflectivity: float = 1.0
+    rov_glint: float = 0.0
+    rov_interior: float = 0.0
+    rov_exponent: float = 1.0
+    fish: int = 0
+
+    def with_look(self, look: Look) -> SonarModel:
+        """The sonar as a run's draw of the look knobs renders it."""
+        return replace(
+            self,
+            n_beams=look.n_beams,
+            n_ranges=look.n_ranges,
+            range_max_m=look.range_max_m,
+            gain_percent=min(max(50.0 + look.gain_db / 0.4, 0.0), 100.0),
+            noise_level=0.5 * 10.0 ** (look.water_db / 10.0),
+            dynamic_range_db=look.dynamic_range_db,
+            gamma=look.gamma,
+            tvg_residual_db=look.tvg_residual_db,
+            gain_jitter_db=look.gain_jitter_db,
+            compression=look.compression,
+            speckle_shape=look.speckle_shape,
+            speckle_corr_beams=look.speckle_corr_beams,
+            speckle_corr_bins=look.speckle_corr_bins,
+            side_lobe_db=look.side_lobe_db,
+            ringdown_m=look.ringdown_m,
+            ringdown_db=look.ringdown_db,
+            rov_reflectivity=look.rov_reflectivity,
+            rov_glint=look.rov_glint,
+            rov_interior=look.rov_interior,
+            rov_exponent=look.rov_exponent,
+            fish=look.fish,
+        )
+
+    @property
+    def fixed_look(self) -> bool:
+        """No look knob moved from the fixed look: the renderer keeps its original path."""
+        return all(getattr(self, name) == getattr(_FIXED, name) for name in _LOOK_ONLY)
 
     @property
     def range_resolution_m(self) -> float:
@@ -86,10 +136,11 @@ class Ping:
     label: Label
 
 
-def _beam_kernel() -> Array:
+def _beam_kernel(side_lobe_db: float) -> Array:
     taps = np.arange(-10, 11, dtype=np.float64)
     main = np.exp(-0.5 * (taps / 0.7) ** 2)
-    side = np.where(np.abs(taps) >= 3, 0.003 * (np.abs(np.sinc(taps / 3.0)) + 0.3), 0.0)
+    level = 10.0 ** (side_lobe_db / 10.0)
+    side = np.where(np.abs(taps) >= 3, level * (np.abs(np.sinc(taps / 3.0)) + 0.3), 0.0)
     kernel = main + side
     return np.asarray(kernel / kernel.sum(), dtype=np.float32)
 
@@ -111,7 +162,7 @@ class SonarRenderer:
         half = model.vertical_aperture_rad / 2.0
         # Rays reach a little past the nominal aperture: the vertical pattern has skirts.
         self._elev_edges = np.linspace(-1.3 * half, 1.3 * half, model.elevation_rays + 1)
-        self._beam_kernel = _beam_kernel()
+        self._beam_kernel = _beam_kernel(model.side_lobe_db)
         self._range_kernel = _range_kernel()
         ranges = (np.arange(model.n_ranges) + 0.5) * model.range_resolution_m
         noise = model.noise_level * (1.0 + model.noise_growth * ranges / model.range_max_m)
@@ -124,6 +175,10 @@ class SonarRenderer:
         self._pool = pool_rng.standard_exponential(
             2 * model.n_ranges * model.n_beams, dtype=np.float32
         )
+        look_rng = np.random.default_rng(
+            [7, round(model.ringdown_m * 1e6), round(model.speckle_corr_beams * 1e6)]
+        )
+        self._look = None if model.fixed_look else _LookFields(model, ranges, look_rng)
 
     def _directions(self, elevations: Array) -> Array:
         """Unit vectors in S for every (beam, elevation) pair: beams x rays x 3."""
@@ -149,11 +204,13 @@ class SonarRenderer:
         half = m.vertical_aperture_rad / 2.0
         weight_e = np.exp(-math.log(2.0) * (elevations.ravel() / half) ** 2)
         cos_inc = np.abs(np.einsum("ij,ij->i", hits.normal, -dirs_w))
-        exponent = np.where(hits.label == scene.ROV, 1.0, m.incidence_exponent)
-        distance = hits.distance
+        exponent = np.where(hits.label == scene.ROV, m.rov_exponent, m.incidence_exponent)
+        reflectivity, distance = hits.reflectivity, hits.distance
+        if self._look is not None:
+            reflectivity, distance = self._look.rov_detail(hits, rng)
         in_range = np.isfinite(distance) & (distance < m.range_max_m)
         echo = (
-            hits.reflectivity
+            reflectivity
             * cos_inc**exponent
             * weight_e
             * 10.0 ** (-2.0 * m.absorption_db_per_m * np.where(in_range, distance, 0.0) / 10.0)
@@ -162,6 +219,8 @@ class SonarRenderer:
         bins = np.where(in_range, distance / m.range_resolution_m, -1.0)
         beams = np.repeat(np.arange(n_b), n_e)
         image = self._accumulate(bins, beams, np.where(in_range, echo, 0.0), rng)
+        if self._look is not None:
+            self._look.add_fish(image, rng)
         label = self._label(sonar_pose, rov, hits, bins, beams, echo, in_range)
         if rov is not None:
             for ghost_range, ghost_az, ghost_weight in self._ghosts(sonar_pose, rov):
@@ -216,15 +275,31 @@ class SonarRenderer:
 
     def _finish(self, image: Array, rng: np.random.Generator) -> Array:
         m = self.model
-        blurred = cv2.sepFilter2D(
-            image, cv2.CV_32F, self._beam_kernel, self._range_kernel, borderType=cv2.BORDER_CONSTANT
+        blurred = np.asarray(
+            cv2.sepFilter2D(
+                image,
+                cv2.CV_32F,
+                self._beam_kernel,
+                self._range_kernel,
+                borderType=cv2.BORDER_CONSTANT,
+            ),
+            dtype=np.float32,
         )
         size = blurred.size
         a, b = rng.integers(0, size, 2)
         speckle = self._pool[a : a + size].reshape(blurred.shape)
         grain = self._pool[b : b + size].reshape(blurred.shape)
-        intensity = blurred * speckle + self._noise_profile * grain + np.float32(1e-12)
         gain_db = (m.gain_percent - 50.0) * 0.4
+        if self._look is not None:
+            blurred, speckle = self._look.before_speckle(blurred, rng)
+            gain_db += self._look.gain_jitter(rng)
+        intensity = blurred * speckle + self._noise_profile * grain + np.float32(1e-12)
+        if m.compression == "linear":
+            # Amplitude, not dB: the top echo white, the gamma curve alone shapes the rest.
+            level = intensity * np.float32(10.0 ** (gain_db / 10.0) / 0.5)
+            scaled = np.sqrt(level)
+            np.clip(scaled, 0.0, 1.0, out=scaled)
+            return np.asarray(np.take(self._gamma_lut, (scaled * 4095.0).astype(np.int32)))
         top = 10.0 * math.log10(0.5)  # a near, square-on ROV return sits at the top
         low = top - m.dynamic_range_db - gain_db
         # dB = 10 log10(I); scaled = (dB - low) / range, in float32 through OpenCV (fast).
@@ -302,3 +377,101 @@ class SonarRenderer:
             frequency_hz=m.frequency_hz,
             vertical_aperture_rad=m.vertical_aperture_rad,
         )
+
+
+_FIXED = SonarModel()
+# The fields that only shape the look (geometry, gain and noise level are the sonar's own).
+_LOOK_ONLY = (
+    "tvg_residual_db",
+    "gain_jitter_db",
+    "compression",
+    "speckle_shape",
+    "speckle_corr_beams",
+    "speckle_corr_bins",
+    "ringdown_m",
+    "rov_reflectivity",
+    "rov_glint",
+    "rov_interior",
+    "fish",
+)
+F32 = npt.NDArray[np.float32]
+INTERIOR_DEPTH_M = 0.45  # how far behind its front face the open frame's inside echoes
+
+
+class _LookFields:
+    """Per-run fields of a varied look: correlated textured speckle, TVG residual, ring-down."""
+
+    def __init__(
+        self, model: SonarModel, ranges: npt.NDArray[np.floating[Any]], rng: np.random.Generator
+    ):
+        self.model = model
+        rows, cols = 2 * model.n_ranges, model.n_beams
+        # Correlated speckle: a complex Gaussian field blurred over beams and bins, |.|^2.
+        re = rng.standard_normal((rows, cols), dtype=np.float32)
+        im = rng.standard_normal((rows, cols), dtype=np.float32)
+        sx, sy = model.speckle_corr_beams, model.speckle_corr_bins
+        if sx > 0.05 or sy > 0.05:
+            ksize = (2 * math.ceil(3 * max(sx, 0.3)) + 1, 2 * math.ceil(3 * max(sy, 0.3)) + 1)
+            gx, gy = max(sx, 0.3), max(sy, 0.3)
+            re = np.asarray(cv2.GaussianBlur(re, ksize, gx, sigmaY=gy), dtype=np.float32)
+            im = np.asarray(cv2.GaussianBlur(im, ksize, gx, sigmaY=gy), dtype=np.float32)
+        speckle = re * re + im * im
+        if math.isfinite(model.speckle_shape):
+            # K-distribution: a gamma-distributed texture (mean 1) under the speckle, varying
+            # over a few cells: spiky, heavy-tailed returns from rough or patchy scatterers.
+            nu = model.speckle_shape
+            coarse = rng.gamma(nu, 1.0 / nu, ((rows + 3) // 4, (cols + 1) // 2))
+            texture = cv2.resize(
+                coarse.astype(np.float32), (cols, rows), interpolation=cv2.INTER_LINEAR
+            )
+            speckle *= texture
+        speckle /= np.float32(max(float(speckle.mean()), 1e-12))
+        self.speckle_pool = speckle
+        r_ref = model.range_max_m / 2.0
+        tvg = (np.maximum(ranges, 0.05) / r_ref) ** (model.tvg_residual_db / 10.0)
+        self.tvg = tvg.astype(np.float32)[:, None]
+        ring = np.zeros((0, cols), dtype=np.float32)
+        if model.ringdown_m > 0.0:
+            # The transducer rings after transmit: bright at the apex, 30 dB down at
+            # `ringdown_m`, gone (90 dB down) at three times that; uneven across beams.
+            depth = ranges[ranges < 3.0 * model.ringdown_m]
+            stripes = rng.uniform(0.5, 1.5, cols).astype(np.float32)
+            level = 0.5 * 10.0 ** (model.ringdown_db / 10.0)
+            fall = level * 10.0 ** (-3.0 * depth / model.ringdown_m)
+            ring = fall.astype(np.float32)[:, None] * stripes
+        self.ring = ring
+
+    def rov_detail(self, hits: scene.Hits, rng: np.random.Generator) -> tuple[Array, Array]:
+        """Reflectivity and distance per ray with the ROV's glints and open-frame echoes."""
+        m = self.model
+        on_rov = hits.label == scene.ROV
+        n = int(on_rov.sum())
+        reflectivity = hits.reflectivity.copy()
+        distance = hits.distance.copy()
+        if n:
+            gain = m.rov_reflectivity * np.exp(rng.normal(0.0, m.rov_glint, n) - m.rov_glint**2)
+            reflectivity[on_rov] *= gain
+            inside = rng.random(n) < m.rov_interior
+            distance[np.flatnonzero(on_rov)[inside]] += rng.uniform(
+                0.0, INTERIOR_DEPTH_M, int(inside.sum())
+            )
+        return reflectivity, distance
+
+    def add_fish(self, image: Array, rng: np.random.Generator) -> None:
+        m = self.model
+        for _ in range(m.fish):
+            i = int(rng.integers(0, m.n_ranges - 3))
+            j = int(rng.integers(1, m.n_beams - 1))
+            image[i : i + 2, j - 1 : j + 1] += m.elevation_rays / 4 * rng.uniform(0.02, 0.3)
+
+    def before_speckle(self, blurred: F32, rng: np.random.Generator) -> tuple[F32, F32]:
+        """The echo after TVG's residual and ring-down, and this ping's speckle."""
+        out = np.multiply(blurred, self.tvg, dtype=np.float32)
+        if len(self.ring):
+            out[: len(self.ring)] += self.ring
+        start = int(rng.integers(0, self.model.n_ranges))
+        return out, self.speckle_pool[start : start + self.model.n_ranges]
+
+    def gain_jitter(self, rng: np.random.Generator) -> float:
+        jitter = self.model.gain_jitter_db
+        return float(rng.normal(0.0, jitter)) if jitter > 0.0 else 0.0

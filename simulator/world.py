@@ -14,12 +14,13 @@ with forward acceleration and vertical speed, roll with lateral acceleration (a 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
 
 from capsd.geometry import Array, euler_zyx_to_matrix
+from simulator.sonar_look import Look
 
 TankName = Literal["nfp", "mockup"]
 TrajectoryName = Literal["square", "lawnmower", "bouncing", "random", "two_floor"]
@@ -143,6 +144,39 @@ def make_tank(name: TankName, *, clutter: Literal["on", "off"] = "on") -> Tank:
     if clutter == "off":
         boxes, cylinders = (), ()
     return Tank(name, *dims, boxes=boxes, cylinders=cylinders)
+
+
+def with_look(tank: Tank, look: Look, rng: np.random.Generator) -> Tank:
+    """The tank with a run's floor and its ROV-sized clutter in the water column."""
+    boxes = list(tank.boxes)
+    cylinders = list(tank.cylinders)
+    for _ in range(look.floating_clutter):
+        x = float(rng.uniform(0.5, tank.length_m - 0.5))
+        y = float(rng.uniform(0.5, tank.width_m - 0.5))
+        z = float(rng.uniform(-0.9 * tank.depth_m, -0.3))
+        reflectivity = float(rng.uniform(0.3, 0.9))
+        kind = rng.integers(0, 3)
+        if kind == 0:  # a buoy or a box: 0.15-0.6 m
+            size = rng.uniform(0.15, 0.6, 3)
+            lo = (x, y, z)
+            hi = (x + float(size[0]), y + float(size[1]), min(z + float(size[2]), 0.0))
+            boxes.append(Box(lo, hi, "floating", reflectivity))
+        else:  # a short pipe (horizontal) or a pole (vertical)
+            axis: Literal["x", "y", "z"] = (
+                "z" if kind == 1 else ("x" if rng.random() < 0.5 else "y")
+            )
+            length = float(rng.uniform(0.3, 1.5))
+            if axis == "z":
+                length = min(length, -z)
+            cylinders.append(
+                Cylinder((x, y, z), axis, length, float(rng.uniform(0.03, 0.12)), "floating")
+            )
+    return replace(
+        tank,
+        boxes=tuple(boxes),
+        cylinders=tuple(cylinders),
+        floor_reflectivity=look.floor_reflectivity,
+    )
 
 
 # ------------------------------------------------------------------------ trajectories

@@ -41,6 +41,9 @@ class ClassicalSettings:
     range_bias_m: float = 0.12
     max_candidates: int = 3
     energy_scale: float = 4000.0  # energy at which confidence reaches 63%
+    # The near-field ring-down at the apex (the transducer ringing after transmit) makes
+    # bright blobs there on every ping: nothing closer is a candidate.
+    ringdown_m: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -68,7 +71,10 @@ class ClassicalDetector:
         self.settings = settings or ClassicalSettings()
         self._background: Image | None = None
 
-    def detect(self, frame: SonarFrame) -> list[Detection]:
+    def detect(
+        self, frame: SonarFrame, *, range_window: tuple[float, float] | None = None
+    ) -> list[Detection]:
+        """ROV candidates, strongest first; only blobs inside `range_window` if given."""
         s = self.settings
         image: Image = np.asarray(cv2.GaussianBlur(_image(frame), (5, 5), 1.2), dtype=np.float32)
         res = frame.range_resolution_m
@@ -89,7 +95,12 @@ class ClassicalDetector:
         # Close small gaps so one ROV echo broken up by speckle stays one blob.
         closed = cv2.morphologyEx(on.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((5, 3), np.uint8))
         mask = np.asarray(closed, dtype=np.uint8)
-        blobs = self._blobs(frame, image, local, mask)
+        lo, hi = range_window if range_window is not None else (0.0, math.inf)
+        blobs = [
+            b
+            for b in self._blobs(frame, image, local, mask)
+            if b.range_m >= s.ringdown_m and lo <= b.range_m + s.range_bias_m <= hi
+        ]
         detections = []
         for blob in sorted(blobs, key=lambda b: -b.energy)[: s.max_candidates]:
             confidence = float(1.0 - math.exp(-blob.energy / s.energy_scale))

@@ -36,7 +36,7 @@ from services.sonar_detect.polar_input import (
     coarse_input,
     crop,
     crop_pair,
-    unit_image,
+    normalised_image,
 )
 from services.sonar_detect.polar_net import (
     OFFSET_SCALE_M,
@@ -111,9 +111,12 @@ class CnnDetector:
         self.searches = 0  # whole-frame searches
         self.tracked = 0  # frames refined around the previous ping's detections only
 
-    def detect(self, frame: SonarFrame) -> list[Detection]:
+    def detect(
+        self, frame: SonarFrame, *, range_window: tuple[float, float] | None = None
+    ) -> list[Detection]:
+        """ROV candidates, most confident first; proposals only inside `range_window` if given."""
         s = self.settings
-        image = unit_image(frame)
+        image = normalised_image(frame)
         table = BeamTable(frame.azimuths_rad)
         track = self._track
         geometry = _geometry(frame)
@@ -126,7 +129,7 @@ class CnnDetector:
             or frame.stamp_ns - track.searched_ns >= s.search_every_s * 1e9
         )
         if search or track is None:
-            candidates = self._propose(frame, image, table)
+            candidates = self._propose(frame, image, table, range_window)
             passes = max(1, s.refine_passes)
             searched_ns = frame.stamp_ns
             self.searches += 1
@@ -172,7 +175,13 @@ class CnnDetector:
             d, confidence=1.0 / (1.0 + math.exp(-min(max(logit, -30.0), 30.0)))
         )
 
-    def _propose(self, frame: SonarFrame, image: Image, table: BeamTable) -> list[Candidate]:
+    def _propose(
+        self,
+        frame: SonarFrame,
+        image: Image,
+        table: BeamTable,
+        range_window: tuple[float, float] | None,
+    ) -> list[Candidate]:
         s = self.settings
         return propose(
             self._proposal_net,
@@ -181,6 +190,7 @@ class CnnDetector:
             table,
             threshold=s.proposal_threshold,
             max_candidates=s.max_candidates,
+            range_window=range_window,
         )
 
     def _refine(
@@ -245,14 +255,24 @@ def propose(
     *,
     threshold: float,
     max_candidates: int,
+    range_window: tuple[float, float] | None = None,
 ) -> list[Candidate]:
-    """Local maxima of the proposal heatmap above `threshold`, strongest first."""
+    """Local maxima of the proposal heatmap above `threshold`, strongest first.
+
+    With `range_window` (metres), heat cells outside it are not candidates (depth-aware search).
+    """
     grid = Grid.of(frame)
     if grid.rows < 4 or grid.cols < 4:
         return []
     coarse = torch.from_numpy(coarse_input(image, grid))[None]
     with torch.inference_mode():
         heat = torch.sigmoid(proposal(coarse))[0]
+        if range_window is not None:
+            # Heat row i is centred on bin (2i + 1) x range_factor (see below).
+            cell_m = 2 * grid.range_factor * frame.range_resolution_m
+            centres = frame.range_start_m + (torch.arange(heat.shape[0]) + 0.5) * cell_m
+            outside = (centres < range_window[0] - cell_m) | (centres > range_window[1] + cell_m)
+            heat[outside] = 0.0
         peaks = (heat == functional.max_pool2d(heat[None], 3, stride=1, padding=1)[0]) & (
             heat >= threshold
         )

@@ -10,21 +10,26 @@ written for people.
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Literal, Protocol
 
 import msgspec
+import numpy as np
 
 from capsd import topics
 from capsd.config import ConfigSection, ServiceConfig
 from capsd.errors import CapsdError, ConfigError
-from capsd.payloads import Detection, SonarDetections, SonarFrame
+from capsd.geometry import Transform, quat_to_matrix
+from capsd.mailbox import Mailbox
+from capsd.mounts import SonarMountConfig
+from capsd.payloads import AsvPose, Detection, RovDepth, SonarDetections, SonarFrame
 from capsd.runner import Publisher, ServiceRunner
 from services.sonar_detect.classical import ClassicalDetector, ClassicalSettings
+from services.sonar_detect.depth_gate import DepthGate
 
 logger = logging.getLogger(__name__)
 
@@ -59,7 +64,26 @@ class CnnConfig(ConfigSection, frozen=True, kw_only=True):
     threads: Annotated[int, msgspec.Meta(ge=1, le=64)] = 1
 
 
-Detect = Callable[[SonarFrame], list[Detection]]
+class Detector(Protocol):
+    def detect(
+        self, frame: SonarFrame, *, range_window: tuple[float, float] | None = None
+    ) -> list[Detection]: ...
+
+
+class DepthGateConfig(ConfigSection, frozen=True, kw_only=True):
+    """Depth-aware search: what cannot lie on the ROV's depth plane is not the ROV."""
+
+    mode: Literal["reject", "off"] = "reject"
+    asv_vehicle: str = "asv"  # publishes the ASV's pose
+    rov_vehicle: str = "rov"  # publishes the ROV's depth
+    # The ROV's half height (0.13 m), its pressure sensor's lever arm tilted, depth and ASV
+    # pose errors: a candidate further than this from the ROV's plane is rejected.
+    tolerance_m: Annotated[float, msgspec.Meta(gt=0.0, le=10.0)] = 0.6
+    # Beyond the nominal vertical aperture: the beam's skirts still see an ROV there.
+    aperture_margin_deg: Annotated[float, msgspec.Meta(ge=0.0, le=30.0)] = 5.0
+    # Pose and depth older (or newer) than this against the ping's stamp are not used.
+    max_age_s: Annotated[float, msgspec.Meta(gt=0.0, le=10.0)] = 0.5
+    sonar: SonarMountConfig = SonarMountConfig()  # H_B_S, as the locator's
 
 
 class Config(ServiceConfig, frozen=True, kw_only=True):
@@ -72,34 +96,9 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     cnn: CnnConfig = CnnConfig()
     classical: ClassicalConfig = ClassicalConfig()
     min_confidence: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.5
+    depth_gate: DepthGateConfig = DepthGateConfig()
     snapshot_every_s: Annotated[float, msgspec.Meta(gt=0.0)] | None = None
     snapshot_dir: str = "snapshots"
-
-
-class Mailbox:
-    """One slot: `put` replaces what was there (counted as dropped); `take` waits for news.
-
-    Each frame is held with its arrival time (wall clock ns), for the latency figures.
-    """
-
-    def __init__(self) -> None:
-        self._item: tuple[SonarFrame, int] | None = None
-        self._cond = threading.Condition()
-        self.dropped = 0
-
-    def put(self, frame: SonarFrame, received_ns: int) -> None:
-        with self._cond:
-            if self._item is not None:
-                self.dropped += 1
-            self._item = (frame, received_ns)
-            self._cond.notify()
-
-    def take(self, timeout_s: float) -> tuple[SonarFrame, int] | None:
-        with self._cond:
-            if self._item is None:
-                self._cond.wait(timeout_s)
-            item, self._item = self._item, None
-            return item
 
 
 class Cadence:
@@ -133,10 +132,10 @@ class Cadence:
         return now_ns - stamp_ns > period
 
 
-def make_detector(config: Config) -> Detect:
+def make_detector(config: Config) -> Detector:
     """The configured detector, its weights loaded: a bad weights file is a config error."""
     if config.detector == "classical":
-        return ClassicalDetector(config.classical.settings()).detect
+        return ClassicalDetector(config.classical.settings())
     try:
         from services.sonar_detect.cnn import DEFAULT_WEIGHTS, CnnDetector, CnnSettings
     except ImportError as exc:
@@ -156,22 +155,56 @@ def make_detector(config: Config) -> Detect:
         track_confidence=config.min_confidence,
     )
     try:
-        return CnnDetector(settings).detect
+        return CnnDetector(settings)
     except CapsdError as exc:
         raise ConfigError("config", "cnn.weights", str(exc)) from None
 
 
+class GateInputs:
+    """The newest ASV pose and ROV depth (written on Zenoh's thread, read by the worker)."""
+
+    def __init__(self, config: DepthGateConfig):
+        self.config = config
+        self._mount = config.sonar.transform()
+        self.pose: AsvPose | None = None
+        self.depth: RovDepth | None = None
+
+    def gate(self, stamp_ns: int) -> DepthGate | None:
+        """The gate for a ping, or None when off or without fresh inputs."""
+        c = self.config
+        pose, depth = self.pose, self.depth
+        if c.mode == "off" or pose is None or depth is None or pose.status == "lost":
+            return None
+        limit_ns = c.max_age_s * 1e9
+        if abs(stamp_ns - pose.stamp_ns) > limit_ns or abs(stamp_ns - depth.stamp_ns) > limit_ns:
+            return None
+        asv = Transform(quat_to_matrix(np.array(pose.orientation_xyzw)), np.array(pose.position_m))
+        return DepthGate(
+            sonar_in_world=asv.compose(self._mount),
+            rov_z_m=-depth.depth_m,
+            tolerance_m=c.tolerance_m,
+            half_aperture_rad=math.radians(
+                c.sonar.vertical_aperture_deg / 2 + c.aperture_margin_deg
+            ),
+            beam_model=c.sonar.beam_model,
+        )
+
+
 def main(config: Config) -> int:
     """Run the detector until stopped."""
-    detect = make_detector(config)
-    mailbox = Mailbox()
+    detector = make_detector(config)
+    mailbox: Mailbox[tuple[SonarFrame, int]] = Mailbox()
     counts = {
         "frames": 0,
         "detections": 0,
         "snapshots": 0,
         "errors": 0,
         "dropped_older_than_period": 0,
+        # Depth-aware search: frames it applied to, and candidates it rejected.
+        "depth_gated_frames": 0,
+        "rejected_by_depth": 0,
     }
+    inputs = GateInputs(config.depth_gate)
     cadence = Cadence()
     with ServiceRunner("sonar_detect", config) as runner:
         out: Publisher[SonarDetections] = runner.publisher(topics.SONAR_DETECTIONS)
@@ -183,9 +216,20 @@ def main(config: Config) -> int:
         inference = runner.latency("detector compute")  # the detect() call alone
         runner.subscribe(
             topics.SONAR_FRAME,
-            lambda frame: mailbox.put(frame, runner.received_ns()),
+            lambda frame: mailbox.put((frame, runner.received_ns())),
             vehicle=config.sonar_vehicle,
         )
+        if config.depth_gate.mode != "off":
+            runner.subscribe(
+                topics.ASV_POSE,
+                lambda pose: setattr(inputs, "pose", pose),
+                vehicle=config.depth_gate.asv_vehicle,
+            )
+            runner.subscribe(
+                topics.ROV_DEPTH,
+                lambda depth: setattr(inputs, "depth", depth),
+                vehicle=config.depth_gate.rov_vehicle,
+            )
         next_snapshot = time.monotonic()
 
         def work() -> None:
@@ -202,10 +246,20 @@ def main(config: Config) -> int:
                     continue
                 age_at_start.record_ns(age_ns)
                 try:
+                    gate = inputs.gate(frame.stamp_ns)
+                    window = None
+                    if gate is not None:
+                        half_fov = max(abs(a) for a in frame.azimuths_rad)
+                        window = gate.range_window(half_fov) or (0.0, 0.0)
                     started_ns = time.time_ns()
-                    candidates = detect(frame)
+                    candidates = detector.detect(frame, range_window=window)
                     inference.record_ns(time.time_ns() - started_ns)
                     found = [d for d in candidates if d.confidence >= config.min_confidence]
+                    if gate is not None:
+                        kept = [d for d in found if gate.plausible(d.range_m, d.azimuth_rad)]
+                        counts["depth_gated_frames"] += 1
+                        counts["rejected_by_depth"] += len(found) - len(kept)
+                        found = kept
                     out.put(
                         SonarDetections(
                             stamp_ns=frame.stamp_ns,

@@ -35,8 +35,10 @@ from torch.nn import functional
 
 from capsd.bench.detect import Run
 from capsd.progress import Progress
+from services.sonar_detect.polar_input import NORM_HIGH, NORM_LOW, U8_SCALE
 from services.sonar_detect.polar_net import OFFSET_SCALE_M, PolarNet, save
 from services.sonar_detect.training_data import Samples, plan_runs, render
+from simulator.sonar_look import Variety
 
 
 @dataclass(frozen=True)
@@ -65,12 +67,12 @@ class TrainConfig:
 
 
 def _augment(x: torch.Tensor, gen: torch.Generator) -> torch.Tensor:
-    """Gain (offset) and contrast changes per sample, in the log-compressed 0..1 units."""
+    """Gain (offset) and contrast changes per sample, in the normalised units."""
     n = x.shape[0]
     shape = (n,) + (1,) * (x.dim() - 1)
     scale = 0.85 + 0.3 * torch.rand(shape, generator=gen)
     offset = -0.08 + 0.16 * torch.rand(shape, generator=gen)
-    return torch.clamp(x * scale + offset, 0.0, 1.0)
+    return torch.clamp(x * scale + offset, NORM_LOW, NORM_HIGH)
 
 
 def _heat_target(
@@ -127,7 +129,10 @@ def _train_proposal(
                 batches.append([indices[o] for o in order[b : b + config.proposal_batch]])
         for b in torch.randperm(len(batches), generator=gen).tolist():
             batch = batches[b]
-            x = torch.from_numpy(np.stack([samples.grids[k] for k in batch])).float() / 255.0
+            x = (
+                torch.from_numpy(np.stack([samples.grids[k] for k in batch])).float() * U8_SCALE
+                + NORM_LOW
+            )
             flipped = (torch.rand(len(batch), generator=gen) < 0.5).numpy()
             if x.shape[-1] % 4 == 0:  # mirrored azimuth maps heat cells onto heat cells
                 x[torch.from_numpy(flipped)] = torch.flip(x[torch.from_numpy(flipped)], dims=[-1])
@@ -179,7 +184,7 @@ def _hard_indices(net: PolarNet, crops: torch.Tensor, targets: torch.Tensor) -> 
     with torch.inference_mode():
         logits = torch.cat(
             [
-                net.refine(crops[k : k + 512].float() / 255.0)[:, 0]
+                net.refine(crops[k : k + 512].float() * U8_SCALE + NORM_LOW)[:, 0]
                 for k in range(0, len(crops), 512)
             ]
         )
@@ -218,7 +223,7 @@ def _train_refine(
         order = pool[torch.randperm(len(pool), generator=gen)]
         for b in range(0, len(order), config.refine_batch):
             idx = order[b : b + config.refine_batch]
-            x = crops[idx].float() / 255.0
+            x = crops[idx].float() * U8_SCALE + NORM_LOW
             t = targets[idx].clone()
             flip = torch.rand(len(idx), generator=gen) < 0.5
             x[flip] = torch.flip(x[flip], dims=[-1])
@@ -339,6 +344,7 @@ VALIDATION_RUNS: tuple[Run, ...] = (
     ("mockup", "square", "stationary", 305),
     ("mockup", "random", "follow", 306),
 )
+VARIETIES: tuple[Variety, ...] = ("off", "train")
 MAX_FALSE_ALARMS_PER_FRAME = 0.005
 
 
@@ -358,9 +364,11 @@ def calibrate(net: PolarNet, *, duration_s: float) -> dict[str, Any]:
     false_logits: list[float] = []
     hit_logits: list[float] = []  # per visible ping: the best matching candidate, or -inf
     frames = 0
-    bar = Progress(duration_s * len(VALIDATION_RUNS), label="calibrating", unit=" sim s")
-    for k, run in enumerate(VALIDATION_RUNS):
-        sim = Simulation(sonar_only(*run), horizon_s=duration_s + 5)
+    # Each validation run twice: the simulator's fixed look and a look drawn for training.
+    runs = [(run, variety) for run in VALIDATION_RUNS for variety in VARIETIES]
+    bar = Progress(duration_s * len(runs), label="calibrating", unit=" sim s")
+    for k, (run, variety) in enumerate(runs):
+        sim = Simulation(sonar_only(*run, variety=variety), horizon_s=duration_s + 5)
         for t_s, frame, p in sim.labelled_pings(start_ns=OFFLINE_START_NS, duration_s=duration_s):
             frames += 1
             best = -math.inf
@@ -398,6 +406,7 @@ def calibrate(net: PolarNet, *, duration_s: float) -> dict[str, Any]:
     result = {
         "logit_offset": round(offset, 4),
         "validation_runs": [list(r) for r in VALIDATION_RUNS],
+        "validation_looks": list(VARIETIES),
         "frames": frames,
         "max_false_alarms_per_frame": MAX_FALSE_ALARMS_PER_FRAME,
         "at_raw_0.5": rates(0.0),

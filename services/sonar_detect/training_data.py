@@ -1,7 +1,8 @@
 """Training samples for the polar network, rendered by the simulator from labelled pings.
 
 Each simulated run (tank, trajectory, ASV mode and stand-off, seed, gain, ghost strength and
-noise drawn per run) gives, per ping:
+noise drawn per run; four runs in five also draw the sonar's whole look: simulator.sonar_look,
+docs/SONAR-VARIETY.md) gives, per ping, in the normalised input (polar_input):
 - the coarse grid (uint8) and the ROV centre in heatmap cells (or none when not visible);
 - crops: positives around the true centre with the offset a proposal would have, and
   negatives on what a proposal might pick instead (the brightest cells away from the ROV,
@@ -27,7 +28,8 @@ from services.sonar_detect.polar_input import (
     Grid,
     coarse_input,
     crop_pair,
-    unit_image,
+    normalised_image,
+    to_u8,
 )
 from simulator.config import (
     OFFLINE_START_NS,
@@ -38,6 +40,7 @@ from simulator.config import (
     Streams,
 )
 from simulator.sim import Simulation
+from simulator.sonar_look import Variety
 from simulator.world import TankName, TrajectoryName
 
 TRAJECTORIES: tuple[TrajectoryName, ...] = (
@@ -64,6 +67,7 @@ class RunPlan:
     noise_level: float
     duration_s: float
     sonar_hz: float
+    variety: Variety = "train"
 
     def config(self) -> Config:
         return Config(
@@ -76,6 +80,7 @@ class RunPlan:
                 gain_percent=self.gain_percent,
                 ghost_gain=self.ghost_gain,
                 noise_level=self.noise_level,
+                variety=self.variety,
             ),
             rates=Rates(sonar_hz=self.sonar_hz),
             noise=Noise(),
@@ -86,7 +91,11 @@ class RunPlan:
 
 
 def plan_runs(*, runs: int, seed: int, duration_s: float, sonar_hz: float) -> list[RunPlan]:
-    """`runs` varied runs drawn from `seed` (both tanks, every trajectory, both ASV modes)."""
+    """`runs` varied runs drawn from `seed` (both tanks, every trajectory, both ASV modes).
+
+    Every run but each fifth draws the sonar's look (simulator.sonar_look, training region);
+    each fifth keeps the simulator's fixed look with its gain and noise varied a little.
+    """
     rng = np.random.default_rng(seed)
     plans = []
     for k in range(runs):
@@ -107,6 +116,7 @@ def plan_runs(*, runs: int, seed: int, duration_s: float, sonar_hz: float) -> li
                 noise_level=float(0.0004 * math.exp(rng.uniform(-0.7, 0.7))),
                 duration_s=duration_s,
                 sonar_hz=sonar_hz,
+                variety="off" if k % 5 == 4 else "train",
             )
         )
     return plans
@@ -130,10 +140,6 @@ class Samples:
         self.grid_targets.extend(other.grid_targets)
         self.crops.extend(other.crops)
         self.crop_targets.extend(other.crop_targets)
-
-
-def _to_u8(a: npt.NDArray[np.float32]) -> npt.NDArray[np.uint8]:
-    return np.asarray(np.clip(a * 255.0 + 0.5, 0, 255), dtype=np.uint8)
 
 
 def heat_coordinates(
@@ -160,10 +166,10 @@ def samples_of_ping(
     are added as negatives: the sandbags and rack corners it mistakes for an ROV.
     """
     out = Samples()
-    image = unit_image(frame)
+    image = normalised_image(frame)
     grid = Grid.of(frame)
     coarse = coarse_input(image, grid)
-    out.grids.append(_to_u8(coarse))
+    out.grids.append(to_u8(coarse))
     table = BeamTable(frame.azimuths_rad)
     truth: tuple[float, float] | None = None
     if (
@@ -201,7 +207,7 @@ def samples_of_ping(
                 continue
             patch = crop_pair(image, frame, table, range_m=centre_range, azimuth_rad=centre_az)
             # The target offset is measured at the crop's own range (its cross-range scale).
-            out.crops.append(_to_u8(patch))
+            out.crops.append(to_u8(patch))
             out.crop_targets.append(
                 (
                     1.0,
@@ -224,7 +230,7 @@ def samples_of_ping(
         if truth is not None and _distance(truth, (range_m, azimuth)) < NEGATIVE_MIN_DISTANCE_M:
             continue
         patch = crop_pair(image, frame, table, range_m=range_m, azimuth_rad=azimuth)
-        out.crops.append(_to_u8(patch))
+        out.crops.append(to_u8(patch))
         out.crop_targets.append((0.0, 0.0, 0.0, 0.0, 0.0, float(label.overlap)))
     return out
 

@@ -47,11 +47,12 @@ def test_cnn_service_detects_the_simulated_rov_stamped_at_the_ping(
         _collect(client, topics.SIM_LABEL.key("tank", "sim"), Codec(SonarLabel), labels),
         _collect(client, topics.SONAR_DETECTIONS.key("tank", "asv"), Codec(SonarDetections), found),
     ]
-    # The simulator's stand-in detections would share the key: off, as in the demo.
+    # The simulator's stand-in detections would share the key: off, as in the demo. Its
+    # noisy ASV pose and the ROV's depth feed the detector's depth-aware search.
     sim_config = _write(
         tmp_path,
         "sim.yaml",
-        "streams:\n  lidar: 'off'\n  imu: 'off'\n  asv_pose_truth_noise: 'off'\n"
+        "streams:\n  lidar: 'off'\n  imu: 'off'\n  asv_pose_truth_noise: 'on'\n"
         "  detections_truth_noise: 'off'\nrates:\n  sonar_hz: 10.0\n",
     )
     spawn(
@@ -81,6 +82,9 @@ def test_cnn_service_detects_the_simulated_rov_stamped_at_the_ping(
     assert health is not None
     assert health.counters["frames"] >= 40
     assert "dropped_stale_frames" in health.counters
+    # The gate ran on (nearly) every ping and kept the ROV (the median error above).
+    assert health.counters["depth_gated_frames"] >= 30
+    assert "rejected_by_depth" in health.counters
     for sub in subs:
         sub.undeclare()
 

@@ -1,0 +1,127 @@
+"""`capsd bench finetune`: the field team's fine-tune path, measured on a look never trained on.
+
+1. A "first dive": a simulated run whose sonar look lies outside the training variety (five
+   knobs past their trained range: water level, dynamic range, gamma, ROV strength, speckle
+   shape; simulator.sonar_look, region "outside"), through the offline pipeline with the
+   shipped detector, written as an MCAP recording of what the live system would record
+   (frames, ASV poses, fixes).
+2. `capsd label` on it: confident tracked fixes projected back into the frames.
+3. `capsd train detector --finetune`: the shipped weights adapted to those labels.
+4. Both weights on held-out runs of the same kind of look (other seeds, other trajectories):
+   detection, false alarms, range and bearing error, before and after.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+from capsd import topics
+from capsd.bench.detect import HEADER, MIN_CONFIDENCE, evaluate
+from capsd.codec import Codec
+from capsd.offline_pipeline import Variant
+from capsd.offline_pipeline import run as run_pipeline
+from capsd.payloads import AsvPose, Payload, RovFix, SonarFrame
+from capsd.progress import Progress
+from capsd.recording import McapRecorder, Sample
+from simulator.config import Config as SimConfig
+from simulator.config import Rates, SonarImageConfig
+from simulator.world import TankName, TrajectoryName
+
+DIVE: tuple[TankName, TrajectoryName, int] = ("nfp", "square", 404)  # the "first dive"
+# Held-out runs in the same kind of look: (tank, trajectory, ASV mode, seed).
+HELD_OUT: tuple[tuple[Any, Any, Any, int], ...] = (
+    ("nfp", "lawnmower", "follow", 411),
+    ("nfp", "random", "follow", 412),
+    ("mockup", "square", "stationary", 413),
+)
+_KEYS = {
+    SonarFrame: topics.SONAR_FRAME.key("tank", "asv"),
+    AsvPose: topics.ASV_POSE.key("tank", "asv"),
+    RovFix: topics.ROV_FIX.key("tank", "topside"),
+}
+
+
+def record_dive(path: Path, *, duration_s: float, sonar_hz: float) -> int:
+    """The first dive through the offline pipeline into an MCAP recording; fixes recorded."""
+    tank, trajectory, seed = DIVE
+    sim = SimConfig(
+        tank=tank,
+        trajectory=trajectory,
+        seed=seed,
+        sonar_image=SonarImageConfig(variety="outside"),
+        rates=Rates(sonar_hz=sonar_hz),
+    )
+    codecs: dict[type, Codec[Any]] = {cls: Codec(cls) for cls in _KEYS}
+    recorder = McapRecorder(path)
+    fixes = 0
+
+    def sink(payload: Payload) -> None:
+        nonlocal fixes
+        cls = type(payload)
+        codec = codecs[cls]
+        recorder.write(Sample(_KEYS[cls], codec.encoding, codec.encode(payload), payload.stamp_ns))
+        fixes += isinstance(payload, RovFix) and payload.quality == "good"
+
+    bar = Progress(duration_s, label="first dive (offline pipeline)", unit=" sim s")
+    try:
+        run_pipeline(
+            sim, duration_s=duration_s, variants=[Variant("capsd")], progress=bar, sink=sink
+        )
+    finally:
+        recorder.close()
+        bar.close()
+    return fixes
+
+
+def _cnn(weights: Path) -> Any:
+    from services.sonar_detect.cnn import CnnDetector, CnnSettings
+
+    return CnnDetector(CnnSettings(weights=weights)).detect
+
+
+def run(*, out: Path, duration_s: float, eval_duration_s: float) -> int:
+    from services.locator.service import Config as LocatorConfig
+    from services.sonar_detect.cnn import DEFAULT_WEIGHTS
+    from services.sonar_detect.finetune import FinetuneConfig, finetune
+    from services.sonar_detect.labelling import label_recording, write_labels
+
+    out.mkdir(parents=True, exist_ok=True)
+    started = time.monotonic()
+    recording = out / "first_dive.mcap"
+    good = record_dive(recording, duration_s=duration_s, sonar_hz=5.0)
+    print(f"first dive: {recording} ({recording.stat().st_size / 1e6:.0f} MB), {good} good fixes")
+    labels, summary = label_recording(recording, sonar=LocatorConfig().sonar)
+    print(f"labels: {summary}")
+    if not labels:
+        print("no confident tracked fix in the first dive: nothing to fine-tune on")
+        return 1
+    write_labels(labels, out / "labels")
+    finetune(DEFAULT_WEIGHTS, out / "labels", out / "weights", FinetuneConfig())
+    detectors = {"shipped": _cnn(DEFAULT_WEIGHTS), "fine-tuned": _cnn(out / "weights/polar_net.pt")}
+    tallies = evaluate(
+        detectors, duration_s=eval_duration_s, runs=HELD_OUT, looks=("outside", "heldout")
+    )
+    print(f"\nheld-out runs, {eval_duration_s:g} s each; confidence >= {MIN_CONFIDENCE}")
+    print(HEADER)
+    rows = {}
+    for name in sorted(tallies):
+        if name.endswith("/ all") and not name.startswith("paper"):
+            print(tallies[name].row(name))
+            rows[name] = tallies[name].summary()
+    result = {
+        "dive": list(DIVE),
+        "dive_duration_s": duration_s,
+        "good_fixes": good,
+        "labels": asdict(summary),
+        "held_out": [list(r) for r in HELD_OUT],
+        "eval_duration_s": eval_duration_s,
+        "groups": rows,
+        "seconds": round(time.monotonic() - started, 1),
+    }
+    (out / "finetune.json").write_text(json.dumps(result, indent=2, sort_keys=True) + "\n")
+    print(f"\n{out / 'finetune.json'}; {result['seconds']:.0f} s in all")
+    return 0

@@ -1,0 +1,30 @@
+from __future__ import annotations
+
+import pytest
+
+from capsd.cli import main
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["sim", "--offline", "x", "--duration", "-5"], "must be a positive number"),
+        (["list", "--timeout", "-1"], "must be a positive number"),
+        (["tap", "cap/**", "--count", "-3"], "must not be negative"),
+        (["tap", "cap/**", "--duration", "nan"], "must be a positive number"),
+        (["bench", "detect", "--frames", "0"], "not allowed"),
+        (["replay", "x.mcap", "--speed", "0"], "must be a positive number"),
+    ],
+)
+def test_bad_numbers_on_the_command_line_are_usage_errors(
+    argv: list[str], message: str, capfd: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2
+    assert message in capfd.readouterr().err
+
+
+def test_tls_files_are_checked_before_joining(capfd: pytest.CaptureFixture[str]) -> None:
+    assert main(["tap", "cap/**", "--tls", "/nonexistent/ca.pem", "c.pem", "k.pem"]) == 2
+    assert "ca_certificate" in capfd.readouterr().err

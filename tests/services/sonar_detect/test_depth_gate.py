@@ -1,0 +1,83 @@
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from capsd.geometry import Transform
+from capsd.sonar_geometry import BeamModel, beam_direction, to_polar
+from services.sonar_detect.depth_gate import DepthGate
+
+HALF_APERTURE = math.radians(10.0)
+
+
+def _sonar(pitch_deg: float, yaw_deg: float, roll_deg: float) -> Transform:
+    # A sonar 0.2 m under the surface, pitched down (positive pitch about y tips x down in
+    # Z-Y-X with z up: the mount's pitch_deg convention of capsd.mounts).
+    return Transform.from_euler_zyx(
+        (3.0, 2.0, -0.2),
+        yaw_rad=math.radians(yaw_deg),
+        pitch_rad=math.radians(pitch_deg),
+        roll_rad=math.radians(roll_deg),
+    )
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    pitch=st.floats(10.0, 50.0),
+    yaw=st.floats(-180.0, 180.0),
+    roll=st.floats(-5.0, 5.0),
+    range_m=st.floats(1.5, 20.0),
+    azimuth_deg=st.floats(-60.0, 60.0),
+    elevation_deg=st.floats(-9.5, 9.5),
+    model=st.sampled_from(["planar", "conical"]),
+)
+def test_the_rov_where_it_is_passes_and_off_its_plane_does_not(
+    pitch: float,
+    yaw: float,
+    roll: float,
+    range_m: float,
+    azimuth_deg: float,
+    elevation_deg: float,
+    model: BeamModel,
+) -> None:
+    sonar = _sonar(pitch, yaw, roll)
+    azimuth = math.radians(azimuth_deg)
+    p_s = range_m * beam_direction(model, azimuth, math.radians(elevation_deg))
+    rov = sonar.apply(p_s)
+    gate = DepthGate(sonar, float(rov[2]), 0.3, HALF_APERTURE, model)
+    r, theta, _ = to_polar(model, p_s)
+    assert gate.plausible(r, theta)
+    window = gate.range_window(math.radians(65.0))
+    assert window is not None
+    assert window[0] - 1e-6 <= r <= window[1] + 1e-6
+    # The same echo with the ROV's plane far above or below: not the ROV.
+    for shift in (-1.0, 1.0):
+        vertical_reach = range_m * 2 * math.sin(HALF_APERTURE) + 0.3
+        other = DepthGate(
+            sonar, float(rov[2]) + shift * (vertical_reach + 0.1), 0.3, HALF_APERTURE, model
+        )
+        assert not other.plausible(r, theta)
+
+
+def test_a_plane_the_fan_never_reaches_has_no_window() -> None:
+    # Sonar looking up 30 deg (pitch -30): rays go up, the ROV is 5 m below.
+    sonar = _sonar(-30.0, 0.0, 0.0)
+    gate = DepthGate(sonar, -5.2, 0.3, HALF_APERTURE, "conical")
+    assert gate.range_window(math.radians(65.0)) is None
+    assert not gate.plausible(8.0, 0.0)
+
+
+def test_window_spans_near_and_far_edges_of_the_aperture() -> None:
+    sonar = _sonar(30.0, 0.0, 0.0)
+    depth_below = 3.0
+    gate = DepthGate(sonar, -0.2 - depth_below, 0.0, HALF_APERTURE, "planar")
+    window = gate.range_window(0.0 + 1e-9)
+    assert window is not None
+    # On the boresight: the steepest ray (40 deg down) is nearest, the shallowest (20) furthest.
+    near = depth_below / math.sin(math.radians(40.0))
+    far = depth_below / math.sin(math.radians(20.0))
+    assert np.isclose(window[0], near, rtol=1e-3)
+    assert np.isclose(window[1], far, rtol=1e-3)
