@@ -60,6 +60,9 @@ class SonarImageConfig(ConfigSection, frozen=True, kw_only=True):
     # off: the fixed look; train / heldout: every knob of simulator.sonar_look drawn per seed
     # (sonar settings, image formation, ROV detail, floor, floating clutter, fish).
     variety: Variety = "off"
+    # The look drawn from this seed instead of the run's: one site's sonar and tank (its
+    # settings, floor and floating clutter) under other motions.
+    look_seed: int | None = None
 
 
 class LidarConfig(ConfigSection, frozen=True, kw_only=True):
@@ -169,7 +172,8 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
             return None
         tank = make_tank(self.tank, clutter="off")
         reach = math.hypot(tank.length_m, tank.width_m)
-        return sonar_look.draw(sonar_look.look_rng(self.seed), variety, tank_reach_m=reach)
+        seed = self.seed if self.sonar_image.look_seed is None else self.sonar_image.look_seed
+        return sonar_look.draw(sonar_look.look_rng(seed), variety, tank_reach_m=reach)
 
     def sonar_model(self) -> SonarModel:
         img = self.sonar_image

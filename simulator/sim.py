@@ -96,7 +96,9 @@ class Simulation:
         self.tank = make_tank(config.tank, clutter=config.clutter)
         look = config.look()
         if look is not None:
-            self.tank = with_look(self.tank, look, np.random.default_rng([config.seed, 0xC1]))
+            look_seed = config.sonar_image.look_seed
+            seed = config.seed if look_seed is None else look_seed
+            self.tank = with_look(self.tank, look, np.random.default_rng([seed, 0xC1]))
         self.rov: RovMotion = rov_motion(
             self.tank,
             config.trajectory,

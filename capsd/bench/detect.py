@@ -129,6 +129,7 @@ def sonar_only(
     seed: int,
     *,
     variety: Variety = "off",
+    look_seed: int | None = None,
 ) -> Config:
     """A simulator config that renders sonar pings and labels only (no LiDAR, IMU, stand-ins)."""
     return Config(
@@ -136,7 +137,7 @@ def sonar_only(
         trajectory=trajectory,
         seed=seed,
         asv_mode=asv_mode,
-        sonar_image=SonarImageConfig(variety=variety),
+        sonar_image=SonarImageConfig(variety=variety, look_seed=look_seed),
         streams=Streams(
             lidar="off", imu="off", asv_pose_truth_noise="off", detections_truth_noise="off"
         ),
@@ -149,8 +150,9 @@ def evaluate(
     duration_s: float,
     runs: tuple[Any, ...] = RUNS,
     looks: tuple[Variety, ...] = LOOKS,
+    look_seed: int | None = None,
 ) -> dict[str, Tally]:
-    """Every detector on every held-out run in every look.
+    """Every detector on every held-out run in every look (drawn from `look_seed` if given).
 
     Tallies are keyed 'detector / look / group', group: clear, overlap (clutter overlapping
     the ROV), all, or a range band of the ROV's true range.
@@ -160,7 +162,7 @@ def evaluate(
     done = 0.0
     for look in looks:
         for tank, trajectory, asv_mode, seed in runs:
-            config = sonar_only(tank, trajectory, asv_mode, seed, variety=look)
+            config = sonar_only(tank, trajectory, asv_mode, seed, variety=look, look_seed=look_seed)
             sim = Simulation(config, horizon_s=duration_s + 5)
             for t_s, frame, label in sim.labelled_pings(
                 start_ns=OFFLINE_START_NS, duration_s=duration_s

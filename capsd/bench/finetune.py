@@ -7,7 +7,8 @@
    (frames, ASV poses, fixes).
 2. `capsd label` on it: confident tracked fixes projected back into the frames.
 3. `capsd train detector --finetune`: the shipped weights adapted to those labels.
-4. Both weights on held-out runs of the same kind of look (other seeds, other trajectories):
+4. Both weights on held-out runs at the same site (the dive's look, tank and clutter; other
+   trajectories and seeds), and on the bench's held-out looks (what it costs elsewhere):
    detection, false alarms, range and bearing error, before and after.
 """
 
@@ -32,11 +33,12 @@ from simulator.config import Rates, SonarImageConfig
 from simulator.world import TankName, TrajectoryName
 
 DIVE: tuple[TankName, TrajectoryName, int] = ("nfp", "square", 404)  # the "first dive"
-# Held-out runs in the same kind of look: (tank, trajectory, ASV mode, seed).
+# Held-out runs at the same site (the dive's sonar, tank and look), other motions and seeds:
+# (tank, trajectory, ASV mode, seed).
 HELD_OUT: tuple[tuple[Any, Any, Any, int], ...] = (
     ("nfp", "lawnmower", "follow", 411),
     ("nfp", "random", "follow", 412),
-    ("mockup", "square", "stationary", 413),
+    ("nfp", "bouncing", "stationary", 413),
 )
 _KEYS = {
     SonarFrame: topics.SONAR_FRAME.key("tank", "asv"),
@@ -102,8 +104,14 @@ def run(*, out: Path, duration_s: float, eval_duration_s: float) -> int:
     write_labels(labels, out / "labels")
     finetune(DEFAULT_WEIGHTS, out / "labels", out / "weights", FinetuneConfig())
     detectors = {"shipped": _cnn(DEFAULT_WEIGHTS), "fine-tuned": _cnn(out / "weights/polar_net.pt")}
-    tallies = evaluate(
-        detectors, duration_s=eval_duration_s, runs=HELD_OUT, looks=("outside", "heldout")
+    # The dive's own look (what a site's fine-tune is for), and, to see what it costs
+    # elsewhere, the bench's held-out look of each run.
+    site = evaluate(
+        detectors, duration_s=eval_duration_s, runs=HELD_OUT, looks=("outside",), look_seed=DIVE[2]
+    )
+    tallies = {name.replace("/ outside /", "/ this site /"): t for name, t in site.items()}
+    tallies.update(
+        evaluate(detectors, duration_s=eval_duration_s, runs=HELD_OUT, looks=("heldout",))
     )
     print(f"\nheld-out runs, {eval_duration_s:g} s each; confidence >= {MIN_CONFIDENCE}")
     print(HEADER)

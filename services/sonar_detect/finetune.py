@@ -5,13 +5,14 @@ simulator's do (the grid with the ROV's centre, crops around it with a proposal'
 crops of the brightest places and of the network's own wrong peaks as negatives). A few
 simulated runs of the training variety are mixed in, so the network keeps what it knew; then
 a few epochs of both networks at a lower learning rate, from the shipped weights. The
-operating point (logit offset) is kept: the labels say where the ROV is, not how often the
-site's clutter would fool the network. Minutes on 2 cores.
+operating point is set again on the site's own frames (`recalibrate_on_labels`): anything
+confident away from the label in a labelled frame is a false alarm. Minutes on 2 cores.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -22,8 +23,8 @@ import torch
 
 from capsd.errors import CapsdError
 from capsd.payloads import SonarLabel
-from services.sonar_detect.labelling import frames_of, read_labels
-from services.sonar_detect.polar_net import load, save
+from services.sonar_detect.labelling import LabelledPing, frames_of, read_labels
+from services.sonar_detect.polar_net import PolarNet, load, save
 from services.sonar_detect.train import TrainConfig, _train_proposal, _train_refine
 from services.sonar_detect.training_data import Samples, plan_runs, render, samples_of_ping
 
@@ -62,6 +63,42 @@ def _label_of(stamp_ns: int, ping_id: int, range_m: float, azimuth_rad: float) -
     )
 
 
+# On the labelled frames, anything confident further than this from the label is a false alarm.
+FALSE_ALARM_M = 0.8
+MAX_SITE_FALSE_ALARMS_PER_FRAME = 0.005
+
+
+def recalibrate_on_labels(net: PolarNet, labels: list[LabelledPing]) -> dict[str, float]:
+    """The operating point on the site's own frames (the logit offset).
+
+    The labels say where the ROV is, so a
+    confident candidate anywhere else in a labelled frame is a false alarm. The logit offset
+    becomes the lowest that keeps those at most MAX_SITE_FALSE_ALARMS_PER_FRAME (never lower
+    than the shipped one: fine-tuning only ever makes the detector more cautious here).
+    """
+    from services.sonar_detect.cnn import NETWORK_ALONE, CnnDetector
+
+    shipped = float(net.logit_offset)
+    net.logit_offset.zero_()
+    detector = CnnDetector(NETWORK_ALONE, net=net)
+    false_logits: list[float] = []
+    frames = 0
+    for frame, label in frames_of(labels):
+        frames += 1
+        for d in detector.detect(frame):
+            dx = d.range_m * math.cos(d.azimuth_rad) - label.range_m * math.cos(label.azimuth_rad)
+            dy = d.range_m * math.sin(d.azimuth_rad) - label.range_m * math.sin(label.azimuth_rad)
+            if math.hypot(dx, dy) > FALSE_ALARM_M:
+                c = min(max(d.confidence, 1e-12), 1 - 1e-12)
+                false_logits.append(math.log(c / (1 - c)))
+    allowed = int(MAX_SITE_FALSE_ALARMS_PER_FRAME * frames)
+    ordered = sorted(false_logits, reverse=True)
+    site = ordered[allowed] + 1e-6 if len(ordered) > allowed else 0.0
+    offset = max(shipped, site)
+    net.logit_offset.fill_(offset)
+    return {"shipped_offset": round(shipped, 4), "site_offset": round(site, 4), "offset": offset}
+
+
 def finetune(
     weights: Path, labels_dir: Path, out_dir: Path, config: FinetuneConfig
 ) -> dict[str, Any]:
@@ -97,6 +134,7 @@ def finetune(
     )
     proposal_losses = _train_proposal(net, samples, train_config, gen)
     refine_losses = _train_refine(net, samples, train_config, gen, label="fine-tuning refiner")
+    operating_point = recalibrate_on_labels(net, labels)
     out_dir.mkdir(parents=True, exist_ok=True)
     meta: dict[str, Any] = {
         "finetuned_from": str(weights),
@@ -111,6 +149,7 @@ def finetune(
             "proposal_last": float(np.mean(proposal_losses[-20:])),
             "refine_last": float(np.mean(refine_losses[-20:])),
         },
+        "operating_point": operating_point,
         "seconds": round(time.monotonic() - started, 1),
         "torch": str(torch.__version__),
     }
