@@ -283,6 +283,24 @@ def _cmd_mav_check(args: argparse.Namespace) -> int:
         return _fail(f"MAVLink link {args.connect}: {exc}", EXIT_FAILURE)
 
 
+def _cmd_mav_zero_depth(args: argparse.Namespace) -> int:
+    try:
+        from services.mav_bridge.check import run_zero_depth
+        from services.mav_bridge.mavlink import check_connection
+    except ImportError as exc:  # the base install has no pymavlink: it comes with [rov]
+        return _fail(
+            f"`capsd mav` needs the rov extra (pip install 'capsd[rov]'): {exc}", EXIT_FAILURE
+        )
+    try:
+        check_connection(args.connect)
+    except ConfigError as exc:
+        return _fail(str(exc), EXIT_CONFIG)
+    try:
+        return run_zero_depth(args.connect, apply=args.apply, timeout_s=args.timeout)
+    except OSError as exc:
+        return _fail(f"MAVLink link {args.connect}: {exc}", EXIT_FAILURE)
+
+
 # ---------------------------------------------------------------------------- sim / render
 
 
@@ -730,6 +748,24 @@ def build_parser() -> argparse.ArgumentParser:
         "--timeout", type=positive_float, default=5.0, help="seconds to wait for answers"
     )
     check.set_defaults(func=_cmd_mav_check)
+    zero = mav_sub.add_parser(
+        "zero-depth",
+        help="show the depth the vehicle reads; at the surface, --apply makes it 0",
+        description="Depth is measured from the pressure at the autopilot's boot "
+        "(BARO2_GND_PRESS): a vehicle booted under water reads shallow. At the surface, "
+        "--apply asks the autopilot to take the pressure now as the surface's "
+        "(MAV_CMD_PREFLIGHT_CALIBRATION, barometer); the bridge picks it up within 10 s.",
+    )
+    zero.add_argument(
+        "--connect",
+        default="tcp:127.0.0.1:5777",
+        help="MAVLink connection (default: BlueOS's tcp:127.0.0.1:5777)",
+    )
+    zero.add_argument("--apply", action="store_true", help="take the pressure now as 0 m")
+    zero.add_argument(
+        "--timeout", type=positive_float, default=5.0, help="seconds to wait for answers"
+    )
+    zero.set_defaults(func=_cmd_mav_zero_depth)
 
     sim = sub.add_parser(
         "sim",

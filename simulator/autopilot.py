@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Self
 
 from services.mav_bridge.mavlink import (
+    MAV_CMD_PREFLIGHT_CALIBRATION,
     MAV_CMD_SET_MESSAGE_INTERVAL,
     MAV_RESULT_ACCEPTED,
     Attitude,
@@ -93,10 +94,15 @@ class AutopilotStandIn:
         params: dict[str, float] | None = None,
         armed: bool = True,
         mode: str = "POSHOLD",
+        boot_depth_m: float = 0.0,
     ):
         self.port = port
         self.state = state
         self.params = dict(DEFAULT_PARAMS if params is None else params)
+        # The air's pressure; the surface reference is what the autopilot measured at boot
+        # (BARO2_GND_PRESS), `boot_depth_m` under water if it booted there.
+        self.air_pressure_pa = self.params["BARO2_GND_PRESS"]
+        self.params["BARO2_GND_PRESS"] += boot_depth_m * RHO_G * self.params["BARO_SPEC_GRAV"]
         self.armed = armed
         self.mode = mode
         self.recorded = Recorded()
@@ -171,10 +177,7 @@ class AutopilotStandIn:
         if msg == message_id("ATTITUDE"):
             link.send_attitude(Attitude(boot_ms, state.roll, state.pitch, state.yaw, 0.0, 0.0, 0.0))
         elif msg == message_id("SCALED_PRESSURE2"):
-            pressure_pa = (
-                self.params["BARO2_GND_PRESS"]
-                + state.depth_m * RHO_G * self.params["BARO_SPEC_GRAV"]
-            )
+            pressure_pa = self.pressure_pa(state)
             link.send_scaled_pressure2(
                 time_boot_ms=boot_ms, press_abs_hpa=pressure_pa / 100.0, temperature_c=18.0
             )
@@ -189,6 +192,10 @@ class AutopilotStandIn:
                     compass_variance=0.05,
                 )
             )
+
+    def pressure_pa(self, state: VehicleState) -> float:
+        """The Bar30's absolute pressure at the vehicle's true depth."""
+        return self.air_pressure_pa + state.depth_m * RHO_G * self.params["BARO_SPEC_GRAV"]
 
     def pos_horiz_ratio(self) -> float:
         """The EKF's horizontal position test ratio, modelled (units of EKF_GATE_M squared).
@@ -229,7 +236,11 @@ class AutopilotStandIn:
                 self.recorded.origins.append(message)
             elif isinstance(message, Heartbeat):
                 self.recorded.heartbeats += 1
-        if isinstance(message, CommandLong) and message.command == MAV_CMD_SET_MESSAGE_INTERVAL:
+        if isinstance(message, CommandLong) and message.command == MAV_CMD_PREFLIGHT_CALIBRATION:
+            if message.params[2] == 1:  # barometer: the pressure now becomes the surface's
+                self.params["BARO2_GND_PRESS"] = self.pressure_pa(self.state(time.time()))
+            link.send_command_ack(command=message.command, result=MAV_RESULT_ACCEPTED)
+        elif isinstance(message, CommandLong) and message.command == MAV_CMD_SET_MESSAGE_INTERVAL:
             interval_us = message.params[1]
             self._rates_hz[int(message.params[0])] = (
                 0.0 if interval_us < 0 else 1e6 / max(interval_us, 1.0)

@@ -13,7 +13,16 @@ import time
 from dataclasses import dataclass
 from typing import Literal, TextIO
 
-from services.mav_bridge.mavlink import Heartbeat, MavLink, ParamValue
+from services.mav_bridge.mavlink import (
+    MAV_CMD_PREFLIGHT_CALIBRATION,
+    MAV_RESULT_ACCEPTED,
+    CommandAck,
+    Heartbeat,
+    MavLink,
+    ParamValue,
+    ScaledPressure,
+    message_id,
+)
 
 YawSource = Literal["compass", "vision"]
 
@@ -161,3 +170,73 @@ def _print(findings: list[Finding], out: TextIO) -> None:
         now = "absent" if f.current is None else f"{f.current:g}"
         status = "ok" if f.ok else "CHANGE"
         print(f"{f.name:<16} {now:>8} {f.wanted:>8g}  {status:<7}  {f.why}", file=out)
+
+
+RHO_G = 1000.0 * 9.80665  # fresh water; the depth shown uses BARO_SPEC_GRAV
+
+
+def _pressure_now(link: MavLink, target: int, timeout_s: float) -> float | None:
+    """The Bar30's absolute pressure (Pa) from SCALED_PRESSURE2, asked for at 5 Hz."""
+    link.send_set_message_interval(
+        target_system=target, message_id=message_id("SCALED_PRESSURE2"), rate_hz=5.0
+    )
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        received = link.recv(timeout_s=0.2)
+        message = None if received is None else received.message
+        if isinstance(message, ScaledPressure) and message.instance == 2:
+            return message.press_abs_hpa * 100.0
+    return None
+
+
+def run_zero_depth(
+    connection: str, *, apply: bool, timeout_s: float = 5.0, out: TextIO = sys.stdout
+) -> int:
+    """Show the depth the vehicle reads now; with `apply` make the pressure now the surface's.
+
+    Depth is measured from BARO2_GND_PRESS, the pressure at the autopilot's boot: a vehicle
+    that booted under water reads shallow all dive. At the surface, `--apply` sends
+    MAV_CMD_PREFLIGHT_CALIBRATION (barometer), after which depth reads 0 there.
+    """
+    with MavLink(connection, system_id=_GCS_SYSTEM, component_id=_GCS_COMPONENT) as link:
+        link.send_heartbeat_onboard()
+        target = _wait_heartbeat(link, timeout_s)
+        if target is None:
+            print(f"no autopilot HEARTBEAT on {connection} within {timeout_s:.0f} s", file=out)
+            return 1
+        values = _read(link, target, ["BARO2_GND_PRESS", "BARO_SPEC_GRAV"], timeout_s)
+        pressure = _pressure_now(link, target, timeout_s)
+        surface = values.get("BARO2_GND_PRESS")
+        if pressure is None or surface is None:
+            print("no SCALED_PRESSURE2 or BARO2_GND_PRESS from the autopilot", file=out)
+            return 1
+        rho_g = RHO_G * values.get("BARO_SPEC_GRAV", 1.0)
+        print(
+            f"surface pressure in use {surface:.0f} Pa, now {pressure:.0f} Pa: the vehicle reads "
+            f"{(pressure - surface) / rho_g:+.3f} m deep",
+            file=out,
+        )
+        if not apply:
+            print("at the surface, run again with --apply to take this pressure as 0 m", file=out)
+            return 0
+        link.send_calibrate_surface_pressure(target_system=target)
+        deadline = time.monotonic() + timeout_s
+        result = None
+        while time.monotonic() < deadline and result is None:
+            received = link.recv(timeout_s=0.2)
+            ack = None if received is None else received.message
+            if isinstance(ack, CommandAck) and ack.command == MAV_CMD_PREFLIGHT_CALIBRATION:
+                result = ack.result
+        if result != MAV_RESULT_ACCEPTED:
+            print(f"the autopilot did not accept the calibration (result {result})", file=out)
+            return 1
+        after = _read(link, target, ["BARO2_GND_PRESS"], timeout_s).get("BARO2_GND_PRESS")
+        if after is None:
+            print("calibrated, but BARO2_GND_PRESS could not be read back", file=out)
+            return 1
+        print(
+            f"surface pressure now {after:.0f} Pa: the vehicle reads "
+            f"{(pressure - after) / rho_g:+.3f} m deep (the bridge picks it up within 10 s)",
+            file=out,
+        )
+        return 0

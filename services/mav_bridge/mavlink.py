@@ -25,6 +25,7 @@ from capsd.errors import ConfigError
 
 MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY = 197
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
+MAV_CMD_PREFLIGHT_CALIBRATION = 241
 MAV_RESULT_ACCEPTED = 0
 MAV_SEVERITY = {"emergency": 0, "alert": 1, "critical": 2, "error": 3, "warning": 4,
                 "notice": 5, "info": 6, "debug": 7}  # fmt: skip
@@ -444,6 +445,12 @@ class MavLink:
             0,
             0,
             0,
+        )
+
+    def send_calibrate_surface_pressure(self, *, target_system: int) -> None:
+        """MAV_CMD_PREFLIGHT_CALIBRATION, barometer: the pressure now becomes the surface's."""
+        self._mav.command_long_send(
+            target_system, 1, MAV_CMD_PREFLIGHT_CALIBRATION, 0, 0, 0, 1, 0, 0, 0, 0
         )
 
     def send_set_gps_global_origin(

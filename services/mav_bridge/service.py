@@ -14,6 +14,7 @@ to NED, as VISION_POSITION_ESTIMATE (or GPS_INPUT), usec = the estimate's measur
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import threading
@@ -60,6 +61,8 @@ _REOPEN_FIRST_S = 0.25
 _REOPEN_MAX_S = 2.0
 # With the link up, depth or attitude missing for this long makes Health degraded (why).
 _INPUT_GRACE_S = 1.0
+# A depth this far above the surface (negative) is no real reading: the reference is wrong.
+_ABOVE_SURFACE_M = -0.1
 
 
 class MavlinkConfig(ConfigSection, frozen=True, kw_only=True):
@@ -204,6 +207,9 @@ class Bridge:
         self._last_depth = -math.inf
         self._last_attitude = -math.inf
         self._missing: str | None = None
+        self._last_reference_read = 0.0
+        self._above_surface_since: float | None = None
+        self._reference_suspect: float | None = None
         self.ekf_pos_ratio = 0.0
         self._ekf_high_since: float | None = None
         self._ekf_low_since: float | None = None
@@ -314,6 +320,27 @@ class Bridge:
             self._ekf_disagrees = False
             logger.info("the EKF accepts our positions again")
 
+    def _watch_reference(self, depth_m: float, now: float) -> None:
+        """Depth above the surface for a while: the reference was taken under water."""
+        if depth_m >= _ABOVE_SURFACE_M:
+            self._above_surface_since = None
+            self._reference_suspect = (
+                None if depth_m > _ABOVE_SURFACE_M / 2 else (self._reference_suspect)
+            )
+            return
+        self._above_surface_since = self._above_surface_since or now
+        if self._reference_suspect is None and now - self._above_surface_since >= 2.0:
+            self._reference_suspect = depth_m
+            self.counts["surface_reference_suspect"] += 1
+            logger.warning(
+                "depth reads above the surface: the autopilot booted under water",
+                extra={"fields": {"depth_m": round(depth_m, 3)}},
+            )
+            with contextlib.suppress(OSError):  # the link's loss is handled where it is read
+                self.link.send_statustext(
+                    "warning", f"CAP-SD: depth {depth_m:+.2f} m at surface? zero-depth"
+                )
+
     def _check_inputs(self, now: float) -> None:
         """Health says what is wrong: depth or attitude missing, the EKF disagreeing."""
         if self.clock.boots == 0 or now - self._link_opened < _INPUT_GRACE_S:
@@ -326,6 +353,11 @@ class Bridge:
         reasons = []
         if missing:
             reasons.append("no " + " and no ".join(missing) + " from the autopilot")
+        if self._reference_suspect is not None:
+            reasons.append(
+                f"depth reads {self._reference_suspect:+.2f} m, above the surface: the surface "
+                "pressure was taken under water (at the surface: capsd mav zero-depth --apply)"
+            )
         if self._ekf_disagrees:
             reasons.append(
                 f"the EKF rejects our positions (test ratio {self.ekf_pos_ratio:.1f}): "
@@ -400,6 +432,11 @@ class Bridge:
             )
             if value is None
         ]
+        # The surface reference is read again every 10 s: `capsd mav zero-depth --apply`
+        # (or a ground station's baro calibration) changes it without a reboot.
+        if cfg.depth.surface_pressure_pa is None and now - self._last_reference_read > 10.0:
+            self._last_reference_read = now
+            missing = sorted({*missing, "BARO2_GND_PRESS"})
         if missing and now - self._last_param_request > 2.0:
             self._last_param_request = now
             for name in missing:
@@ -450,7 +487,17 @@ class Bridge:
             self.ekf_flags = message.flags
             self._observe_ekf(message.pos_horiz_variance, time.monotonic())
         elif isinstance(message, ParamValue):
-            if message.name == "BARO2_GND_PRESS" and self.surface_pressure_pa is None:
+            if message.name == "BARO2_GND_PRESS" and self.config.depth.surface_pressure_pa is None:
+                if (
+                    self.surface_pressure_pa is not None
+                    and abs(message.value - self.surface_pressure_pa) > 1.0
+                ):
+                    logger.info(
+                        "surface pressure reference changed",
+                        extra={
+                            "fields": {"from_pa": self.surface_pressure_pa, "to_pa": message.value}
+                        },
+                    )
                 self.surface_pressure_pa = message.value
             elif message.name == "BARO_SPEC_GRAV" and self.density is None:
                 self.density = 1000.0 * message.value
@@ -471,7 +518,9 @@ class Bridge:
             self.counts["depth_bad_pressure"] += 1
             return
         depth = (pressure_pa - self.surface_pressure_pa) / (self.density * G)
-        self._last_depth = time.monotonic()
+        now = time.monotonic()
+        self._last_depth = now
+        self._watch_reference(depth, now)
         self.depth_pub.put(
             RovDepth(
                 stamp_ns=self.clock.to_unix_ns(message.time_boot_ms),

@@ -575,3 +575,50 @@ def test_a_wrong_heading_is_told_to_the_pilot(
         assert "heading" in (health.state_reason or "")
         assert health.counters["ekf_disagreement_episodes"] == 1  # once per episode
     assert bridge.popen.poll() is None
+
+
+def test_a_vehicle_booted_under_water_is_noticed_and_zeroed(
+    spawn: Callable[..., Proc], client: zenoh.Session, endpoint: str, tmp_path: Path
+) -> None:
+    # Booted 0.17 m under water, then surfaced: depth reads -0.17 m from the boot reference.
+    with AutopilotStandIn(
+        free_port(), state=lambda _t: VehicleState(depth_m=0.0), boot_depth_m=0.17
+    ) as autopilot:
+        bridge = _start_bridge(spawn, tmp_path, endpoint, autopilot, heading_deg=0.0)
+        wait_for(
+            lambda: any("zero-depth" in s.text for s in autopilot.recorded.statustexts),
+            timeout_s=15,
+            what="the pilot told the depth reads above the surface",
+        )
+        health = _health(client)
+        assert health.state == "degraded"
+        assert "zero-depth" in (health.state_reason or "")
+        # The stand-in serves one client at a time (BlueOS's MAVLink router serves many):
+        # the bridge steps aside while a person runs the tool, then comes back.
+        code, _ = bridge.terminate()
+        assert code == 0
+        connect = f"tcp:127.0.0.1:{autopilot.port}"
+
+        def zero(*extra: str) -> subprocess.CompletedProcess[str]:
+            return subprocess.run(
+                [sys.executable, "-m", "capsd", "mav", "zero-depth", "--connect", connect, *extra],
+                capture_output=True,
+                text=True,
+                timeout=60,
+                cwd=REPO,
+            )
+
+        shown = zero()
+        assert shown.returncode == 0, shown.stdout + shown.stderr
+        assert "-0.17" in shown.stdout
+        applied = zero("--apply")
+        assert applied.returncode == 0, applied.stdout + applied.stderr
+        assert "+0.000 m deep" in applied.stdout
+        # The bridge reads the new reference and is not degraded for it any more.
+        _start_bridge(spawn, tmp_path, endpoint, autopilot, heading_deg=0.0)
+        time.sleep(4.0)
+        wait_for(
+            lambda: "zero-depth" not in (_health(client).state_reason or ""),
+            timeout_s=20,
+            what="the bridge to take the new surface pressure",
+        )
