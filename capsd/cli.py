@@ -10,7 +10,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -258,9 +258,10 @@ def _cmd_list(args: argparse.Namespace) -> int:
 # ---------------------------------------------------------------------------- mav
 
 
-def _cmd_mav_check(args: argparse.Namespace) -> int:
+def _mav_tool(args: argparse.Namespace, tool: Callable[[Any], int]) -> int:
+    """Run a `capsd mav` tool with the checks they share: the extra, the connection string."""
     try:
-        from services.mav_bridge.check import run_check
+        from services.mav_bridge import check
         from services.mav_bridge.mavlink import check_connection
     except ImportError as exc:  # the base install has no pymavlink: it comes with [rov]
         return _fail(
@@ -271,34 +272,30 @@ def _cmd_mav_check(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         return _fail(str(exc), EXIT_CONFIG)
     try:
-        return run_check(
+        return tool(check)
+    except OSError as exc:
+        return _fail(f"MAVLink link {args.connect}: {exc}", EXIT_FAILURE)
+
+
+def _cmd_mav_check(args: argparse.Namespace) -> int:
+    return _mav_tool(
+        args,
+        lambda check: check.run_check(
             args.connect,
             apply=args.apply,
             yaw_source=args.yaw_source,
             position_noise_m=args.position_noise_m,
             delay_ms=args.delay_ms,
             timeout_s=args.timeout,
-        )
-    except OSError as exc:
-        return _fail(f"MAVLink link {args.connect}: {exc}", EXIT_FAILURE)
+        ),
+    )
 
 
 def _cmd_mav_zero_depth(args: argparse.Namespace) -> int:
-    try:
-        from services.mav_bridge.check import run_zero_depth
-        from services.mav_bridge.mavlink import check_connection
-    except ImportError as exc:  # the base install has no pymavlink: it comes with [rov]
-        return _fail(
-            f"`capsd mav` needs the rov extra (pip install 'capsd[rov]'): {exc}", EXIT_FAILURE
-        )
-    try:
-        check_connection(args.connect)
-    except ConfigError as exc:
-        return _fail(str(exc), EXIT_CONFIG)
-    try:
-        return run_zero_depth(args.connect, apply=args.apply, timeout_s=args.timeout)
-    except OSError as exc:
-        return _fail(f"MAVLink link {args.connect}: {exc}", EXIT_FAILURE)
+    return _mav_tool(
+        args,
+        lambda check: check.run_zero_depth(args.connect, apply=args.apply, timeout_s=args.timeout),
+    )
 
 
 # ---------------------------------------------------------------------------- sim / render

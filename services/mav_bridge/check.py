@@ -102,6 +102,29 @@ def _wait_heartbeat(link: MavLink, timeout_s: float) -> int | None:
     return None
 
 
+class _Autopilot:
+    """A ground-station link to the autopilot, and its system id once it has heartbeat."""
+
+    def __init__(self, connection: str, *, timeout_s: float, out: TextIO):
+        self.link = MavLink(connection, system_id=_GCS_SYSTEM, component_id=_GCS_COMPONENT)
+        self.timeout_s = timeout_s
+        self.out = out
+
+    def __enter__(self) -> tuple[MavLink, int | None]:
+        self.link.open()
+        self.link.send_heartbeat_onboard()
+        target = _wait_heartbeat(self.link, self.timeout_s)
+        if target is None:
+            print(
+                f"no autopilot HEARTBEAT on {self.link.connection} within {self.timeout_s:.0f} s",
+                file=self.out,
+            )
+        return self.link, target
+
+    def __exit__(self, *_exc: object) -> None:
+        self.link.close()
+
+
 def evaluate(values: dict[str, float], checks: list[Rule]) -> list[Finding]:
     findings = []
     for rule in checks:
@@ -130,11 +153,8 @@ def run_check(
     """Print the findings (and fix them with `apply`); 0 when all is right at the end."""
     checks = rules(yaw_source=yaw_source, position_noise_m=position_noise_m, delay_ms=delay_ms)
     names = [n for rule in checks for n in rule.names]
-    with MavLink(connection, system_id=_GCS_SYSTEM, component_id=_GCS_COMPONENT) as link:
-        link.send_heartbeat_onboard()
-        target = _wait_heartbeat(link, timeout_s)
+    with _Autopilot(connection, timeout_s=timeout_s, out=out) as (link, target):
         if target is None:
-            print(f"no autopilot HEARTBEAT on {connection} within {timeout_s:.0f} s", file=out)
             return 1
         values = _read(link, target, names, timeout_s)
         findings = evaluate(values, checks)
@@ -198,11 +218,8 @@ def run_zero_depth(
     that booted under water reads shallow all dive. At the surface, `--apply` sends
     MAV_CMD_PREFLIGHT_CALIBRATION (barometer), after which depth reads 0 there.
     """
-    with MavLink(connection, system_id=_GCS_SYSTEM, component_id=_GCS_COMPONENT) as link:
-        link.send_heartbeat_onboard()
-        target = _wait_heartbeat(link, timeout_s)
+    with _Autopilot(connection, timeout_s=timeout_s, out=out) as (link, target):
         if target is None:
-            print(f"no autopilot HEARTBEAT on {connection} within {timeout_s:.0f} s", file=out)
             return 1
         values = _read(link, target, ["BARO2_GND_PRESS", "BARO_SPEC_GRAV"], timeout_s)
         pressure = _pressure_now(link, target, timeout_s)
