@@ -277,7 +277,36 @@ def _mav_tool(args: argparse.Namespace, tool: Callable[[Any], int]) -> int:
         return _fail(f"MAVLink link {args.connect}: {exc}", EXIT_FAILURE)
 
 
+def _delay_ms(text: str) -> float | str:
+    return "auto" if text == "auto" else positive_float(text)
+
+
+def _measured_delay_ms(args: argparse.Namespace) -> float | None:
+    """The bridge's measured ping-to-autopilot median (its Health), rounded to 5 ms."""
+    from capsd.bus import open_session
+    from capsd.health import query_health
+    from capsd.latency import percentile_ms
+
+    try:
+        with open_session(BusConfig(connect=(args.bus,), connect_timeout_s=2.0)) as session:
+            health = query_health(
+                session, site=args.site, vehicle=args.vehicle, service="mav_bridge"
+            )
+    except (BusError, ConfigError) as exc:
+        print(f"VISO_DELAY_MS: no bus at {args.bus} ({exc})")
+        return None
+    stats = next((s for s in (health.latencies if health else ()) if s.name == "end to end"), None)
+    median = percentile_ms(stats, 50) if stats is not None else None
+    if median is None:
+        print(f"VISO_DELAY_MS: no measured delay from the bridge on {args.bus}: not checked")
+        return None
+    wanted = max(5.0, 5.0 * round(median / 5.0))
+    print(f"VISO_DELAY_MS: the bridge measures {median:.1f} ms ping to autopilot (median)")
+    return wanted
+
+
 def _cmd_mav_check(args: argparse.Namespace) -> int:
+    delay = _measured_delay_ms(args) if args.delay_ms == "auto" else float(args.delay_ms)
     return _mav_tool(
         args,
         lambda check: check.run_check(
@@ -285,7 +314,7 @@ def _cmd_mav_check(args: argparse.Namespace) -> int:
             apply=args.apply,
             yaw_source=args.yaw_source,
             position_noise_m=args.position_noise_m,
-            delay_ms=args.delay_ms,
+            delay_ms=delay,
             timeout_s=args.timeout,
         ),
     )
@@ -740,7 +769,20 @@ def build_parser() -> argparse.ArgumentParser:
         default=0.05,
         help="VISO_POS_M_NSE should be at most this (metres)",
     )
-    check.add_argument("--delay-ms", type=float, default=50.0, help="wanted VISO_DELAY_MS")
+    check.add_argument(
+        "--delay-ms",
+        type=_delay_ms,
+        default="auto",
+        help="wanted VISO_DELAY_MS, or 'auto' (default): the bridge's measured ping-to-"
+        "autopilot median from its Health on the bus (--bus), rounded to 5 ms",
+    )
+    check.add_argument(
+        "--bus",
+        default="tcp/127.0.0.1:7447",
+        help="Zenoh endpoint where the bridge's Health is (with --delay-ms auto)",
+    )
+    check.add_argument("--site", default="tank", help="site of the bridge (--delay-ms auto)")
+    check.add_argument("--vehicle", default="rov", help="vehicle of the bridge (--delay-ms auto)")
     check.add_argument(
         "--timeout", type=positive_float, default=5.0, help="seconds to wait for answers"
     )

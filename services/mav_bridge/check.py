@@ -50,8 +50,9 @@ class Finding:
     why: str
 
 
-def rules(*, yaw_source: YawSource, position_noise_m: float, delay_ms: float) -> list[Rule]:
-    return [
+def rules(*, yaw_source: YawSource, position_noise_m: float, delay_ms: float | None) -> list[Rule]:
+    """The parameter rules; VISO_DELAY_MS only when the delay is known (measured or given)."""
+    out = [
         Rule(("VISO_TYPE",), 1, "external position over MAVLink (reboot needed)"),
         Rule(("EK3_SRC1_POSXY",), 6, "horizontal position from ExternalNav (CAP-SD)"),
         Rule(("EK3_SRC1_VELXY",), 0, "no horizontal velocity source: CAP-SD sends positions"),
@@ -68,8 +69,10 @@ def rules(*, yaw_source: YawSource, position_noise_m: float, delay_ms: float) ->
             "the EKF's floor on position noise: at most CAP-SD's",
             at_most=True,
         ),
-        Rule(("VISO_DELAY_MS",), delay_ms, "measurement latency", tolerance=20.0),
     ]
+    if delay_ms is not None:
+        out.append(Rule(("VISO_DELAY_MS",), delay_ms, "measured latency", tolerance=5.0))
+    return out
 
 
 def _read(link: MavLink, target: int, names: list[str], timeout_s: float) -> dict[str, float]:
@@ -146,7 +149,7 @@ def run_check(
     apply: bool,
     yaw_source: YawSource = "compass",
     position_noise_m: float = 0.05,
-    delay_ms: float = 50.0,
+    delay_ms: float | None = 50.0,
     timeout_s: float = 5.0,
     out: TextIO = sys.stdout,
 ) -> int:

@@ -622,3 +622,43 @@ def test_a_vehicle_booted_under_water_is_noticed_and_zeroed(
             timeout_s=20,
             what="the bridge to take the new surface pressure",
         )
+
+
+def test_mav_check_wants_the_delay_the_bridge_measures(
+    spawn: Callable[..., Proc],
+    client: zenoh.Session,
+    endpoint: str,
+    tmp_path: Path,
+    autopilot: AutopilotStandIn,
+) -> None:
+    _start_bridge(spawn, tmp_path, endpoint, autopilot, heading_deg=0.0)
+    sender = FixSender(client, SiteKey.load(_key_path(tmp_path), config_key="fix_key"))
+    _wait_ready(autopilot, sender)
+    for _ in range(20):
+        # Measured 30 ms old when they leave (a ping's age at the bridge, as live).
+        sender.send(stamp_ns=time.time_ns() - 30_000_000)
+        time.sleep(0.05)
+    stats = next(s for s in _health(client).latencies if s.name == "end to end")
+    from capsd.latency import percentile_ms
+
+    median = percentile_ms(stats, 50)
+    assert median is not None
+    # The stand-in serves one client (the bridge): the check talks to a second autopilot.
+    with AutopilotStandIn(free_port()) as other:
+        out = subprocess.run(
+            [
+                sys.executable, "-m", "capsd", "mav", "check",
+                "--connect", f"tcp:127.0.0.1:{other.port}",
+                "--bus", endpoint, "--site", "tank", "--vehicle", "rov",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            cwd=REPO,
+        )  # fmt: skip
+    assert "the bridge measures" in out.stdout, out.stdout + out.stderr
+    row = next(line for line in out.stdout.splitlines() if line.startswith("VISO_DELAY_MS "))
+    wanted = float(row.split()[2])
+    assert wanted == max(5.0, 5.0 * round(median / 5.0))
+    assert 25.0 <= wanted <= 60.0
+    assert "CHANGE" in row  # the stand-in's 10 ms is not what this system needs
