@@ -398,6 +398,8 @@ def _cmd_bench_detect(args: argparse.Namespace) -> int:
 
     if args.throughput:
         return detect.run_throughput(frames=args.frames, which=args.detector)
+    if args.prior_sweep:
+        return detect.sweep_prior(args.prior_sweep, duration_s=args.duration)
     return detect.run(duration_s=args.duration, which=args.detector, fixtures=args.fixtures)
 
 
@@ -911,6 +913,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     bdet.add_argument(
         "--frames", type=positive_int, default=300, help="frames timed (--throughput)"
+    )
+    bdet.add_argument(
+        "--prior-sweep",
+        type=float,
+        nargs="+",
+        metavar="LOGIT",
+        help="instead: the CNN's hysteresis prior on the validation runs (e.g. 0 1 2)",
     )
     bdet.set_defaults(func=_cmd_bench_detect)
     bft = bench_sub.add_parser(

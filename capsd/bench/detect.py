@@ -305,6 +305,30 @@ def run(*, duration_s: float, which: str = "all", fixtures: Path | None = None) 
     return 0
 
 
+def sweep_prior(priors: list[float], *, duration_s: float) -> int:
+    """The hysteresis prior on the validation runs (never the bench's), both kinds of look."""
+    from services.sonar_detect.cnn import CnnDetector, CnnSettings
+    from services.sonar_detect.train import VALIDATION_RUNS
+
+    print(
+        f"validation runs (seeds {', '.join(str(r[3]) for r in VALIDATION_RUNS)}), {duration_s:g} s"
+    )
+    print(f"{'prior':>6} {'look':<8} {'detected':>9} {'FA/frame':>9}")
+    for prior in priors:
+        detector = CnnDetector(CnnSettings(track_prior_logit=prior))
+        tallies = evaluate(
+            {"cnn": detector.detect}, duration_s=duration_s, runs=VALIDATION_RUNS,
+            looks=("off", "train"),
+        )  # fmt: skip
+        for look in ("off", "train"):
+            s = tallies[f"cnn / {look} / all"].summary()
+            print(
+                f"{prior:>6g} {look:<8} {float(s['detection_rate'] or 0) * 100:>8.1f}% "
+                f"{s['false_alarms_per_frame']:>9}"
+            )
+    return 0
+
+
 def run_throughput(*, frames: int = 200, which: str = "all") -> int:
     """Per-frame latency on one core for 512 x 1000 frames (rendered by the simulator)."""
     import cv2

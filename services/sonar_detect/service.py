@@ -60,7 +60,7 @@ class CnnConfig(ConfigSection, frozen=True, kw_only=True):
     search_every_s: Annotated[float, msgspec.Meta(ge=0.0, le=10.0)] = 0.1
     # Added to the logit of a candidate that continues a detection of the last ping (<= 0.2 s
     # before, within 0.3 m): hysteresis, so a ROV at the beam's edge is not dropped. 0: none.
-    track_prior_logit: Annotated[float, msgspec.Meta(ge=0.0, le=10.0)] = 2.0
+    track_prior_logit: Annotated[float, msgspec.Meta(ge=0.0, le=10.0)] = 1.0
     threads: Annotated[int, msgspec.Meta(ge=1, le=64)] = 1
 
 
