@@ -80,8 +80,10 @@ def test_tracks_between_whole_frame_searches() -> None:
     tank = make_tank("nfp", clutter="off")
     renderer = SonarRenderer(SonarModel(range_max_m=20.0, n_ranges=1000), tank)
     sonar = Transform(euler_zyx_to_matrix(0.0, math.radians(30.0), 0.0), np.array([6.0, 8.0, -0.2]))
-    tracking = CnnDetector()
-    every_frame = CnnDetector(CnnSettings(search_every_s=0.0))
+    # The mechanics under test (when to search, when to track, the same answer) do not depend
+    # on the shipped prior's value: a fixed 2.0 keeps this ROV confident in every ping.
+    tracking = CnnDetector(CnnSettings(track_prior_logit=2.0))
+    every_frame = CnnDetector(CnnSettings(search_every_s=0.0, track_prior_logit=2.0))
 
     def frame_at(k: int, *, rov: bool = True) -> tuple[SonarFrame, float]:
         range_m = 4.0 + 1.0 * k * 0.025  # 1 m/s away from the sonar
