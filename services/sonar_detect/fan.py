@@ -52,7 +52,7 @@ def fan_image(frame: SonarFrame, *, width_px: int = 900) -> tuple[Image, float, 
         polar, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0
     )
     gray = np.clip(fan, 0, 255).astype(np.uint8)
-    color = cv2.applyColorMap(gray, cv2.COLORMAP_BONE)
+    color = np.asarray(cv2.applyColorMap(gray, cv2.COLORMAP_BONE), dtype=np.uint8)
     color[outside] = (25, 25, 25)
     for ring in range(1, int(r_max) + 1):
         if ring % (5 if r_max > 12 else 1) == 0:
@@ -67,10 +67,31 @@ def fan_image(frame: SonarFrame, *, width_px: int = 900) -> tuple[Image, float, 
                 1,
             )
             p = _pixel(apex, scale, ring, half)
-            cv2.putText(
-                color, f"{ring} m", (p[0] + 4, p[1]), cv2.FONT_HERSHEY_SIMPLEX, 0.4, _GREY, 1
-            )
+            _text(color, f"{ring} m", (p[0] + 4, p[1] + 4))
+    _intensity_scale(color)
     return np.asarray(color, dtype=np.uint8), scale, apex
+
+
+def _text(
+    image: Image, text: str, at: tuple[int, int], colour: tuple[int, int, int] = _GREY
+) -> None:
+    """Readable on any background: the text on a dark box of its own size."""
+    (w, h), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.5, 1)
+    x, y = at
+    cv2.rectangle(image, (x - 2, y - h - 3), (x + w + 2, y + base), (15, 15, 15), -1)
+    cv2.putText(image, text, at, cv2.FONT_HERSHEY_SIMPLEX, 0.5, colour, 1, cv2.LINE_AA)
+
+
+def _intensity_scale(image: Image) -> None:
+    """A bar of the colour map (sample 0 at the bottom, 255 at the top), top right."""
+    height, width = 160, 14
+    x0, y0 = image.shape[1] - 70, 30
+    ramp = np.linspace(255, 0, height).astype(np.uint8)[:, None].repeat(width, axis=1)
+    image[y0 : y0 + height, x0 : x0 + width] = cv2.applyColorMap(ramp, cv2.COLORMAP_BONE)
+    cv2.rectangle(image, (x0 - 1, y0 - 1), (x0 + width, y0 + height), _GREY, 1)
+    _text(image, "255", (x0 + width + 4, y0 + 10))
+    _text(image, "0", (x0 + width + 4, y0 + height))
+    _text(image, "echo", (x0 - 8, y0 - 10))
 
 
 def _pixel(apex: tuple[int, int], scale: float, range_m: float, azimuth: float) -> tuple[int, int]:
@@ -113,14 +134,14 @@ def fan_with_overlays(
         text = f"truth r={label.range_m:.2f} m az={math.degrees(label.azimuth_rad):.1f} deg"
         if label.overlap:
             text += "  (clutter overlaps)"
-        cv2.putText(image, text, (10, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, _GREEN, 1)
+        _text(image, text, (10, 20), _GREEN)
         for ghost in label.ghosts:
             cv2.circle(image, _pixel(apex, scale, ghost.range_m, ghost.azimuth_rad), 5, _YELLOW, 1)
     if detections is not None:
         for det in detections.detections:
             p = _pixel(apex, scale, det.range_m, det.azimuth_rad)
             cv2.drawMarker(image, p, _RED, cv2.MARKER_CROSS, 12, 1)
-    cv2.putText(image, f"ping {frame.ping_id}", (10, 40), cv2.FONT_HERSHEY_SIMPLEX, 0.5, _GREY, 1)
+    _text(image, f"ping {frame.ping_id}", (10, 40))
     return image
 
 
