@@ -169,7 +169,7 @@ class CnnDetector:
     def _with_prior(self, d: Detection, tracked: list[Candidate]) -> Detection:
         """`d` with the track's prior added to its logit when it continues a tracked one."""
         s = self.settings
-        if not any(_distance(d, c) < s.track_gate_m for c in tracked):
+        if not any(distance(d, c) < s.track_gate_m for c in tracked):
             return d
         c = min(max(d.confidence, 1e-12), 1.0 - 1e-12)
         logit = math.log(c / (1.0 - c)) + s.track_prior_logit
@@ -244,7 +244,7 @@ class CnnDetector:
     def _merge(self, found: list[Detection]) -> list[Detection]:
         kept: list[Detection] = []
         for d in sorted(found, key=lambda d: -d.confidence):
-            if all(_distance(d, k) >= self.settings.merge_distance_m for k in kept):
+            if all(distance(d, k) >= self.settings.merge_distance_m for k in kept):
                 kept.append(d)
         return kept
 
@@ -297,7 +297,8 @@ def propose(
     return out
 
 
-def _distance(a: Detection | Candidate, b: Detection | Candidate) -> float:
+def distance(a: Detection | Candidate, b: Detection | Candidate) -> float:
+    """Metres between two points of the fan (range, azimuth), in the sonar's plane."""
     dx = a.range_m * math.cos(a.azimuth_rad) - b.range_m * math.cos(b.azimuth_rad)
     dy = a.range_m * math.sin(a.azimuth_rad) - b.range_m * math.sin(b.azimuth_rad)
     return math.hypot(dx, dy)

@@ -25,7 +25,12 @@ from capsd.errors import CapsdError
 from capsd.payloads import SonarLabel
 from services.sonar_detect.labelling import LabelledPing, frames_of, read_labels
 from services.sonar_detect.polar_net import PolarNet, load, save
-from services.sonar_detect.train import TrainConfig, _train_proposal, _train_refine
+from services.sonar_detect.train import (
+    TrainConfig,
+    _train_proposal,
+    _train_refine,
+    operating_offset,
+)
 from services.sonar_detect.training_data import Samples, plan_runs, render, samples_of_ping
 
 # A BlueROV2's echo: about 0.4 m deep in range, 0.5 m across (for the extent targets).
@@ -76,7 +81,7 @@ def recalibrate_on_labels(net: PolarNet, labels: list[LabelledPing]) -> dict[str
     becomes the lowest that keeps those at most MAX_SITE_FALSE_ALARMS_PER_FRAME (never lower
     than the shipped one: fine-tuning only ever makes the detector more cautious here).
     """
-    from services.sonar_detect.cnn import NETWORK_ALONE, CnnDetector
+    from services.sonar_detect.cnn import NETWORK_ALONE, Candidate, CnnDetector, distance
 
     shipped = float(net.logit_offset)
     net.logit_offset.zero_()
@@ -85,15 +90,12 @@ def recalibrate_on_labels(net: PolarNet, labels: list[LabelledPing]) -> dict[str
     frames = 0
     for frame, label in frames_of(labels):
         frames += 1
+        where = Candidate(label.range_m, label.azimuth_rad)
         for d in detector.detect(frame):
-            dx = d.range_m * math.cos(d.azimuth_rad) - label.range_m * math.cos(label.azimuth_rad)
-            dy = d.range_m * math.sin(d.azimuth_rad) - label.range_m * math.sin(label.azimuth_rad)
-            if math.hypot(dx, dy) > FALSE_ALARM_M:
+            if distance(d, where) > FALSE_ALARM_M:
                 c = min(max(d.confidence, 1e-12), 1 - 1e-12)
                 false_logits.append(math.log(c / (1 - c)))
-    allowed = int(MAX_SITE_FALSE_ALARMS_PER_FRAME * frames)
-    ordered = sorted(false_logits, reverse=True)
-    site = ordered[allowed] + 1e-6 if len(ordered) > allowed else 0.0
+    site = operating_offset(false_logits, frames, MAX_SITE_FALSE_ALARMS_PER_FRAME)
     offset = max(shipped, site)
     net.logit_offset.fill_(offset)
     return {"shipped_offset": round(shipped, 4), "site_offset": round(site, 4), "offset": offset}

@@ -348,6 +348,16 @@ VARIETIES: tuple[Variety, ...] = ("off", "train")
 MAX_FALSE_ALARMS_PER_FRAME = 0.005
 
 
+def operating_offset(false_logits: list[float], frames: int, max_per_frame: float) -> float:
+    """The lowest logit offset leaving at most `max_per_frame` false alarms per frame.
+
+    0 when there are fewer false alarms than that anyway.
+    """
+    allowed = int(max_per_frame * frames)
+    ordered = sorted(false_logits, reverse=True)
+    return ordered[allowed] + 1e-6 if len(ordered) > allowed else 0.0
+
+
 def calibrate(net: PolarNet, *, duration_s: float) -> dict[str, Any]:
     """Set the operating point on the validation runs (the refiner logit's offset).
 
@@ -389,10 +399,8 @@ def calibrate(net: PolarNet, *, duration_s: float) -> dict[str, Any]:
                 hit_logits.append(best)
             bar.update(k * duration_s + t_s)
     bar.close()
-    allowed = int(MAX_FALSE_ALARMS_PER_FRAME * frames)
-    ordered = sorted(false_logits, reverse=True)
     # Never below the raw 50%: the offset only ever makes the detector more cautious.
-    offset = max(0.0, ordered[allowed] + 1e-6) if len(ordered) > allowed else 0.0
+    offset = max(0.0, operating_offset(false_logits, frames, MAX_FALSE_ALARMS_PER_FRAME))
     net.logit_offset.fill_(offset)
 
     def rates(threshold: float) -> dict[str, float]:

@@ -361,17 +361,18 @@ def test_link_loss_and_return(
     assert any(st.link == "lost" and st.mode == "unknown" for st in statuses)
 
 
+def _capsd(*args: str) -> subprocess.CompletedProcess[str]:
+    """`capsd ARGS` as a person runs it, from the repository root."""
+    return subprocess.run(
+        [sys.executable, "-m", "capsd", *args], capture_output=True, text=True, timeout=60, cwd=REPO
+    )
+
+
 def test_mav_check_reports_and_apply_fixes(autopilot: AutopilotStandIn) -> None:
     connect = f"tcp:127.0.0.1:{autopilot.port}"
 
     def check(*extra: str) -> subprocess.CompletedProcess[str]:
-        return subprocess.run(
-            [sys.executable, "-m", "capsd", "mav", "check", "--connect", connect, *extra],
-            capture_output=True,
-            text=True,
-            timeout=60,
-            cwd=REPO,
-        )
+        return _capsd("mav", "check", "--connect", connect, *extra)
 
     first = check()
     assert first.returncode == 1
@@ -600,13 +601,7 @@ def test_a_vehicle_booted_under_water_is_noticed_and_zeroed(
         connect = f"tcp:127.0.0.1:{autopilot.port}"
 
         def zero(*extra: str) -> subprocess.CompletedProcess[str]:
-            return subprocess.run(
-                [sys.executable, "-m", "capsd", "mav", "zero-depth", "--connect", connect, *extra],
-                capture_output=True,
-                text=True,
-                timeout=60,
-                cwd=REPO,
-            )
+            return _capsd("mav", "zero-depth", "--connect", connect, *extra)
 
         shown = zero()
         assert shown.returncode == 0, shown.stdout + shown.stderr
@@ -645,16 +640,9 @@ def test_mav_check_wants_the_delay_the_bridge_measures(
     assert median is not None
     # The stand-in serves one client (the bridge): the check talks to a second autopilot.
     with AutopilotStandIn(free_port()) as other:
-        out = subprocess.run(
-            [
-                sys.executable, "-m", "capsd", "mav", "check",
-                "--connect", f"tcp:127.0.0.1:{other.port}",
-                "--bus", endpoint, "--site", "tank", "--vehicle", "rov",
-            ],
-            capture_output=True,
-            text=True,
-            timeout=60,
-            cwd=REPO,
+        out = _capsd(
+            "mav", "check", "--connect", f"tcp:127.0.0.1:{other.port}",
+            "--bus", endpoint, "--site", "tank", "--vehicle", "rov",
         )  # fmt: skip
     assert "the bridge measures" in out.stdout, out.stdout + out.stderr
     row = next(line for line in out.stdout.splitlines() if line.startswith("VISO_DELAY_MS "))
