@@ -400,7 +400,12 @@ def _cmd_bench_detect(args: argparse.Namespace) -> int:
         return detect.run_throughput(frames=args.frames, which=args.detector)
     if args.prior_sweep:
         return detect.sweep_prior(args.prior_sweep, duration_s=args.duration)
-    return detect.run(duration_s=args.duration, which=args.detector, fixtures=args.fixtures)
+    for weights in args.weights or []:
+        if not weights.is_file():
+            return _fail(f"bench detect: --weights {weights}: no such file", EXIT_CONFIG)
+    return detect.run(
+        duration_s=args.duration, which=args.detector, fixtures=args.fixtures, weights=args.weights
+    )
 
 
 def _cmd_record(args: argparse.Namespace) -> int:
@@ -629,9 +634,14 @@ def _cmd_train_detector(args: argparse.Namespace) -> int:
         hard_rounds=args.hard_rounds,
         hard_epochs=args.hard_epochs,
         eval_duration_s=args.eval_duration,
+        device=args.device,
+        evaluate=args.evaluate,
     )
-    train(config, args.out)
-    return 0
+    try:
+        train(config, args.out)
+    except CapsdError as exc:
+        return _fail(str(exc), EXIT_CONFIG)
+    return EXIT_OK
 
 
 def _cmd_bench_faults(args: argparse.Namespace) -> int:
@@ -921,6 +931,14 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="LOGIT",
         help="instead: the CNN's hysteresis prior on the validation runs (e.g. 0 1 2)",
     )
+    bdet.add_argument(
+        "--weights",
+        type=Path,
+        nargs="+",
+        metavar="PT",
+        help="CNN weights to compare in one run (default: the shipped ones), each named by "
+        "its folder",
+    )
     bdet.set_defaults(func=_cmd_bench_detect)
     bft = bench_sub.add_parser(
         "finetune",
@@ -1108,6 +1126,18 @@ def build_parser() -> argparse.ArgumentParser:
     tdet.add_argument("--hard-epochs", type=int, default=2)
     tdet.add_argument(
         "--eval-duration", type=positive_float, default=20.0, help="seconds per held-out run"
+    )
+    tdet.add_argument(
+        "--device",
+        choices=("cpu", "cuda"),
+        default="cpu",
+        help="where the networks train (cuda: a GPU; rendering and calibration stay on the CPU)",
+    )
+    tdet.add_argument(
+        "--evaluate",
+        choices=("heldout", "none"),
+        default="heldout",
+        help="none: skip the held-out evaluation (run `capsd bench detect` after)",
     )
     tdet.add_argument(
         "--finetune",

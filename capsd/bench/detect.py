@@ -217,19 +217,28 @@ def _score(tally: Tally, label: SonarLabel, found: list[Detection]) -> None:
             tally.ghost_alarms += 1
 
 
-def _detectors(which: str) -> dict[str, Detector]:
+def _detectors(which: str, weights: list[Path] | None = None) -> dict[str, Detector]:
+    """The detectors by name; one CNN pair per weights file ('cnn (FOLDER)'), or the shipped."""
+    from dataclasses import replace
+
     from services.sonar_detect.classical import ClassicalDetector
 
     out: dict[str, Detector] = {}
     if which in ("all", "classical"):
         out["classical"] = ClassicalDetector().detect
     if which in ("all", "cnn"):
-        from services.sonar_detect.cnn import NETWORK_ALONE, CnnDetector
+        from services.sonar_detect.cnn import NETWORK_ALONE, CnnDetector, CnnSettings
 
-        # The service's settings (tracking between whole-frame searches, the track's prior),
-        # and the network searching every frame alone (what the weights' evaluation measures).
-        out["cnn"] = CnnDetector().detect
-        out["cnn, every frame alone"] = CnnDetector(NETWORK_ALONE).detect
+        choices: list[Path | None] = list(weights) if weights else [None]
+        for path in choices:
+            name = "cnn" if path is None else f"cnn ({path.parent.name})"
+            service = CnnSettings() if path is None else CnnSettings(weights=path)
+            # The service's settings (tracking between whole-frame searches, the track's
+            # prior), and the network searching every frame alone (the weights' evaluation).
+            out[name] = CnnDetector(service).detect
+            out[f"{name}, every frame alone"] = CnnDetector(
+                replace(NETWORK_ALONE, weights=service.weights)
+            ).detect
     return out
 
 
@@ -272,8 +281,14 @@ TARGETS: tuple[tuple[str, str, Callable[[float], bool]], ...] = (
 )
 
 
-def run(*, duration_s: float, which: str = "all", fixtures: Path | None = None) -> int:
-    detectors = _detectors(which)
+def run(
+    *,
+    duration_s: float,
+    which: str = "all",
+    fixtures: Path | None = None,
+    weights: list[Path] | None = None,
+) -> int:
+    detectors = _detectors(which, weights)
     tallies = evaluate(detectors, duration_s=duration_s)
     print()
     print(
@@ -284,12 +299,10 @@ def run(*, duration_s: float, which: str = "all", fixtures: Path | None = None) 
     print(HEADER)
     for name in sorted(tallies):
         print(tallies[name].row(name))
-    for look in LOOKS:
-        cnn = tallies.get(f"cnn / {look} / all")
-        if cnn is None:
-            continue
-        s = cnn.summary()
-        print(f"\nissue 18 targets, the configured CNN, look '{look}', every ping:")
+    configured = [name for name in detectors if name.startswith("cnn") and "alone" not in name]
+    for name, look in ((name, look) for name in configured for look in LOOKS):
+        s = tallies[f"{name} / {look} / all"].summary()
+        print(f"\nissue 18 targets, the configured {name.upper()}, look '{look}', every ping:")
         for key, target, test in TARGETS:
             value = s[key]
             ok = value is not None and test(float(value))

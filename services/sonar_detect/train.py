@@ -26,7 +26,7 @@ import platform
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -34,6 +34,7 @@ import torch
 from torch.nn import functional
 
 from capsd.bench.detect import Run
+from capsd.errors import CapsdError
 from capsd.progress import Progress
 from services.sonar_detect.polar_input import NORM_HIGH, NORM_LOW, U8_SCALE
 from services.sonar_detect.polar_net import OFFSET_SCALE_M, PolarNet, save
@@ -64,6 +65,11 @@ class TrainConfig:
     hard_repeat: int = 3
     hard_lr: float = 5e-4
     eval_duration_s: float = 20.0
+    # Where the networks train (rendering and calibration stay on the CPU). "cuda" is for a
+    # machine with a GPU: the same steps, not bit-identical to the CPU's.
+    device: Literal["cpu", "cuda"] = "cpu"
+    # "none" leaves the held-out evaluation to `capsd train calibrate` or `capsd bench detect`.
+    evaluate: Literal["heldout", "none"] = "heldout"
 
 
 def _augment(x: torch.Tensor, gen: torch.Generator) -> torch.Tensor:
@@ -138,10 +144,10 @@ def _train_proposal(
                 x[torch.from_numpy(flipped)] = torch.flip(x[torch.from_numpy(flipped)], dims=[-1])
             else:
                 flipped[:] = False
-            x = _augment(x, gen)
+            x = _augment(x, gen).to(config.device)
             logits = net.proposal(x)
             target = _heat_target(targets[batch], logits.shape[1], logits.shape[2], flipped=flipped)
-            loss = focal_loss(logits, target)
+            loss = focal_loss(logits, target.to(config.device))
             losses.append(_step(opt, sched, loss))
             bar.update(len(losses))
     bar.close()
@@ -179,12 +185,14 @@ def refine_loss(out: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
 HARD_LOGIT = 2.5
 
 
-def _hard_indices(net: PolarNet, crops: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
+def _hard_indices(
+    net: PolarNet, crops: torch.Tensor, targets: torch.Tensor, *, device: str
+) -> torch.Tensor:
     """Indices of the crops the trained refiner gets wrong or only just right."""
     with torch.inference_mode():
         logits = torch.cat(
             [
-                net.refine(crops[k : k + 512].float() * U8_SCALE + NORM_LOW)[:, 0]
+                net.refine(crops[k : k + 512].to(device).float() * U8_SCALE + NORM_LOW)[:, 0].cpu()
                 for k in range(0, len(crops), 512)
             ]
         )
@@ -228,8 +236,8 @@ def _train_refine(
             flip = torch.rand(len(idx), generator=gen) < 0.5
             x[flip] = torch.flip(x[flip], dims=[-1])
             t[flip, 2] = -t[flip, 2]
-            x = _augment(x, gen)
-            loss = refine_loss(net.refine(x), t)
+            x = _augment(x, gen).to(config.device)
+            loss = refine_loss(net.refine(x), t.to(config.device))
             losses.append(_step(opt, sched, loss))
             bar.update(len(losses))
     bar.close()
@@ -239,6 +247,8 @@ def _train_refine(
 
 def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
     """Render, train, evaluate and save; returns what `polar_net.json` holds."""
+    if config.device == "cuda" and not torch.cuda.is_available():
+        raise CapsdError("train detector: --device cuda, but torch sees no CUDA device here")
     started = time.monotonic()
     torch.manual_seed(config.seed)
     torch.set_num_threads(config.threads)
@@ -257,12 +267,12 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
         f"{len(samples.grids)} frames ({n_visible} with the ROV), {len(samples.crops)} crops "
         f"({n_pos} on the ROV), rendered in {rendered_s:.0f} s"
     )
-    net = PolarNet()
+    net = PolarNet().to(config.device)
     proposal_losses = _train_proposal(net, samples, config, gen)
     # Hard negatives: fresh runs seen through the trained proposal network; its peaks away
     # from the ROV (sandbags, rack corners) become refiner negatives.
     buffer = io.BytesIO()
-    torch.save(net.proposal.state_dict(), buffer)
+    torch.save({k: v.cpu() for k, v in net.proposal.state_dict().items()}, buffer)
     mining = plan_runs(
         runs=config.mining_runs,
         seed=config.seed + 1,
@@ -287,6 +297,7 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
             net,
             torch.from_numpy(np.stack(fresh.crops)),
             torch.tensor(fresh.crop_targets, dtype=torch.float32),
+            device=config.device,
         )
         hard_counts.append((len(hard), len(fresh.crops)))
         print(
@@ -303,6 +314,7 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
             repeat=hard.repeat(config.hard_repeat - 1),
         )
     trained_s = time.monotonic() - started
+    net = net.cpu()
     out_dir.mkdir(parents=True, exist_ok=True)
     weights = out_dir / "polar_net.pt"
     meta: dict[str, Any] = {
@@ -321,14 +333,23 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
             "hard_first_last": [_mean(hard_losses[:50]), _mean(hard_losses[-50:])],
         },
         "seconds": {"render": round(rendered_s, 1), "render_and_train": round(trained_s, 1)},
-        "machine": {"cpus_used": config.threads, "platform": platform.platform()},
+        "machine": {
+            "cpus_used": config.threads,
+            "render_workers": config.workers,
+            "device": _device_name(config.device),
+            "platform": platform.platform(),
+        },
         "torch": str(torch.__version__),
     }
+    # Saved before calibration too: a run stopped there keeps its training
+    # (`capsd train calibrate` finishes it).
+    save(net, weights, meta=meta)
     meta["calibration"] = calibrate(net, duration_s=config.eval_duration_s / 2)
     save(net, weights, meta=meta)
-    from capsd.bench.detect import evaluate_cnn
+    if config.evaluate == "heldout":
+        from capsd.bench.detect import evaluate_cnn
 
-    meta["evaluation"] = evaluate_cnn(net, duration_s=config.eval_duration_s)
+        meta["evaluation"] = evaluate_cnn(net, duration_s=config.eval_duration_s)
     (out_dir / "polar_net.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
     print(f"weights: {weights} ({weights.stat().st_size / 1e6:.2f} MB)")
     print(f"total {time.monotonic() - started:.0f} s")
@@ -437,6 +458,10 @@ def recalibrate(weights: Path, *, duration_s: float) -> dict[str, Any]:
     meta["evaluation"] = evaluate_cnn(net, duration_s=2 * duration_s)
     meta_path.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
     return meta
+
+
+def _device_name(device: str) -> str:
+    return torch.cuda.get_device_name() if device == "cuda" else "cpu"
 
 
 def _mean(values: list[float]) -> float:
