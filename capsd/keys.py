@@ -28,7 +28,17 @@ class Subject(StrEnum):
     ROV_FIX = "locator/fix"
     SIM_TRUTH = "sim/truth"
     SIM_LABEL = "sim/label"
+    # The simulator's stand-ins made from truth plus noise (an ASV pose, detections): on keys
+    # of their own, never on the services' keys, so no service can mistake them for a sensor.
+    SIM_ASV_POSE = "sim/asv_pose"
+    SIM_DETECTIONS = "sim/detections"
     SIM_CONTROL = "sim/control"  # fault injection into the simulator (tests, benches)
+
+
+# What only benches, taps and recordings may read: no service subscribes to these.
+TRUTH_SUBJECTS = frozenset(
+    {Subject.SIM_TRUTH, Subject.SIM_LABEL, Subject.SIM_ASV_POSE, Subject.SIM_DETECTIONS}
+)
 
 
 def check_name(kind: str, name: str) -> str:

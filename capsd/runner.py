@@ -33,8 +33,8 @@ from capsd import __version__, sdnotify
 from capsd.bus import open_session
 from capsd.codec import Codec
 from capsd.config import ServiceConfig
-from capsd.errors import PayloadError
-from capsd.keys import alive_key, check_name, health_key, is_concrete, log_key
+from capsd.errors import KeyExprError, PayloadError
+from capsd.keys import TRUTH_SUBJECTS, alive_key, check_name, health_key, is_concrete, log_key
 from capsd.latency import LatencyRecorder
 from capsd.logs import BusLogHandler, log_fields
 from capsd.payloads import Health, HealthState, LatencyStats, Log, Payload, StreamStats
@@ -381,6 +381,9 @@ class ServiceRunner:
         The handler runs on Zenoh's callback thread: keep it short, or hand work to a thread.
         """
         key = topic.key(self.config.site, vehicle or self.config.vehicle)
+        if topic.subject in TRUTH_SUBJECTS:
+            # Truth reaches benches, taps and recordings only, never a service's logic.
+            raise KeyExprError(f"'{key}' carries simulator truth: no service subscribes to it")
         codec = Codec(topic.payload)
         counter = StreamCounter(key)
         transport = self.latency(f"transport {topic.subject.value}")

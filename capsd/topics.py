@@ -46,6 +46,8 @@ ROV_STATUS = Topic(Subject.ROV_STATUS, pl.RovStatus)
 ROV_FIX = Topic(Subject.ROV_FIX, pl.RovFix)
 SIM_TRUTH = Topic(Subject.SIM_TRUTH, pl.GroundTruth)
 SIM_LABEL = Topic(Subject.SIM_LABEL, pl.SonarLabel)
+SIM_ASV_POSE = Topic(Subject.SIM_ASV_POSE, pl.AsvPose)
+SIM_DETECTIONS = Topic(Subject.SIM_DETECTIONS, pl.SonarDetections)
 SIM_CONTROL = Topic(Subject.SIM_CONTROL, pl.SimControl)
 
 ALL_TOPICS: tuple[Topic[Any], ...] = (

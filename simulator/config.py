@@ -115,15 +115,17 @@ class Noise(ConfigSection, frozen=True, kw_only=True):
 class Streams(ConfigSection, frozen=True, kw_only=True):
     """What to publish.
 
-    The `*_truth_noise` streams stand in for services not yet running: the ASV pose and the
-    detections are the truth plus the `noise` section's errors.
+    The `*_truth_noise` streams are the truth plus the `noise` section's errors, shaped as an
+    ASV pose and detections: off by default, and when on they go to the simulator's own
+    `sim/asv_pose` and `sim/detections` keys, which no service subscribes to (a bench or a
+    test may relay them on purpose).
     """
 
     sonar_frames: OnOff = "on"
     lidar: OnOff = "on"
     imu: OnOff = "on"
-    asv_pose_truth_noise: OnOff = "on"
-    detections_truth_noise: OnOff = "on"
+    asv_pose_truth_noise: OnOff = "off"
+    detections_truth_noise: OnOff = "off"
 
 
 class Config(ServiceConfig, frozen=True, kw_only=True):

@@ -258,8 +258,8 @@ class Simulation:
         cov = _flat(np.diag([var, var, var] + [math.radians(0.1) ** 2] * 3))
         yield Event(
             t,
-            topics.ASV_POSE,
-            self.config.asv_vehicle,
+            topics.SIM_ASV_POSE,
+            self.config.vehicle,
             AsvPose(
                 stamp_ns=clocks["asv"].stamp(true_ns),
                 seq=self._next_seq("pose"),
@@ -357,8 +357,8 @@ class Simulation:
             found = self._truth_detection(label)
             yield Event(
                 t,
-                topics.SONAR_DETECTIONS,
-                cfg.asv_vehicle,
+                topics.SIM_DETECTIONS,
+                cfg.vehicle,
                 SonarDetections(
                     stamp_ns=stamp,
                     seq=ping,

@@ -121,3 +121,16 @@ def wait_for(predicate: Callable[[], object], *, timeout_s: float, what: str) ->
 
 def capsd_json_lines(output: str) -> list[dict[str, object]]:
     return [json.loads(line) for line in output.splitlines() if line.startswith("{")]
+
+
+def relay(session: zenoh.Session, source: str, target: str) -> zenoh.Subscriber[None]:
+    """Re-put every sample of `source` on `target` (payload, encoding and attachment as sent).
+
+    A test that plays a service with the simulator's truth-plus-noise stand-ins does it here,
+    in the open: no shipped config can route truth onto a service's key.
+    """
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        session.put(target, sample.payload, encoding=sample.encoding, attachment=sample.attachment)
+
+    return session.declare_subscriber(source, on_sample)

@@ -24,7 +24,7 @@ from capsd.health import query_health
 from capsd.keys import is_concrete
 from capsd.latency import percentile_ms
 from capsd.payloads import Health, LatencyStats, Log, RovFix, SonarDetections
-from tests.conftest import REPO, Proc, capsd_json_lines, wait_for
+from tests.conftest import REPO, Proc, capsd_json_lines, relay, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -34,13 +34,57 @@ def _health(session: zenoh.Session, vehicle: str, service: str) -> Health | None
 
 
 def test_router_two_services_tap_list_and_sigterm(
-    spawn: Callable[..., Proc], router: Proc, endpoint: str
+    spawn: Callable[..., Proc], router: Proc, endpoint: str, tmp_path: Path
 ) -> None:
-    sim = spawn("run", "sim", "--config", "deploy/config/sim.yaml", "--connect", endpoint)
+    # The simulator's truth-plus-noise pose and detections on: they go to its own sim/ keys.
+    sim_config = tmp_path / "sim.yaml"
+    sim_config.write_text(
+        Path("deploy/config/sim.yaml")
+        .read_text()
+        .replace('truth_noise: "off"', 'truth_noise: "on"')
+    )
+    sim = spawn("run", "sim", "--config", str(sim_config), "--connect", endpoint)
     locator = spawn(
         "run", "locator", "--config", "deploy/config/locator.yaml", "--connect", endpoint
     )
+    with open_session(BusConfig(connect=(endpoint,))) as session:
+        fixes_seen: list[object] = []
+        fix_sub = session.declare_subscriber(
+            topics.ROV_FIX.key("tank", "topside"), lambda sample: fixes_seen.append(sample)
+        )
 
+        def sim_stand_ins_counted() -> bool:
+            health = _health(session, "sim", "sim")
+            return health is not None and health.counters.get("sim/detections@sim:count", 0) > 20
+
+        wait_for(sim_stand_ins_counted, timeout_s=20, what="the simulator's stand-in detections")
+        locator_health = _health(session, "topside", "locator")
+        assert locator_health is not None
+        # Truth reaches no service: the locator saw none of it, so it has no fix.
+        assert sum(s.count for s in locator_health.inputs if "detections" in s.key) == 0
+        assert fixes_seen == []
+        fix_sub.undeclare()
+        # The test plays asv_pose and sonar_detect with them, in the open.
+        relays = [
+            relay(
+                session, topics.SIM_ASV_POSE.key("tank", "sim"), topics.ASV_POSE.key("tank", "asv")
+            ),
+            relay(
+                session,
+                topics.SIM_DETECTIONS.key("tank", "sim"),
+                topics.SONAR_DETECTIONS.key("tank", "asv"),
+            ),
+        ]
+        _fixes_tapped_and_listed(spawn, endpoint)
+        for sub in relays:
+            sub.undeclare()
+    for proc in (sim, locator, router):
+        code, seconds = proc.terminate()
+        assert code == 0, proc.output()
+        assert seconds < 2.0, f"{proc.args} took {seconds:.2f} s to stop"
+
+
+def _fixes_tapped_and_listed(spawn: Callable[..., Proc], endpoint: str) -> None:
     # A payload crosses: sim -> detections -> locator -> fix; tap prints it decoded.
     tap = spawn(
         "tap",
@@ -78,12 +122,12 @@ def test_router_two_services_tap_list_and_sigterm(
         "sonar/frame@asv",
         "asv/imu@asv",
         "asv/scan@asv",
-        "asv/pose@asv",
         "rov/depth@rov",
         "rov/attitude@rov",
         "sim/label@sim",
         "sim/truth@sim",
-        "sonar/detections@asv",
+        "sim/asv_pose@sim",
+        "sim/detections@sim",
     ):
         assert sim_counters.get(f"{stream}:count", 0) > 0, stream
     locator_health = services[("topside", "locator")]["health"]
@@ -110,11 +154,6 @@ def test_router_two_services_tap_list_and_sigterm(
     )
     assert "locator" in human.stdout
     assert "sim" in human.stdout
-
-    for proc in (sim, locator, router):
-        code, seconds = proc.terminate()
-        assert code == 0, proc.output()
-        assert seconds < 2.0, f"{proc.args} took {seconds:.2f} s to stop"
 
 
 def test_bad_input_is_counted_and_dropped_while_serving(

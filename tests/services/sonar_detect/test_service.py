@@ -16,7 +16,7 @@ from capsd.codec import Codec
 from capsd.health import query_health
 from capsd.keys import is_concrete
 from capsd.payloads import SonarDetections, SonarFrame, SonarLabel
-from tests.conftest import OCULUS_FIXTURES, Proc, wait_for
+from tests.conftest import OCULUS_FIXTURES, Proc, relay, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -47,8 +47,11 @@ def test_cnn_service_detects_the_simulated_rov_stamped_at_the_ping(
         _collect(client, topics.SIM_LABEL.key("tank", "sim"), Codec(SonarLabel), labels),
         _collect(client, topics.SONAR_DETECTIONS.key("tank", "asv"), Codec(SonarDetections), found),
     ]
-    # The simulator's stand-in detections would share the key: off, as in the demo. Its
-    # noisy ASV pose and the ROV's depth feed the detector's depth-aware search.
+    # The simulator's noisy ASV pose (on its own sim/ key; the test relays it, playing the
+    # asv_pose service) and the ROV's depth feed the detector's depth-aware search.
+    subs.append(
+        relay(client, topics.SIM_ASV_POSE.key("tank", "sim"), topics.ASV_POSE.key("tank", "asv"))
+    )
     sim_config = _write(
         tmp_path,
         "sim.yaml",
