@@ -12,7 +12,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from capsd.accuracy import Accuracy, LivePairing, Scored
+from capsd.accuracy import Accuracy, LivePairing, Scored, bootstrap_med, common_pings
+from capsd.bench.baseline import box_range_bias
 from capsd.offline_pipeline import Variant, ablations, run
 from capsd.payloads import RovFix, SonarLabel
 from services.locator.service import MethodConfig
@@ -32,6 +33,52 @@ def test_summary_is_the_papers_figures() -> None:
     assert s["med_mm"] == pytest.approx(35.0)
     assert s["rmse_z_mm"] == pytest.approx(math.sqrt(0.03**2 / 2) * 1000, abs=0.1)
     assert s["rmse_x_mm"] == 0.0
+
+
+def _errors(values_mm: list[float | None]) -> Accuracy:
+    """One ping per value: an x error of that many mm, or no good fix (None)."""
+    acc = Accuracy()
+    for k, v in enumerate(values_mm):
+        estimate = None if v is None else (v / 1000, 0.0, 0.0)
+        acc.add(Scored(k, estimate, estimate, (0.0, 0.0, 0.0)))
+    return acc
+
+
+def test_common_pings_keep_only_what_every_method_fixed() -> None:
+    ours = _errors([10, None, 10, 10])
+    other = _errors([50, 50, None, 50])
+    a, b = common_pings([ours, other])
+    assert [p.stamp_ns for p in a.pings] == [0, 3]
+    assert a.summary()["med_mm"] == 10.0
+    assert b.summary()["med_mm"] == 50.0
+    # Scored on all of its own pings, the other method would look the same, ours too: the
+    # point is that the set is the same for both.
+    assert [p.stamp_ns for p in b.pings] == [0, 3]
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    st.lists(st.floats(1.0, 100.0), min_size=5, max_size=200),
+    st.floats(1.5, 5.0),
+    st.integers(0, 1000),
+)
+def test_bootstrap_intervals_hold_the_estimate(
+    ours_mm: list[float], factor: float, seed: int
+) -> None:
+    ours = _errors(list(ours_mm))
+    other = _errors([v * factor for v in ours_mm])
+    result = bootstrap_med(ours, other, seed=seed, resamples=200)
+    assert result["common_pings"] == len(ours_mm)
+    low, high = result["ratio_ci"]
+    # The other method is exactly `factor` times worse on every ping: every resample agrees.
+    assert low == pytest.approx(1 / factor, abs=2e-3)
+    assert high == pytest.approx(1 / factor, abs=2e-3)
+    lo_mm, hi_mm = result["ours_med_ci_mm"]
+    assert lo_mm - 0.1 <= result["ours_med_mm"] <= hi_mm + 0.1
+
+
+def test_bootstrap_of_methods_with_no_common_ping() -> None:
+    assert bootstrap_med(_errors([10, None]), _errors([None, 10])) == {"common_pings": 0}
 
 
 def _fix(stamp: int) -> RovFix:
@@ -91,6 +138,22 @@ def test_offline_pipeline_scores_every_variant_on_the_same_pings() -> None:
         s = acc.summary()
         assert s["availability"] > 0.9
         assert s["med_mm"] < 200.0
+
+
+def test_the_calibrated_baseline_beats_the_published_one_on_the_same_pings() -> None:
+    bias = box_range_bias(duration_s=4.0, sonar_hz=5.0)
+    # The box frames the near side of the hull (about 0.6 m deep): short by some centimetres.
+    assert bias.pings >= 50
+    assert 0.03 < bias.mean_m < 0.2
+    variants = ablations(box_range_bias_m=bias.mean_m)[:2]
+    assert [v.box_range_bias_m for v in variants] == [0.0, bias.mean_m]
+    results = run(
+        SimConfig(tank="nfp", trajectory="random", seed=9), duration_s=5.0, variants=variants
+    )
+    published, calibrated = (results[v.name] for v in variants)
+    result = bootstrap_med(calibrated, published)
+    assert result["common_pings"] >= 50
+    assert result["ratio_ci"][1] < 1.0
 
 
 @pytest.mark.integration
