@@ -564,7 +564,12 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 def _cmd_bench_accuracy(args: argparse.Namespace) -> int:
     from capsd.bench import accuracy
 
-    accuracy.bench(duration_s=args.duration, seed=args.seed, out_dir=args.out)
+    accuracy.bench(
+        duration_s=args.duration,
+        seed=args.seed,
+        out_dir=args.out,
+        install_errors=args.install_errors,
+    )
     return 0
 
 
@@ -965,6 +970,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     bacc.add_argument("--seed", type=int, default=0, help="simulator seed")
     bacc.add_argument("--out", type=Path, default=Path("reports/accuracy"), help="report folder")
+    bacc.add_argument(
+        "--install-errors",
+        choices=("off", "realistic"),
+        default="off",
+        help="realistic: mount, sound-speed, depth and attitude errors drawn per run and "
+        "unknown to the services (docs/INSTALL-ERRORS.md); the services stay uncalibrated",
+    )
     bacc.set_defaults(func=_cmd_bench_accuracy)
     bpose = bench_sub.add_parser(
         "asv_pose",

@@ -13,6 +13,7 @@ from capsd.mounts import RovConfig, SonarMountConfig
 from simulator import sonar_look
 from simulator.clock import ClockModel
 from simulator.imu import ImuModel
+from simulator.install_errors import InstallErrorsConfig
 from simulator.lidar import LidarModel
 from simulator.sonar import SonarModel
 from simulator.sonar_look import Look, Variety
@@ -154,6 +155,8 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     noise: Noise = Noise()
     clocks: Clocks = Clocks()
     streams: Streams = Streams()
+    # What the installation gets wrong, unknown to the services (simulator.install_errors).
+    install_errors: InstallErrorsConfig = InstallErrorsConfig()
     # Sim-time windows [start_s, end_s] in which the sonar sees nothing (the ROV out of view).
     sonar_dropouts_s: tuple[tuple[float, float], ...] = ()
     # Real-time runs precompute this much motion, then repeat it.

@@ -18,6 +18,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
+import msgspec
 import numpy as np
 
 from capsd import topics
@@ -42,6 +43,7 @@ from capsd.topics import Topic
 from simulator.clock import VehicleClock
 from simulator.config import Config
 from simulator.imu import Imu
+from simulator.install_errors import InstallErrors
 from simulator.lidar import scan
 from simulator.scene import BLUEROV2_SEMI_AXES, Ellipsoid
 from simulator.sonar import Label, SonarRenderer
@@ -106,7 +108,14 @@ class Simulation:
             duration_s=self.horizon_s,
             seed=config.seed,
         )
-        self.mount = config.sonar.transform()
+        # The world's mounts are the nominal ones (what the services are told) plus this run's
+        # installation errors; the errors' own generator leaves every other stream as it was.
+        install_seed = config.install_errors.seed
+        self.errors = InstallErrors.draw(
+            config.install_errors,
+            np.random.default_rng([config.seed if install_seed is None else install_seed, 0xE7]),
+        )
+        self.mount = config.sonar.transform().compose(self.errors.sonar)
         standoff = config.asv_standoff_m
         if standoff is None:
             # Put the ROV on the boresight at its trajectory's mean depth.
@@ -128,11 +137,11 @@ class Simulation:
             else None
         )
         self.lidar_model = config.lidar_model()
-        self.lidar_mount = config.lidar_mount()
+        self.lidar_mount = config.lidar_mount().compose(self.errors.lidar)
         self.imu = Imu(
             config.imu_model(), config.imu_mounting().rotation, np.random.default_rng(seeds[-2])
         )
-        self.lever_arm = np.array(config.rov.pressure_sensor_m)
+        self.lever_arm = np.array(config.rov.pressure_sensor_m) + self.errors.pressure_arm_m
         self._clock_rng = clock_rng
         self._seq: dict[str, int] = {}
         # Real time only: says whether a ping at sim time t is already too late to render
@@ -276,7 +285,7 @@ class Simulation:
         rov = self.rov_state(t)
         sensor_z = float(rov.position_m[2] + (rov.rotation @ self.lever_arm)[2])
         sigma = self.config.noise.depth_sigma_m
-        depth = -sensor_z + float(self.rng["depth"].normal(0.0, sigma))
+        depth = self.errors.depth_reading(-sensor_z, t, float(self.rng["depth"].normal(0.0, sigma)))
         yield Event(
             t,
             topics.ROV_DEPTH,
@@ -301,7 +310,9 @@ class Simulation:
             RovAttitude(
                 stamp_ns=clocks["rov"].stamp(true_ns),
                 seq=self._next_seq("attitude"),
-                orientation_xyzw=_quat(rov.rotation),
+                orientation_xyzw=_quat(
+                    self.errors.attitude_reading(rov.rotation, self.rng["attitude"])
+                ),
             ),
         )
 
@@ -341,12 +352,16 @@ class Simulation:
                 sonar_pose, None if dropped else self._rov_ellipsoid(rov), self.rng["sonar"]
             )
             label = rendered.label
-            yield Event(
-                t,
-                topics.SONAR_FRAME,
-                cfg.asv_vehicle,
-                self.renderer.frame(rendered, stamp_ns=stamp, seq=ping, ping_id=ping),
-            )
+            frame = self.renderer.frame(rendered, stamp_ns=stamp, seq=ping, ping_id=ping)
+            if self.errors.sound_speed_scale != 1.0:
+                # The sonar turns echo time into range with the speed it assumes: every range
+                # it reports is the true one divided by (true speed / assumed speed).
+                frame = msgspec.structs.replace(
+                    frame,
+                    range_start_m=frame.range_start_m / self.errors.sound_speed_scale,
+                    range_resolution_m=frame.range_resolution_m / self.errors.sound_speed_scale,
+                )
+            yield Event(t, topics.SONAR_FRAME, cfg.asv_vehicle, frame)
         else:
             label = self._geometric_label(sonar_pose, rov, dropped)
         if dropped and self.renderer is not None:

@@ -1,0 +1,80 @@
+"""Installation errors: drawn per run, unknown to the services, felt by the fixes."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from capsd.geometry import matrix_to_euler_zyx, quat_to_matrix
+from capsd.offline_pipeline import ablations, run
+from capsd.payloads import RovAttitude, RovDepth, SonarFrame
+from simulator.config import OFFLINE_START_NS, Config
+from simulator.install_errors import InstallErrors, InstallErrorsConfig
+from simulator.sim import Simulation
+
+REALISTIC = InstallErrorsConfig(mode="realistic")
+
+
+def test_off_leaves_the_world_at_its_nominal_mounts() -> None:
+    sim = Simulation(Config(seed=4), horizon_s=20)
+    assert np.allclose(sim.mount.rotation, Config().sonar.transform().rotation)
+    assert np.allclose(sim.mount.translation, Config().sonar.transform().translation)
+    assert sim.errors.sound_speed_scale == 1.0
+
+
+def test_errors_are_drawn_per_seed_at_their_documented_size() -> None:
+    draws = [InstallErrors.draw(REALISTIC, np.random.default_rng(s)).summary() for s in range(400)]
+    again = InstallErrors.draw(REALISTIC, np.random.default_rng(7)).summary()
+    assert again == draws[7]
+    assert draws[0] != draws[1]
+    yaw = np.array([d["sonar_yaw_deg"] for d in draws])
+    assert 0.55 < yaw.std() < 0.85  # 0.7 deg
+    heading = np.array([d["rov_heading_error_deg"] for d in draws])
+    assert 1.7 < heading.std() < 2.3
+    ppm = np.array([d["sound_speed_ppm"] for d in draws])
+    assert 2500 < ppm.std() < 3500
+
+
+def test_the_sensors_report_what_an_installation_with_errors_would() -> None:
+    sim = Simulation(Config(seed=11, install_errors=REALISTIC), horizon_s=20)
+    nominal = Simulation(Config(seed=11), horizon_s=20)
+    scale = sim.errors.sound_speed_scale
+    frames = depths = attitudes = 0
+    for event, plain in zip(
+        sim.events(start_ns=OFFLINE_START_NS, duration_s=2.0),
+        nominal.events(start_ns=OFFLINE_START_NS, duration_s=2.0),
+        strict=True,
+    ):
+        p, q = event.payload, plain.payload
+        if isinstance(p, SonarFrame) and isinstance(q, SonarFrame):
+            assert p.range_resolution_m == pytest.approx(q.range_resolution_m / scale)
+            frames += 1
+        elif isinstance(p, RovDepth) and isinstance(q, RovDepth):
+            assert abs(round(p.depth_m / 0.002) * 0.002 - p.depth_m) < 1e-9  # quantised
+            # Bias, plus the pressure port's misplacement along the vertical, plus rounding.
+            arm_m = float(np.linalg.norm(sim.errors.pressure_arm_m))
+            assert abs(p.depth_m - q.depth_m - sim.errors.depth_bias_m) < arm_m + 0.002
+            depths += 1
+        elif isinstance(p, RovAttitude) and isinstance(q, RovAttitude):
+            yaw_p = matrix_to_euler_zyx(quat_to_matrix(np.array(p.orientation_xyzw)))[0]
+            yaw_q = matrix_to_euler_zyx(quat_to_matrix(np.array(q.orientation_xyzw)))[0]
+            off = math.remainder(yaw_p - yaw_q - sim.errors.heading_error_rad, math.tau)
+            assert abs(off) < math.radians(1.5)
+            attitudes += 1
+    assert frames > 10
+    assert depths > 5
+    assert attitudes > 10
+
+
+def test_an_uncalibrated_installation_costs_accuracy() -> None:
+    variants = [v for v in ablations() if v.name == "ours - polar CNN (box centre)"]
+    config = Config(tank="nfp", trajectory="square", seed=5)
+    off = run(config, duration_s=6.0, variants=variants)
+    errors = Config(tank="nfp", trajectory="square", seed=5, install_errors=REALISTIC)
+    on = run(errors, duration_s=6.0, variants=variants)
+    name = variants[0].name
+    drawn = Simulation(errors, horizon_s=10).errors.summary()
+    # The sonar's heading error alone moves a fix by about range x angle (8 m x 1 deg = 14 cm).
+    assert on[name].summary()["med_mm"] > off[name].summary()["med_mm"] + 10.0, drawn
