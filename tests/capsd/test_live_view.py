@@ -62,7 +62,7 @@ def test_live_view_serves_the_channels(
     port = free_port()
     spawn("live-view", "--port", str(port), "--connect", endpoint)
     channels, payload = asyncio.run(_client(port))
-    assert channels["cap/tank/asv/asv/pose"]["encoding"] == "json"
-    assert channels["cap/tank/asv/asv/pose"]["schemaName"]
+    assert channels["cap/tank/rov/rov/depth"]["encoding"] == "json"
+    assert channels["cap/tank/rov/rov/depth"]["schemaName"]
     # A CompressedImage carrying a PNG (its magic is in the message).
     assert b"\x89PNG" in payload

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import msgspec
 import pytest
+import zenoh
 from mcap.reader import make_reader
 
 from capsd import topics
@@ -17,7 +18,7 @@ from capsd.errors import CapsdError
 from capsd.payloads import RovFix
 from capsd.recording import channel_counts, read
 from capsd.replay_check import compare
-from tests.conftest import REPO, Proc
+from tests.conftest import REPO, Proc, relay
 
 pytestmark = pytest.mark.integration
 FIX_KEY = topics.ROV_FIX.key("tank", "topside")
@@ -34,7 +35,7 @@ def _capsd(*args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
 
 
 def test_record_then_replay_into_a_fresh_locator_gives_the_same_fixes(
-    spawn: Callable[..., Proc], router: Proc, endpoint: str, tmp_path: Path
+    spawn: Callable[..., Proc], client: zenoh.Session, endpoint: str, tmp_path: Path
 ) -> None:
     mcap_file = tmp_path / "run.mcap"
     # Recording from before the services start (as `capsd demo --record`), sonar images aside.
@@ -51,13 +52,31 @@ def test_record_then_replay_into_a_fresh_locator_gives_the_same_fixes(
         endpoint,
     )
     time.sleep(1.0)
-    sim = spawn("run", "sim", "--config", "deploy/config/sim.yaml", "--connect", endpoint)
+    # The simulator's truth-plus-noise pose and detections play asv_pose and sonar_detect:
+    # relayed in the open from its sim/ keys to theirs.
+    relays = [
+        relay(client, topics.SIM_ASV_POSE.key("tank", "sim"), topics.ASV_POSE.key("tank", "asv")),
+        relay(
+            client,
+            topics.SIM_DETECTIONS.key("tank", "sim"),
+            topics.SONAR_DETECTIONS.key("tank", "asv"),
+        ),
+    ]
+    sim_config = tmp_path / "sim.yaml"
+    sim_config.write_text(
+        Path(REPO / "deploy/config/sim.yaml")
+        .read_text()
+        .replace('truth_noise: "off"', 'truth_noise: "on"')
+    )
+    sim = spawn("run", "sim", "--config", str(sim_config), "--connect", endpoint)
     locator = spawn(
         "run", "locator", "--config", "deploy/config/locator.yaml", "--connect", endpoint
     )
     assert recorder.popen.wait(timeout=40) == 0, recorder.output()
     sim.terminate()
     locator.terminate()
+    for sub in relays:
+        sub.undeclare()
 
     # The file opens with the mcap reader; every channel has its JSON schema.
     with mcap_file.open("rb") as stream:

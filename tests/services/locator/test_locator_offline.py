@@ -13,7 +13,15 @@ from simulator.config import Rates, Streams
 from simulator.sim import Simulation
 
 START_NS = 1_800_000_000_000_000_000
-DETECTION_LEVEL = Streams(sonar_frames="off", lidar="off", imu="off")
+# The simulator's truth-plus-noise pose and detections play asv_pose and sonar_detect here,
+# handed to the locator in process (on the bus they are on sim/ keys no service reads).
+DETECTION_LEVEL = Streams(
+    sonar_frames="off",
+    lidar="off",
+    imu="off",
+    asv_pose_truth_noise="on",
+    detections_truth_noise="on",
+)
 
 
 def _run(sim: SimConfig, locator: Config, duration_s: float) -> list[Scored]:
