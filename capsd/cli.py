@@ -561,6 +561,19 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     )
 
 
+def _cmd_bench_calibrate(args: argparse.Namespace) -> int:
+    from capsd.bench import calibrate
+
+    calibrate.bench(
+        seeds=args.seeds,
+        duration_s=args.duration,
+        tank=args.tank,
+        trajectory="square",
+        out=args.out,
+    )
+    return EXIT_OK
+
+
 def _cmd_bench_accuracy(args: argparse.Namespace) -> int:
     from capsd.bench import accuracy
 
@@ -606,6 +619,33 @@ def _cmd_label(args: argparse.Namespace) -> int:
         return _fail("label: no frame could be labelled (no confident tracked fix)", EXIT_FAILURE)
     sheets = write_labels(labels, args.out)
     print(f"labels in {args.out}: {len(sheets)} contact sheets; reject crops in rejected.txt")
+    return EXIT_OK
+
+
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from capsd.calibrate import calibrate, write_config
+    from capsd.config import load_config
+    from services.locator.service import Config as LocatorConfig
+
+    try:
+        locator = load_config(args.locator_config, LocatorConfig)
+        if locator.tank is None:
+            return _fail(
+                f"calibrate: {args.locator_config} has no `tank` section: the walls are needed",
+                EXIT_CONFIG,
+            )
+        fit, mount = calibrate(args.recording, mount=locator.sonar, tank=locator.tank)
+    except CapsdError as exc:
+        return _fail(f"calibrate: {exc}", EXIT_CONFIG)
+    for line in fit.lines():
+        print(line)
+    write_config(args.locator_config, args.out, mount, fit, args.recording)
+    print(
+        f"wrote {args.out}: sonar yaw {mount.yaw_deg:g} deg, pitch {mount.pitch_deg:g} deg, "
+        f"roll {mount.roll_deg:g} deg, position {list(mount.position_m)} m"
+    )
+    if not (fit.yaw_determined or fit.roll_determined or fit.shift_determined):
+        return _fail("calibrate: nothing was determined; the config is unchanged", EXIT_FAILURE)
     return EXIT_OK
 
 
@@ -959,6 +999,22 @@ def build_parser() -> argparse.ArgumentParser:
         "--eval-duration", type=positive_float, default=15.0, help="seconds per held-out run"
     )
     bft.set_defaults(func=_cmd_bench_finetune)
+    bcal = bench_sub.add_parser(
+        "calibrate",
+        help="how well `capsd calibrate` recovers the simulator's hidden mount errors",
+        description="Per seed, a simulated run of the calibration manoeuvre (the ASV turning "
+        "on the spot) with realistic installation errors, through the services' own pose "
+        "estimate; the fitted corrections against those the hidden errors call for.",
+    )
+    bcal.add_argument("--seeds", type=positive_int, default=5, help="runs (seeds 500, 501, ...)")
+    bcal.add_argument(
+        "--duration", type=positive_float, default=120.0, help="simulated seconds per run"
+    )
+    bcal.add_argument("--tank", choices=["nfp", "mockup"], default="nfp")
+    bcal.add_argument(
+        "--out", type=Path, default=Path("reports/calibrate.json"), help="figures as JSON"
+    )
+    bcal.set_defaults(func=_cmd_bench_calibrate)
     bacc = bench_sub.add_parser(
         "accuracy",
         help="the paper's results table: its method vs ours on the same runs, and an ablation",
@@ -1184,6 +1240,24 @@ def build_parser() -> argparse.ArgumentParser:
         "--max-sigma", type=float, default=0.05, help="largest horizontal fix sigma kept (m)"
     )
     lab.set_defaults(func=_cmd_label)
+    cal = sub.add_parser(
+        "calibrate",
+        help="the sonar mount (heading, roll, position) from a recording of the ASV turning",
+        description="Fit the sonar's heading, roll and horizontal position against the ASV's "
+        "LiDAR-derived frame to the tank walls in a recording's sonar frames (`capsd record "
+        "'cap/**'` while the ASV turns on the spot, about two minutes); print each estimate "
+        "with its uncertainty and whether the data determined it; write a copy of the locator "
+        "config with what was determined (docs/INSTALL-ERRORS.md).",
+    )
+    cal.add_argument("recording", type=Path, help="an MCAP recording with frames and ASV poses")
+    cal.add_argument(
+        "--locator-config",
+        type=Path,
+        default=Path("deploy/config/locator.yaml"),
+        help="the locator's config during the recording (its sonar mount and tank)",
+    )
+    cal.add_argument("-o", "--out", type=Path, required=True, help="the calibrated config")
+    cal.set_defaults(func=_cmd_calibrate)
     tcal = train.add_parser(
         "calibrate",
         help="set the polar CNN's operating point on validation runs (part of `detector`)",

@@ -140,7 +140,7 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     trajectory: TrajectoryName = "square"
     rov_speed_m_s: Annotated[float, msgspec.Meta(gt=0.0, le=0.5)] = 0.3
     seed: int = 0
-    asv_mode: Literal["follow", "stationary"] = "follow"
+    asv_mode: Literal["follow", "stationary", "spin"] = "follow"  # spin: turns on the spot
     # How far behind the ROV (along W's x) the following ASV keeps; None puts the ROV on the
     # sonar's boresight at the upper flight level.
     asv_standoff_m: Annotated[float, msgspec.Meta(ge=0.0, le=50.0)] | None = None

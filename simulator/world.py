@@ -392,7 +392,7 @@ def asv_motion(
     tank: Tank,
     rov: RovMotion,
     *,
-    mode: Literal["stationary", "follow"],
+    mode: Literal["stationary", "follow", "spin"],
     standoff_m: float,
     waves: Waves,
     start_xy: tuple[float, float] | None,
@@ -400,7 +400,9 @@ def asv_motion(
     """The ASV stays put, or follows the ROV from `standoff_m` away on the tank-centre side.
 
     MallARD is omnidirectional: it turns to face the ROV (the sonar looks along body x), with
-    its heading following the bearing to the ROV through a first-order lag (tau 2 s).
+    its heading following the bearing to the ROV through a first-order lag (tau 2 s). `spin`:
+    it stays put and turns on the spot, one turn a minute (the calibration manoeuvre: the
+    sonar sweeps every wall at every angle).
     """
     n = len(rov.track.p)
     dt = rov.track.dt
@@ -411,7 +413,7 @@ def asv_motion(
         np.array([margin, margin]),
         np.array([tank.length_m - margin, tank.width_m - margin]),
     )
-    if mode == "stationary":
+    if mode in ("stationary", "spin"):
         xy = np.array(start_xy) if start_xy is not None else centre
         targets = np.tile(np.array([xy[0], xy[1], 0.0]), (n, 1))
     else:
@@ -426,7 +428,13 @@ def asv_motion(
     bearing = np.unwrap(bearing)
     yaw = np.empty(n)
     yaw[0] = bearing[0]
+    if mode == "spin":
+        yaw = bearing[0] + SPIN_RAD_S * dt * np.arange(n)
+        return AsvMotion(track, yaw, waves)
     alpha = dt / 2.0
     for k in range(1, n):
         yaw[k] = yaw[k - 1] + alpha * (bearing[k] - yaw[k - 1])
     return AsvMotion(track, yaw, waves)
+
+
+SPIN_RAD_S = 2.0 * math.pi / 60.0  # the calibration manoeuvre: one turn a minute

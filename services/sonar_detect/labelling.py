@@ -24,10 +24,10 @@ import numpy as np
 
 from capsd.codec import Codec
 from capsd.errors import CapsdError
-from capsd.geometry import Transform, quat_to_matrix
 from capsd.keys import Subject
 from capsd.mounts import SonarMountConfig
 from capsd.payloads import AsvPose, RovFix, SonarFrame
+from capsd.pose_lookup import PoseLookup
 from capsd.recording import read
 from capsd.sonar_geometry import to_polar
 
@@ -35,7 +35,6 @@ LABELS_FILE = "labels.msgpack"
 REJECTED_FILE = "rejected.txt"
 SHEET_COLUMNS = 8
 SHEET_ROWS = 6
-MAX_POSE_GAP_NS = 200_000_000  # a pose further than this from the ping is not used
 
 
 class LabelledPing(msgspec.Struct, frozen=True, kw_only=True):
@@ -61,21 +60,6 @@ def _key_subject(key: str) -> str:
     """'cap/site/vehicle/sonar/frame' -> 'sonar/frame'."""
     parts = key.split("/")
     return "/".join(parts[3:]) if len(parts) > 3 else ""
-
-
-def _pose_at(poses: list[AsvPose], stamps: np.ndarray, stamp_ns: int) -> Transform | None:
-    """H_W_B at `stamp_ns`: the nearer recorded pose (None if none is close enough)."""
-    if not poses:
-        return None
-    i = int(np.searchsorted(stamps, stamp_ns))
-    best = min(
-        (k for k in (i - 1, i) if 0 <= k < len(poses)),
-        key=lambda k: abs(int(stamps[k]) - stamp_ns),
-    )
-    pose = poses[best]
-    if abs(pose.stamp_ns - stamp_ns) > MAX_POSE_GAP_NS or pose.status == "lost":
-        return None
-    return Transform(quat_to_matrix(np.array(pose.orientation_xyzw)), np.array(pose.position_m))
 
 
 def label_recording(
@@ -107,8 +91,7 @@ def label_recording(
             unreadable += 1  # reported in the summary; the rest is still labelled
     if not frames:
         raise CapsdError(f"{recording}: no sonar frames in it (record cap/** with the frames)")
-    poses.sort(key=lambda p: p.stamp_ns)
-    stamps = np.array([p.stamp_ns for p in poses], dtype=np.int64)
+    lookup = PoseLookup(poses)
     mount = sonar.transform()
     labelled: list[LabelledPing] = []
     confident = outside = 0
@@ -119,7 +102,7 @@ def label_recording(
         sigma = math.sqrt(max(float(np.linalg.eigvalsh(cov[:2, :2])[-1]), 0.0))
         if sigma > max_sigma_m or fix.stamp_ns not in frames:
             continue
-        asv = _pose_at(poses, stamps, fix.stamp_ns)
+        asv = lookup.at(fix.stamp_ns)
         if asv is None:
             continue
         confident += 1

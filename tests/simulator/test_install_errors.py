@@ -78,3 +78,12 @@ def test_an_uncalibrated_installation_costs_accuracy() -> None:
     drawn = Simulation(errors, horizon_s=10).errors.summary()
     # The sonar's heading error alone moves a fix by about range x angle (8 m x 1 deg = 14 cm).
     assert on[name].summary()["med_mm"] > off[name].summary()["med_mm"] + 10.0, drawn
+
+
+def test_the_calibration_manoeuvre_turns_the_asv_on_the_spot() -> None:
+    sim = Simulation(Config(asv_mode="spin", seed=2), horizon_s=80)
+    start, later = sim.asv_pose(5.0), sim.asv_pose(20.0)
+    # A quarter turn in 15 s (one turn a minute), within the waves' few centimetres of drift.
+    turned = matrix_to_euler_zyx(start.rotation.T @ later.rotation)[0]
+    assert math.degrees(turned) == pytest.approx(90.0, abs=2.0)
+    assert np.linalg.norm(later.translation[:2] - start.translation[:2]) < 0.2

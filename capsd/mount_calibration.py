@@ -1,0 +1,374 @@
+"""Self-calibration of the sonar mount from the tank's walls: heading and roll against the LiDAR.
+
+The ASV knows its pose from the LiDAR (scan matching against the walls), and the tank's walls
+are in every sonar image as a bright band. With the mount known, each beam's wall echo starts
+at the range where the shallowest ray of the beam's vertical aperture first meets a wall;
+with the mount wrong, the band sits elsewhere. This module measures, per beam, where the band
+starts (half way up its rising edge) and fits the mount's heading (yaw) and roll, plus one
+range scale, by robust least squares over many frames and beams:
+- yaw: rotates the band across the fan: well determined whenever a wall is seen across many
+  beams, best obliquely or in a corner, and from several ASV headings;
+- roll: tilts the aperture's top edge across the fan: determined when walls are seen on both
+  sides of the boresight (reported as such otherwise);
+- range scale: the speed of sound and the pitch of the mount both scale every wall range (a
+  pitch error moves the aperture's top edge, 0.36 % per degree at 20 deg): they cannot be told
+  apart from walls, so pitch is reported as not determined and the scale is reported, not used.
+The mount's position is not estimated (2 cm moves a wall range by at most 2 cm).
+What the fit measures is the sonar's heading relative to the ASV's LiDAR-derived heading: the
+error a fix feels, whether the sonar or the LiDAR was mounted askew.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from capsd.errors import CapsdError
+from capsd.geometry import Transform, euler_zyx_to_matrix
+from capsd.mounts import SonarMountConfig
+from capsd.payloads import SonarFrame
+from capsd.tank import TankBounds
+
+Floats = npt.NDArray[np.float64]
+ELEVATIONS = 15  # rays across the vertical aperture per beam
+BEAM_STEP = 4  # every 4th beam is measured
+BEAM_HALF_WIDTH = 0.5  # in beam spacings: the main lobe's half width
+MIN_CONTRAST = 25.0  # 8-bit levels between the water before the wall and the wall's peak
+MIN_MEASUREMENTS = 200
+# A correction is "determined" (and applied) when its 1-sigma is within what a fix can bear:
+# 0.1 deg of heading is 14 mm at 8 m; tilt matters far less (the depth constraint forgives it).
+YAW_SIGMA_MAX_DEG = 0.1
+ROLL_SIGMA_MAX_DEG = 0.3
+SHIFT_SIGMA_MAX_M = 0.015
+MAX_CORRELATION = 0.95
+
+
+@dataclass(frozen=True)
+class Observation:
+    """One sonar frame and the ASV's pose H_W_B at its stamp (from the LiDAR)."""
+
+    frame: SonarFrame
+    asv: Transform
+
+
+@dataclass(frozen=True)
+class MountFit:
+    """Corrections to add to the configured mount, with 1-sigma and what the data determined."""
+
+    yaw_deg: float
+    yaw_sigma_deg: float
+    roll_deg: float
+    roll_sigma_deg: float
+    range_scale: float
+    range_scale_sigma: float
+    shift_y_m: float  # the sonar's sideways position correction in the ASV frame
+    shift_y_sigma_m: float
+    yaw_roll_correlation: float
+    measurements: int
+    frames: int
+    residual_rms_m: float
+    yaw_determined: bool
+    roll_determined: bool
+    shift_determined: bool
+
+    def lines(self) -> list[str]:
+        """What a person reads: each estimate, its uncertainty, and what could not be told."""
+
+        def verdict(ok: bool) -> str:
+            return "determined" if ok else "NOT determined by this data (keep the configured value)"
+
+        return [
+            f"{self.measurements} wall edges in {self.frames} frames, "
+            f"residual rms {self.residual_rms_m * 1000:.1f} mm",
+            f"sonar yaw correction   {self.yaw_deg:+.3f} deg  (1 sigma {self.yaw_sigma_deg:.3f}) "
+            f"{verdict(self.yaw_determined)}",
+            f"sonar roll correction  {self.roll_deg:+.3f} deg  (1 sigma {self.roll_sigma_deg:.3f}) "
+            f"{verdict(self.roll_determined)}",
+            f"sonar position y       {self.shift_y_m * 1000:+.1f} mm  "
+            f"(1 sigma {self.shift_y_sigma_m * 1000:.1f}) {verdict(self.shift_determined)}",
+            "sonar pitch            NOT determined: walls cannot tell it from the sound speed",
+            "sonar position x, z    NOT determined: walls cannot tell x from a range offset",
+            f"range scale            {self.range_scale:.4f}  "
+            f"(1 sigma {self.range_scale_sigma:.4f}; sound speed and pitch together; "
+            "reported, not applied)",
+            f"yaw-roll correlation   {self.yaw_roll_correlation:+.2f}",
+        ]
+
+
+def _mount_with(
+    mount: SonarMountConfig, yaw_rad: float, roll_rad: float, shift_m: tuple[float, float] = (0, 0)
+) -> Transform:
+    """H_B_S with the corrections: a small rotation in the sonar's frame, a shift in the ASV's."""
+    correction = Transform(euler_zyx_to_matrix(yaw_rad, 0.0, roll_rad), np.zeros(3))
+    nominal = mount.transform()
+    shifted = Transform(nominal.rotation, nominal.translation + np.array([*shift_m, 0.0]))
+    return shifted.compose(correction)
+
+
+def _beam_directions(
+    mount: SonarMountConfig,
+    azimuths: Floats,
+    aperture_rad: float,
+    widen_rad: float = 0.0,
+    spacing_rad: float = 0.0,
+) -> tuple[Floats, Floats]:
+    """Unit rays in S, (beams, ELEVATIONS, 3), under the mount's beam model; and elevations.
+
+    `widen_rad` widens (or narrows) the aperture's half-width: where the echo is first seen is
+    where the vertical beam pattern gets strong enough, not the nominal edge.
+    """
+    half = aperture_rad / 2 + widen_rad
+    elevations = np.linspace(-half, half, ELEVATIONS)
+    # A beam is about one beam spacing wide: its nearest echo comes from its near side, which
+    # on an oblique wall is closer than its centre line.
+    parts = []
+    for offset in (-BEAM_HALF_WIDTH * spacing_rad, 0.0, BEAM_HALF_WIDTH * spacing_rad):
+        theta = azimuths + offset
+        ct, st = np.cos(theta)[:, None], np.sin(theta)[:, None]
+        ce, se = np.cos(elevations)[None, :], np.sin(elevations)[None, :]
+        if mount.beam_model == "planar":
+            d = np.stack(np.broadcast_arrays(ce * ct, ce * st, se * np.ones_like(ct)), axis=-1)
+        else:
+            d = np.stack(np.broadcast_arrays(ct * ce, st * np.ones_like(ce), ct * se), axis=-1)
+        parts.append(d)
+    d = np.concatenate(parts, axis=1)
+    return d / np.linalg.norm(d, axis=-1, keepdims=True), elevations
+
+
+def predicted_edges(
+    asv: list[Transform],
+    sonar: Transform,
+    rays_s: Floats,
+    tank: TankBounds,
+) -> Floats:
+    """Per frame and beam, the range at which the beam's rays first meet a wall (NaN: none).
+
+    A ray leaving the tank through the floor or the surface does not count: the band is the
+    wall's, and the floor's grazing echo is far weaker.
+    """
+    out = np.full((len(asv), rays_s.shape[0]), np.nan)
+    lows = np.array([0.0, 0.0, -tank.depth_m])
+    highs = np.array([tank.length_m, tank.width_m, 0.0])
+    for f, pose in enumerate(asv):
+        h = pose.compose(sonar)
+        origin = h.translation
+        d = rays_s @ h.rotation.T  # (beams, elevations, 3) in W
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t_low = (lows - origin) / d
+            t_high = (highs - origin) / d
+        t = np.where(d > 0, t_high, np.where(d < 0, t_low, np.inf))  # exit distance per axis
+        exit_axis = np.argmin(t, axis=-1)
+        exit_t = np.min(t, axis=-1)
+        wall = exit_axis < 2  # x or y walls; axis 2 is the floor or the surface
+        ranges = np.where(wall & (exit_t > 0), exit_t, np.inf)
+        edge = ranges.min(axis=1)
+        out[f] = np.where(np.isfinite(edge), edge, np.nan)
+    return out
+
+
+def _spacing(frame: SonarFrame) -> float:
+    """The median angle between neighbouring beams."""
+    azimuths = np.asarray(frame.azimuths_rad)
+    return float(np.median(np.abs(np.diff(azimuths)))) if len(azimuths) > 1 else 0.0
+
+
+def _image(frame: SonarFrame) -> Floats:
+    dtype = np.uint8 if frame.sample_bits == 8 else np.dtype("<u2")
+    raw = np.frombuffer(frame.image, dtype=dtype).reshape(frame.n_ranges, frame.n_beams)
+    image = raw.astype(np.float64)
+    return image if frame.sample_bits == 8 else image / 257.0
+
+
+def measured_edge(
+    profile: Floats, ranges: Floats, predicted_m: float, window_m: float
+) -> float | None:
+    """Where the wall band starts along one beam near `predicted_m`: half way up its edge."""
+    inside = np.nonzero(np.abs(ranges - predicted_m) <= window_m)[0]
+    before = np.nonzero((ranges < predicted_m - window_m) & (ranges > predicted_m - 3 * window_m))[
+        0
+    ]
+    if len(inside) < 5 or len(before) < 5:
+        return None
+    smooth = np.convolve(profile, np.ones(5) / 5.0, mode="same")
+    water = float(np.median(smooth[before]))
+    peak_at = inside[int(np.argmax(smooth[inside]))]
+    peak = float(smooth[peak_at])
+    if peak - water < MIN_CONTRAST:
+        return None
+    half = water + 0.5 * (peak - water)
+    rising = inside[(inside <= peak_at) & (smooth[inside] < half)]
+    if len(rising) == 0:
+        return None  # the band started before the window: not a clean edge
+    i = int(rising[-1])
+    # Linear interpolation between the last bin below half and the next one.
+    lo, hi = smooth[i], smooth[i + 1]
+    frac = (half - lo) / (hi - lo) if hi > lo else 0.0
+    return float(ranges[i] + frac * (ranges[i + 1] - ranges[i]))
+
+
+def _measure(
+    observations: list[Observation],
+    mount: SonarMountConfig,
+    tank: TankBounds,
+    params: Floats,
+) -> tuple[Floats, Floats, Floats]:
+    """(frame index, beam index, measured edge range) for every clean wall edge."""
+    frames_i: list[int] = []
+    beams_i: list[int] = []
+    edges: list[float] = []
+    sonar = _mount_with(mount, params[0], params[1], (params[5], params[6]))
+    scale, offset = math.exp(params[3]), params[4]
+    for f, obs in enumerate(observations):
+        frame = obs.frame
+        azimuths = np.asarray(frame.azimuths_rad)[::BEAM_STEP]
+        rays, _ = _beam_directions(
+            mount, azimuths, frame.vertical_aperture_rad, params[2], _spacing(frame)
+        )
+        predicted = predicted_edges([obs.asv], sonar, rays, tank)[0] / scale + offset
+        image = _image(frame)
+        bins = np.arange(frame.n_ranges, dtype=np.float64) + 0.5
+        ranges = frame.range_start_m + bins * frame.range_resolution_m
+        reach = ranges[-1]
+        for k, r_pred in enumerate(predicted):
+            if not np.isfinite(r_pred) or r_pred > 0.9 * reach or r_pred < 1.0:
+                continue
+            window = max(0.3, 0.06 * r_pred)
+            edge = measured_edge(image[:, k * BEAM_STEP], ranges, float(r_pred), window)
+            if edge is not None:
+                frames_i.append(f)
+                beams_i.append(k * BEAM_STEP)
+                edges.append(edge)
+    return np.array(frames_i), np.array(beams_i), np.array(edges)
+
+
+PARAMETERS = ("yaw", "roll", "widen", "scale", "offset", "x", "y")
+# x (along the ASV) is left out: the sonar looks outwards while the ASV turns, so moving it
+# forward shortens every wall range alike, which the range offset already is.
+FREE = ("yaw", "roll", "widen", "scale", "offset", "y")
+X_SCALE = np.array([0.01, 0.01, 0.01, 0.003, 0.02, 0.02, 0.02])
+
+
+@dataclass(frozen=True)
+class _Edges:
+    """Measured wall edges and the model that predicts them for a parameter vector."""
+
+    observations: list[Observation]
+    mount: SonarMountConfig
+    tank: TankBounds
+    frames: npt.NDArray[np.int_]
+    beams: npt.NDArray[np.int_]
+    ranges_m: Floats
+
+    def residuals(self, p: Floats) -> Floats:
+        """Measured minus predicted edge range, per edge (parameters as in PARAMETERS)."""
+        sonar = _mount_with(self.mount, p[0], p[1], (p[5], p[6]))
+        predicted = np.empty(len(self.ranges_m))
+        for f in np.unique(self.frames):
+            mask = self.frames == f
+            frame = self.observations[f].frame
+            azimuths = np.asarray(frame.azimuths_rad)[self.beams[mask]]
+            rays, _ = _beam_directions(
+                self.mount, azimuths, frame.vertical_aperture_rad, p[2], _spacing(frame)
+            )
+            edge = predicted_edges([self.observations[f].asv], sonar, rays, self.tank)[0]
+            predicted[mask] = edge / math.exp(p[3]) + p[4]
+        out = self.ranges_m - predicted
+        return np.where(np.isfinite(out), out, 0.0)
+
+
+def fit_mount(
+    observations: list[Observation],
+    *,
+    mount: SonarMountConfig,
+    tank: TankBounds,
+    free: tuple[str, ...] = FREE,
+) -> MountFit:
+    """Fit the mount's corrections (the `free` PARAMETERS) to the wall edges of `observations`."""
+    from scipy.optimize import least_squares
+
+    if not observations:
+        raise CapsdError("calibrate: no sonar frames with an ASV pose to fit")
+    free_i = [PARAMETERS.index(name) for name in free]
+    params = np.zeros(len(PARAMETERS))
+    edges: _Edges | None = None
+    result = None
+    for _ in range(3):  # measure where the current mount predicts, fit, measure again
+        frames_i, beams_i, ranges_m = _measure(observations, mount, tank, params)
+        if len(ranges_m) < MIN_MEASUREMENTS:
+            raise CapsdError(
+                f"calibrate: only {len(ranges_m)} clean wall edges (at least {MIN_MEASUREMENTS} "
+                "needed): record with the tank's walls in the sonar's view"
+            )
+        edges = _Edges(
+            observations, mount, tank, frames_i.astype(int), beams_i.astype(int), ranges_m
+        )
+        base = params.copy()
+
+        def residuals(q: Floats, base: Floats = base, edges: _Edges = edges) -> Floats:
+            p = base.copy()
+            p[free_i] = q
+            return edges.residuals(p)
+
+        result = least_squares(
+            residuals, params[free_i], loss="soft_l1", f_scale=0.05, x_scale=X_SCALE[free_i]
+        )
+        params[free_i] = result.x
+    assert edges is not None
+    assert result is not None
+    res = result.fun
+    n = len(res)
+    jac = np.asarray(result.jac, dtype=np.float64)
+    dof = max(n - len(free_i), 1)
+    s2 = float(np.sum(res**2) / dof)
+    cov = np.zeros((len(PARAMETERS), len(PARAMETERS)))
+    try:
+        cov[np.ix_(free_i, free_i)] = np.linalg.inv(jac.T @ jac) * s2
+    except np.linalg.LinAlgError:
+        cov[np.ix_(free_i, free_i)] = np.inf
+    sig = np.sqrt(np.clip(np.diag(cov), 0.0, np.inf))
+    corr = float(cov[0, 1] / (sig[0] * sig[1])) if sig[0] > 0 and sig[1] > 0 else 0.0
+    yaw_sigma, roll_sigma = math.degrees(float(sig[0])), math.degrees(float(sig[1]))
+    seen = abs(corr) < MAX_CORRELATION
+    return MountFit(
+        yaw_deg=math.degrees(params[0]),
+        yaw_sigma_deg=yaw_sigma,
+        roll_deg=math.degrees(params[1]),
+        roll_sigma_deg=roll_sigma,
+        range_scale=math.exp(params[3]),
+        range_scale_sigma=float(sig[3] * math.exp(params[3])),
+        shift_y_m=float(params[6]),
+        shift_y_sigma_m=float(sig[6]),
+        yaw_roll_correlation=corr,
+        measurements=n,
+        frames=len(np.unique(edges.frames)),
+        residual_rms_m=float(np.sqrt(np.mean(res**2))),
+        yaw_determined=bool(seen and 0 < yaw_sigma <= YAW_SIGMA_MAX_DEG),
+        roll_determined=bool(seen and 0 < roll_sigma <= ROLL_SIGMA_MAX_DEG),
+        shift_determined=bool("y" in free and 0 < sig[6] <= SHIFT_SIGMA_MAX_M),
+    )
+
+
+def corrected(mount: SonarMountConfig, fit: MountFit) -> SonarMountConfig:
+    """The mount with the determined corrections applied (angles stay in the config's terms)."""
+    import msgspec
+
+    sonar = _mount_with(
+        mount,
+        math.radians(fit.yaw_deg) if fit.yaw_determined else 0.0,
+        math.radians(fit.roll_deg) if fit.roll_determined else 0.0,
+        (0.0, fit.shift_y_m if fit.shift_determined else 0.0),
+    )
+    from capsd.geometry import matrix_to_euler_zyx
+
+    yaw, pitch, roll = (math.degrees(v) for v in matrix_to_euler_zyx(sonar.rotation))
+    x, y, z = (round(float(v), 4) for v in sonar.translation)
+    return msgspec.structs.replace(
+        mount,
+        position_m=(x, y, z),
+        yaw_deg=round(yaw, 4),
+        pitch_deg=round(pitch, 4),
+        roll_deg=round(roll, 4),
+    )

@@ -1,0 +1,26 @@
+"""`capsd bench calibrate` end to end on one short run: figures written, targets printed."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+from tests.conftest import REPO
+
+
+def test_bench_calibrate_writes_its_figures(tmp_path: Path) -> None:
+    out = tmp_path / "calibrate.json"
+    proc = subprocess.run(
+        [sys.executable, "-m", "capsd", "bench", "calibrate", "--seeds", "1", "--duration", "30",
+         "--out", str(out)],
+        capture_output=True, text=True, timeout=300, cwd=REPO,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "mean |yaw error|" in proc.stdout
+    figures = json.loads(out.read_text())
+    (run,) = figures["runs"]
+    # A third of a turn already pins the heading to a few tenths of a degree.
+    assert abs(run["yaw_error_deg"]) < 0.3
+    assert run["measurements"] > 1000
