@@ -22,6 +22,7 @@ import numpy as np
 
 from capsd.accuracy import Accuracy, score
 from capsd.geometry import euler_zyx_to_matrix, matrix_to_euler_zyx
+from capsd.mounts import SonarMountConfig
 from capsd.payloads import (
     Detection,
     ImuSample,
@@ -62,13 +63,17 @@ class Variant:
     method: MethodConfig = field(default_factory=MethodConfig)
     beam_model: Literal["conical", "planar"] = "conical"  # what the locator assumes
     box_range_bias_m: float = 0.0  # added to the box centre's range (box_centre detector)
+    # The sonar mount the locator is told (None: the nominal one, as the simulator's config
+    # states it); e.g. what `capsd calibrate` found.
+    sonar: SonarMountConfig | None = None
 
 
 def locator_config(variant: Variant, sim: SimConfig) -> LocatorConfig:
-    """The locator as deployed for this tank: the same mounts, the tank's walls."""
+    """The locator as deployed for this tank: the nominal mounts (or the variant's), its walls."""
     tank = make_tank(sim.tank)
+    sonar = variant.sonar if variant.sonar is not None else sim.sonar
     return LocatorConfig(
-        sonar=msgspec.structs.replace(sim.sonar, beam_model=variant.beam_model),
+        sonar=msgspec.structs.replace(sonar, beam_model=variant.beam_model),
         rov=sim.rov,
         method=variant.method,
         tank=TankBounds(length_m=tank.length_m, width_m=tank.width_m, depth_m=tank.depth_m),

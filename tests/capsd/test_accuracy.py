@@ -174,3 +174,28 @@ def test_demo_runs_end_to_end_and_writes_its_report(tmp_path: Path) -> None:
     for name in ("summary.md", "trajectory_3d.png", "position_axes.png", "errors.png"):
         assert (out / name).stat().st_size > 0
     assert "VISION_POSITION_ESTIMATE" in (out / "summary.md").read_text()
+
+
+def test_the_self_calibrated_report_states_its_targets() -> None:
+    from capsd.bench.accuracy import OURS, self_calibrated_report
+
+    figures = {
+        "runs": {"nfp/square": {OURS: {"med_mm": 120.0}}},
+        "self_calibration": {
+            "nfp/square": {
+                "yaw_deg": 0.5, "yaw_wanted_deg": 0.48, "roll_deg": -0.6,
+                "roll_wanted_deg": -0.59, "y_mm": 10.0, "y_wanted_mm": 12.0,
+            }
+        },
+        "common_self_calibrated": {
+            "nfp/square": {
+                "common_pings": 100, "ours_med_mm": 30.0, "ours_med_ci_mm": [28.0, 33.0],
+                "other_med_mm": 50.0, "other_med_ci_mm": [47.0, 52.0], "ratio": 0.6,
+                "ratio_ci": [0.55, 0.66],
+            }
+        },
+    }  # fmt: skip
+    text = "\n".join(self_calibrated_report(figures))
+    assert "| nfp/square | 0.5 / 0.48 |" in text
+    assert "| 120.0 | 30.0 [28, 33] | 50.0 [47, 52] | 0.6 [0.55, 0.66] | met | NOT met |" in text
+    assert "All met: no" in text
