@@ -365,7 +365,7 @@ def _cmd_render_top_view(args: argparse.Namespace) -> int:
 
 def _add_world_flags(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", type=Path, help="simulator YAML config (defaults otherwise)")
-    parser.add_argument("--tank", choices=["nfp", "mockup"], help="tank preset")
+    parser.add_argument("--tank", choices=["nfp", "mockup", "pond"], help="tank preset")
     parser.add_argument(
         "--trajectory",
         help="square, lawnmower, bouncing, random or two_floor",
@@ -933,7 +933,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Run `capsd sim` as its own process; print each stream's achieved rate and "
         "CPU share next to its target, and the process's total CPU.",
     )
-    bsim.add_argument("--tank", choices=["nfp", "mockup"], default="nfp")
+    bsim.add_argument("--tank", choices=["nfp", "mockup", "pond"], default="nfp")
     bsim.add_argument(
         "--trajectory",
         default="lawnmower",
@@ -1010,7 +1010,12 @@ def build_parser() -> argparse.ArgumentParser:
     bcal.add_argument(
         "--duration", type=positive_float, default=120.0, help="simulated seconds per run"
     )
-    bcal.add_argument("--tank", choices=["nfp", "mockup"], default="nfp")
+    bcal.add_argument(
+        "--tank",
+        choices=["nfp", "mockup", "pond"],
+        default="pond",
+        help="pond: the tank held out of training and tuning",
+    )
     bcal.add_argument(
         "--out", type=Path, default=Path("reports/calibrate.json"), help="figures as JSON"
     )
@@ -1018,7 +1023,8 @@ def build_parser() -> argparse.ArgumentParser:
     bacc = bench_sub.add_parser(
         "accuracy",
         help="the paper's results table: its method vs ours on the same runs, and an ablation",
-        description="Five trajectories in the nfp tank and one in the mockup through the "
+        description="Five trajectories in the nfp tank, one in the mockup and two in the held-out "
+        "pond through the "
         "offline pipeline; x/y/z RMSE, MED, p95, availability; targets; ablation; PNGs.",
     )
     bacc.add_argument(
@@ -1159,7 +1165,7 @@ def build_parser() -> argparse.ArgumentParser:
         default="square",
         choices=["square", "lawnmower", "bouncing", "random", "two_floor"],
     )
-    dem.add_argument("--tank", default="nfp", choices=["nfp", "mockup"])
+    dem.add_argument("--tank", default="nfp", choices=["nfp", "mockup", "pond"])
     dem.add_argument("--seed", type=int, default=0)
     dem.add_argument("--port", type=int, default=None, help="router port (a free one if unset)")
     dem.add_argument(

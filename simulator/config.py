@@ -182,8 +182,8 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
 
     def sonar_model(self) -> SonarModel:
         img = self.sonar_image
-        range_max = img.range_max_m or (20.0 if self.tank == "nfp" else 8.0)
-        n_ranges = img.n_ranges or (1000 if self.tank == "nfp" else 800)
+        range_max = img.range_max_m or (8.0 if self.tank == "mockup" else 20.0)
+        n_ranges = img.n_ranges or (800 if self.tank == "mockup" else 1000)
         look = self.look()
         model = self._fixed_sonar_model(range_max, n_ranges)
         return model if look is None else model.with_look(look)

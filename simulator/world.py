@@ -22,7 +22,10 @@ import numpy as np
 from capsd.geometry import Array, euler_zyx_to_matrix
 from simulator.sonar_look import Look
 
-TankName = Literal["nfp", "mockup"]
+TankName = Literal["nfp", "mockup", "pond"]
+# Never used to train the detector or tune anything: the benches' held-out tank.
+HELD_OUT_TANK: TankName = "pond"
+TUNING_TANKS: tuple[TankName, ...] = ("nfp", "mockup")
 TrajectoryName = Literal["square", "lawnmower", "bouncing", "random", "two_floor"]
 TRAJECTORIES: tuple[TrajectoryName, ...] = (
     "square",
@@ -120,6 +123,33 @@ def _nfp_clutter(
     return tuple(boxes), cylinders
 
 
+def _pond_clutter(
+    length: float, width: float, depth: float
+) -> tuple[tuple[Box, ...], tuple[Cylinder, ...]]:
+    """One row of three racks, a waste skip, sandbags, a ladder, brackets, a pipe, a post."""
+    boxes: list[Box] = []
+    rack_h = 0.4 * depth
+    for i in range(3):
+        x0 = 3.0 + i * 4.5
+        boxes.append(Box((x0, 3.5, -depth), (x0 + 3.5, 6.5, -depth + rack_h), "rack", 0.75))
+    boxes.append(Box((14.5, 7.8, -depth), (16.5, 9.3, -depth + 1.2), "skip", 0.85))
+    rng = np.random.default_rng(4321)  # the layout is part of the preset, not of the run's seed
+    for _ in range(16):
+        x = float(rng.uniform(1.0, length - 1.5))
+        y = float(rng.uniform(1.0, width - 1.5))
+        boxes.append(Box((x, y, -depth), (x + 0.5, y + 0.5, -depth + 0.3), "sandbag", 0.5))
+    for y in (2.0, 8.0):
+        boxes.append(Box((length - 0.3, y, -1.8), (length, y + 0.4, -1.4), "bracket", 0.9))
+    boxes.append(Box((9.0, width - 0.25, 0.0), (9.3, width, 0.8), "post", 0.9))
+    boxes.append(Box((0.0, 1.5, 0.0), (0.2, 1.8, 0.6), "post", 0.9))
+    cylinders = (
+        Cylinder((0.4, 0.5, -2.0), "y", width - 1.0, 0.12, "pipe"),
+        Cylinder((6.0, 0.25, -depth), "z", depth + 0.8, 0.04, "ladder"),
+        Cylinder((6.5, 0.25, -depth), "z", depth + 0.8, 0.04, "ladder"),
+    )
+    return tuple(boxes), cylinders
+
+
 def _mockup_clutter(
     length: float, width: float, depth: float
 ) -> tuple[tuple[Box, ...], tuple[Cylinder, ...]]:
@@ -134,10 +164,16 @@ def _mockup_clutter(
 
 
 def make_tank(name: TankName, *, clutter: Literal["on", "off"] = "on") -> Tank:
-    """A tank preset: `nfp` (the paper's simulated pool) or `mockup` (its real test tank)."""
+    """A tank preset: `nfp` (the paper's pool), `mockup` (its real test tank), or `pond`.
+
+    `pond` is a storage pond of another size and layout, held out of training and tuning.
+    """
     if name == "nfp":
         dims = (28.0, 16.0, 8.0, 1.0)
         boxes, cylinders = _nfp_clutter(*dims[:3])
+    elif name == "pond":
+        dims = (18.0, 10.0, 5.0, 0.8)
+        boxes, cylinders = _pond_clutter(*dims[:3])
     else:
         dims = (4.8, 3.6, 2.0, 0.6)
         boxes, cylinders = _mockup_clutter(*dims[:3])

@@ -1,6 +1,7 @@
 """`capsd bench accuracy`: the paper's results table, both baselines on common pings, an ablation.
 
-For each of the paper's five trajectories in the `nfp` tank and one in the `mockup`, the
+For each of the paper's five trajectories in the `nfp` tank, one in the `mockup` and two in
+the held-out `pond` (never used in training or tuning), the
 offline pipeline (capsd.offline_pipeline: the services' own code, fed in time order) runs the
 paper's method and ours, and ours without each improvement, on the very same pings. Printed
 and written (Markdown and JSON): x/y/z RMSE, MED, p95 and availability per run and method; the
@@ -35,6 +36,9 @@ RUNS: tuple[tuple[TankName, TrajectoryName], ...] = (
     ("nfp", "random"),
     ("nfp", "two_floor"),
     ("mockup", "random"),
+    # The held-out tank: never used to train the detector or to tune anything.
+    ("pond", "lawnmower"),
+    ("pond", "random"),
 )
 # two_floor loops the upper level for ~190 s before it descends: it runs this much longer.
 LONGER = {"two_floor": 4.0}

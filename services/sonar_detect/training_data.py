@@ -41,7 +41,7 @@ from simulator.config import (
 )
 from simulator.sim import Simulation
 from simulator.sonar_look import Variety
-from simulator.world import TankName, TrajectoryName
+from simulator.world import TUNING_TANKS, TankName, TrajectoryName
 
 TRAJECTORIES: tuple[TrajectoryName, ...] = (
     "square",
@@ -99,7 +99,7 @@ def plan_runs(*, runs: int, seed: int, duration_s: float, sonar_hz: float) -> li
     rng = np.random.default_rng(seed)
     plans = []
     for k in range(runs):
-        tank: TankName = "nfp" if k % 2 == 0 else "mockup"
+        tank: TankName = TUNING_TANKS[k % 2]
         mode: Literal["follow", "stationary"] = "follow" if (k // 2) % 3 else "stationary"
         standoff = None
         if mode == "follow" and tank == "nfp" and rng.random() < 0.6:
