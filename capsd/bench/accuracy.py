@@ -159,10 +159,9 @@ def _self_calibrate(config: SimConfig) -> tuple[SonarMountConfig, dict[str, Any]
     )
     located = locator_config(Variant(OURS), manoeuvre)
     assert located.tank is not None
-    fit = fit_mount(
-        observations(manoeuvre, duration_s=CALIBRATION_S), mount=located.sonar, tank=located.tank
-    )
-    want_yaw, want_roll, _, want_y = wanted_correction(manoeuvre)
+    seen = observations(manoeuvre, duration_s=CALIBRATION_S)
+    fit = fit_mount(seen, mount=located.sonar, tank=located.tank)
+    want_yaw, want_roll, want_y = wanted_correction(manoeuvre, seen)
     summary = {
         "yaw_deg": round(fit.yaw_deg, 3),
         "yaw_wanted_deg": round(want_yaw, 3),

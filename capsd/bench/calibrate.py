@@ -16,13 +16,14 @@ from typing import Any
 
 import numpy as np
 
-from capsd.geometry import Transform, matrix_to_euler_zyx, quat_to_matrix
+from capsd.geometry import matrix_to_euler_zyx
 from capsd.mount_calibration import Observation, corrected, fit_mount
 from capsd.offline_pipeline import Variant, locator_config, run
 from capsd.payloads import AsvPose, Payload, SonarFrame
+from capsd.pose_lookup import PoseLookup
 from capsd.progress import Progress
+from simulator.config import OFFLINE_START_NS, Rates
 from simulator.config import Config as SimConfig
-from simulator.config import Rates
 from simulator.install_errors import InstallErrorsConfig
 from simulator.sim import Simulation
 from simulator.world import TankName, TrajectoryName
@@ -36,48 +37,52 @@ SHIFT_TARGET_MM = 15.0
 def observations(
     config: SimConfig, *, duration_s: float, every_s: float = 0.5
 ) -> list[Observation]:
-    """Sonar frames every `every_s` with the estimated ASV pose nearest before each."""
-    out: list[Observation] = []
-    latest: AsvPose | None = None
-    next_t_ns = 0
+    """Sonar frames every `every_s`, each with the estimated ASV pose at its stamp.
+
+    As `capsd calibrate` reads a recording: the poses interpolated to the frame's stamp.
+    """
+    frames: list[SonarFrame] = []
+    poses: list[AsvPose] = []
 
     def sink(payload: Payload) -> None:
-        nonlocal latest, next_t_ns
         if isinstance(payload, AsvPose):
-            latest = payload
-        elif (
-            isinstance(payload, SonarFrame) and latest is not None and payload.stamp_ns >= next_t_ns
+            poses.append(payload)
+        elif isinstance(payload, SonarFrame) and (
+            not frames or payload.stamp_ns >= frames[-1].stamp_ns + int(every_s * 1e9)
         ):
-            asv = Transform(
-                quat_to_matrix(np.array(latest.orientation_xyzw)), np.array(latest.position_m)
-            )
-            out.append(Observation(payload, asv))
-            next_t_ns = payload.stamp_ns + int(every_s * 1e9)
+            frames.append(payload)
 
     # The box-centre detector: fixes are not what this run is for, and it costs nothing.
     run(config, duration_s=duration_s, variants=[Variant("pose only", detector="box_centre")],
         sink=sink)  # fmt: skip
+    lookup = PoseLookup(poses)
+    out = [Observation(f, asv) for f in frames if (asv := lookup.at(f.stamp_ns)) is not None]
     return out[4:]  # the pose estimator's first seconds (a heading prior 20 deg off)
 
 
-def wanted_correction(config: SimConfig) -> tuple[float, float, float, float]:
-    """(yaw, roll in degrees; x, y shift in metres) that the run's hidden errors call for.
+def wanted_correction(
+    config: SimConfig, observations: list[Observation]
+) -> tuple[float, float, float]:
+    """(yaw, roll in degrees; y shift in metres) that the run's hidden errors call for.
 
-    The sonar is seen through the ASV's LiDAR-derived pose: the scan matcher makes the LiDAR
-    sit where it is told (H_B_L nominal), so the mount a fix needs is
-    H_B_L_nominal H_B_L_true^-1 H_B_S_true; the correction is that against H_B_S_nominal
-    (rotation in the sonar's frame, shift in the ASV's).
+    The mount a fix needs is the one that, composed with the ASV pose the services estimate,
+    puts the sonar where it truly is: H_W_B_est^-1 H_W_B_true H_B_S_true, averaged over the
+    frames. It takes in the sonar's mount errors and whatever the pose estimate gets wrong
+    for good (a LiDAR mounted askew, the IMU's tilt bias).
     """
-    errors = Simulation(config, horizon_s=10.0).errors
-    lidar_nominal = config.lidar_mount()
-    lidar_true = lidar_nominal.compose(errors.lidar)
+    last_s = max((o.frame.stamp_ns - OFFLINE_START_NS) / 1e9 for o in observations)
+    sim = Simulation(config, horizon_s=last_s + 5.0)  # the same motion as the run's
     sonar_nominal = config.sonar.transform()
-    sonar_true = sonar_nominal.compose(errors.sonar)
-    wanted = lidar_nominal.compose(lidar_true.inverse()).compose(sonar_true)
-    rotation = sonar_nominal.rotation.T @ wanted.rotation
-    yaw, _, roll = matrix_to_euler_zyx(rotation)
-    shift = wanted.translation - sonar_nominal.translation
-    return math.degrees(yaw), math.degrees(roll), float(shift[0]), float(shift[1])
+    sonar_true = sim.mount
+    angles, shifts = [], []
+    for obs in observations:
+        truth = sim.asv_pose((obs.frame.stamp_ns - OFFLINE_START_NS) / 1e9)
+        wanted = obs.asv.inverse().compose(truth).compose(sonar_true)
+        yaw, _, roll = matrix_to_euler_zyx(sonar_nominal.rotation.T @ wanted.rotation)
+        angles.append((yaw, roll))
+        shifts.append(float(wanted.translation[1] - sonar_nominal.translation[1]))
+    yaw, roll = np.mean(np.array(angles), axis=0)
+    return math.degrees(float(yaw)), math.degrees(float(roll)), float(np.mean(shifts))
 
 
 def bench(
@@ -100,7 +105,7 @@ def bench(
         loc = locator_config(Variant("ours"), config)
         assert loc.tank is not None  # locator_config always gives the tank
         fit = fit_mount(obs, mount=loc.sonar, tank=loc.tank)
-        want_yaw, want_roll, want_x, want_y = wanted_correction(config)
+        want_yaw, want_roll, want_y = wanted_correction(config, obs)
         shift_error_m = abs(fit.shift_y_m - want_y)
         rows.append(
             {
@@ -113,7 +118,7 @@ def bench(
                 "fitted_roll_deg": round(fit.roll_deg, 3),
                 "roll_sigma_deg": round(fit.roll_sigma_deg, 3),
                 "roll_error_deg": round(fit.roll_deg - want_roll, 3),
-                "wanted_shift_mm": [round(want_x * 1000, 1), round(want_y * 1000, 1)],
+                "wanted_shift_y_mm": round(want_y * 1000, 1),
                 "fitted_shift_y_mm": round(fit.shift_y_m * 1000, 1),
                 "shift_y_sigma_mm": round(fit.shift_y_sigma_m * 1000, 1),
                 "shift_error_mm": round(shift_error_m * 1000, 1),
