@@ -156,7 +156,7 @@ def predicted_edges(
         h = pose.compose(sonar)
         origin = h.translation
         d = rays_s @ h.rotation.T  # (beams, elevations, 3) in W
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             t_low = (lows - origin) / d
             t_high = (highs - origin) / d
         t = np.where(d > 0, t_high, np.where(d < 0, t_low, np.inf))  # exit distance per axis
