@@ -27,12 +27,33 @@ class Scored:
     estimate_m: tuple[float, float, float] | None
     raw_m: tuple[float, float, float] | None
     truth_m: tuple[float, float, float]
+    covariance_m2: tuple[float, ...] | None = None  # the reported covariance of the estimate
 
 
 def score(fix: RovFix, label: SonarLabel) -> Scored:
-    estimate = fix.position_m or fix.raw_position_m if fix.quality == "good" else None
-    raw = fix.raw_position_m if fix.quality == "good" else None
-    return Scored(fix.stamp_ns, estimate, raw, label.rov_position_m)
+    good = fix.quality == "good"
+    tracked = good and fix.position_m is not None
+    estimate = fix.position_m or fix.raw_position_m if good else None
+    raw = fix.raw_position_m if good else None
+    covariance = fix.covariance_m2 if tracked else fix.raw_covariance_m2 if good else None
+    return Scored(fix.stamp_ns, estimate, raw, label.rov_position_m, covariance)
+
+
+# 95 % of a chi-square law with 3 degrees of freedom: a consistent 3-D estimate's NEES is
+# below this 95 % of the time.
+CHI2_3_95 = 7.815
+
+
+def nees(pings: list[Scored], *, floor_m: float = 0.0) -> np.ndarray:
+    """Normalised estimation error squared per ping with a covariance (plus floor_m^2 I)."""
+    out = []
+    for p in pings:
+        if p.estimate_m is None or p.covariance_m2 is None:
+            continue
+        error = np.subtract(p.estimate_m, p.truth_m)
+        cov = np.array(p.covariance_m2).reshape(3, 3) + np.eye(3) * floor_m**2
+        out.append(float(error @ np.linalg.solve(cov, error)))
+    return np.array(out)
 
 
 @dataclass
@@ -73,6 +94,10 @@ class Accuracy:
             raw = [math.dist(p.raw_m, p.truth_m) for p in self.pings if p.raw_m is not None]
             if raw:
                 out["single_ping_med_mm"] = round(float(np.mean(raw)) * 1000, 1)
+            values = nees(self.pings)
+            if len(values):
+                out["nees_mean"] = round(float(np.mean(values)), 2)
+                out["nees_within_95"] = round(float(np.mean(values <= CHI2_3_95)), 4)
         return out
 
 

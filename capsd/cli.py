@@ -574,6 +574,13 @@ def _cmd_bench_calibrate(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_bench_consistency(args: argparse.Namespace) -> int:
+    from capsd.bench import consistency
+
+    consistency.bench(duration_s=args.duration, out=args.out)
+    return EXIT_OK
+
+
 def _cmd_bench_accuracy(args: argparse.Namespace) -> int:
     from capsd.bench import accuracy
 
@@ -1020,6 +1027,18 @@ def build_parser() -> argparse.ArgumentParser:
         "--out", type=Path, default=Path("reports/calibrate.json"), help="figures as JSON"
     )
     bcal.set_defaults(func=_cmd_bench_calibrate)
+    bcons = bench_sub.add_parser(
+        "consistency",
+        help="the locator's covariance floor derived on tuning runs, NEES on held-out ones",
+        description="The smallest covariance floor with which 95 %% of fixes' NEES fall under "
+        "the chi-square bound on tuning runs; the NEES on the held-out pond with it, with the "
+        "configured floor and with none.",
+    )
+    bcons.add_argument("--duration", type=positive_float, default=60.0, help="seconds per run")
+    bcons.add_argument(
+        "--out", type=Path, default=Path("reports/consistency.json"), help="figures as JSON"
+    )
+    bcons.set_defaults(func=_cmd_bench_consistency)
     bacc = bench_sub.add_parser(
         "accuracy",
         help="the paper's results table: its method vs ours on the same runs, and an ablation",

@@ -66,18 +66,23 @@ class Variant:
     # The sonar mount the locator is told (None: the nominal one, as the simulator's config
     # states it); e.g. what `capsd calibrate` found.
     sonar: SonarMountConfig | None = None
+    # The locator's covariance floor (None: its default); 0 to see the bare covariance.
+    unmodelled_sigma_m: float | None = None
 
 
 def locator_config(variant: Variant, sim: SimConfig) -> LocatorConfig:
     """The locator as deployed for this tank: the nominal mounts (or the variant's), its walls."""
     tank = make_tank(sim.tank)
     sonar = variant.sonar if variant.sonar is not None else sim.sonar
-    return LocatorConfig(
+    config = LocatorConfig(
         sonar=msgspec.structs.replace(sonar, beam_model=variant.beam_model),
         rov=sim.rov,
         method=variant.method,
         tank=TankBounds(length_m=tank.length_m, width_m=tank.width_m, depth_m=tank.depth_m),
     )
+    if variant.unmodelled_sigma_m is not None:
+        config = msgspec.structs.replace(config, unmodelled_sigma_m=variant.unmodelled_sigma_m)
+    return config
 
 
 def _estimator(kind: TiltKind, sim: SimConfig, heading_prior_rad: float) -> AsvPoseEstimator:

@@ -88,8 +88,8 @@ def test_an_extrapolated_depth_widens_the_vertical_uncertainty() -> None:
     late = fresh.locate(_ping(SECOND // 2 + SECOND // 10, _detection_of(fresh, ROV)), seq=0)
     assert at_reading.raw_covariance_m2 is not None
     assert late.raw_covariance_m2 is not None
-    # z variance: the 15 mm floor plus the depth's 5 mm, then 5 mm x hypot(6, 5) = 39 mm.
-    floor = 0.015**2
+    # z variance: the covariance floor plus the depth's 5 mm, then 5 mm x hypot(6, 5) = 39 mm.
+    floor = Config().unmodelled_sigma_m ** 2
     assert math.isclose(at_reading.raw_covariance_m2[8] - floor, 0.005**2, rel_tol=0.05)
     assert math.isclose(
         late.raw_covariance_m2[8] - floor, (0.005 * math.hypot(6, 5)) ** 2, rel_tol=0.05
