@@ -192,6 +192,7 @@ class Bridge:
             component_id=config.mavlink.component_id,
         )
         self.lock = threading.Lock()
+        self._last_counts: dict[str, int] = {}
         self.clock = BootClock()
         self.counts: Counter[str] = Counter()
         self.attitude: Attitude | None = None
@@ -678,9 +679,17 @@ class Bridge:
         )
 
     def counters(self) -> dict[str, int]:
-        with self.lock:
-            merged = {f"gate_{k}": v for k, v in self.gate.counts.items()}
-            merged.update(self.counts)
+        # Health is answered on Zenoh's thread: it never waits long behind the main loop's
+        # MAVLink I/O (which holds the lock); if busy, the last counts go out.
+        if self.lock.acquire(timeout=0.2):
+            try:
+                merged = {f"gate_{k}": v for k, v in self.gate.counts.items()}
+                merged.update(self.counts)
+                self._last_counts = dict(merged)
+            finally:
+                self.lock.release()
+        else:
+            merged = dict(self._last_counts)
         merged["fixes_dropped_for_newer"] = self.fixes.dropped
         if self.fix_stream is not None:
             merged["fixes_unauthenticated"] = self.fix_stream.unauthenticated

@@ -123,9 +123,13 @@ def _wait_ready(autopilot: AutopilotStandIn, sender: FixSender) -> None:
 
 
 def _health(client: zenoh.Session) -> Health:
-    health = query_health(client, site="tank", vehicle="rov", service="mav_bridge")
-    assert health is not None, "no health from the mav_bridge"
-    return health
+    # A query is best effort: on a loaded machine one reply can miss its 2 s; three in a row
+    # cannot.
+    for _ in range(3):
+        health = query_health(client, site="tank", vehicle="rov", service="mav_bridge")
+        if health is not None:
+            return health
+    raise AssertionError("no health from the mav_bridge (3 queries)")
 
 
 @pytest.mark.parametrize("heading_deg", [0.0, 90.0, -135.0])
