@@ -16,7 +16,7 @@ import yaml
 
 from capsd.codec import Codec
 from capsd.errors import CapsdError
-from capsd.keys import Subject
+from capsd.keys import Subject, subject_of
 from capsd.mount_calibration import MountFit, Observation, corrected, fit_mount
 from capsd.mounts import SonarMountConfig
 from capsd.payloads import AsvPose, SonarFrame
@@ -27,18 +27,13 @@ from capsd.tank import TankBounds
 EVERY_S = 0.5  # one frame per half second is plenty: neighbouring frames see the same walls
 
 
-def _subject(key: str) -> str:
-    parts = key.split("/")
-    return "/".join(parts[3:]) if len(parts) > 3 else ""
-
-
 def observations_of(recording: Path, *, every_s: float = EVERY_S) -> list[Observation]:
     """Frames of `recording` every `every_s`, each with the ASV pose at its stamp."""
     frames: list[tuple[int, bytes, str]] = []
     poses: list[AsvPose] = []
     pose_codec, frame_codec = Codec(AsvPose), Codec(SonarFrame)
     for message in read(recording):
-        subject = _subject(message.key)
+        subject = subject_of(message.key)
         if subject == Subject.SONAR_FRAME.value:
             frames.append((message.log_time_ns, message.data, message.key))
         elif subject == Subject.ASV_POSE.value:

@@ -41,6 +41,12 @@ TRUTH_SUBJECTS = frozenset(
 )
 
 
+def subject_of(key_expr: str) -> str:
+    """The subject of a data key: 'cap/site/vehicle/sonar/frame' -> 'sonar/frame' ('' if none)."""
+    parts = key_expr.split("/")
+    return "/".join(parts[3:]) if len(parts) > 3 else ""
+
+
 def check_name(kind: str, name: str) -> str:
     """Validate a site, vehicle or service name: lower case, digits and '_', 1-32 characters."""
     if not _NAME.fullmatch(name):

@@ -23,13 +23,15 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import msgspec
 import numpy as np
 import numpy.typing as npt
 
 from capsd.errors import CapsdError
-from capsd.geometry import Transform, euler_zyx_to_matrix
+from capsd.geometry import Transform, euler_zyx_to_matrix, matrix_to_euler_zyx
 from capsd.mounts import SonarMountConfig
 from capsd.payloads import SonarFrame
+from capsd.sonar_image import unit_image
 from capsd.tank import TankBounds
 
 Floats = npt.NDArray[np.float64]
@@ -114,8 +116,8 @@ def _beam_directions(
     aperture_rad: float,
     widen_rad: float = 0.0,
     spacing_rad: float = 0.0,
-) -> tuple[Floats, Floats]:
-    """Unit rays in S, (beams, ELEVATIONS, 3), under the mount's beam model; and elevations.
+) -> Floats:
+    """Unit rays in S, (beams, 3 x ELEVATIONS, 3), under the mount's beam model.
 
     `widen_rad` widens (or narrows) the aperture's half-width: where the echo is first seen is
     where the vertical beam pattern gets strong enough, not the nominal edge.
@@ -135,38 +137,29 @@ def _beam_directions(
             d = np.stack(np.broadcast_arrays(ct * ce, st * np.ones_like(ce), ct * se), axis=-1)
         parts.append(d)
     d = np.concatenate(parts, axis=1)
-    return d / np.linalg.norm(d, axis=-1, keepdims=True), elevations
+    out: Floats = d / np.linalg.norm(d, axis=-1, keepdims=True)
+    return out
 
 
-def predicted_edges(
-    asv: list[Transform],
-    sonar: Transform,
-    rays_s: Floats,
-    tank: TankBounds,
-) -> Floats:
-    """Per frame and beam, the range at which the beam's rays first meet a wall (NaN: none).
+def predicted_edges(asv: Transform, sonar: Transform, rays_s: Floats, tank: TankBounds) -> Floats:
+    """Per beam, the range at which the beam's rays first meet a wall (NaN: none).
 
-    A ray leaving the tank through the floor or the surface does not count: the band is the
-    wall's, and the floor's grazing echo is far weaker.
+    `asv` is H_W_B, `sonar` H_B_S. A ray leaving the tank through the floor or the surface
+    does not count: the band is the wall's, and the floor's grazing echo is far weaker.
     """
-    out = np.full((len(asv), rays_s.shape[0]), np.nan)
     lows = np.array([0.0, 0.0, -tank.depth_m])
     highs = np.array([tank.length_m, tank.width_m, 0.0])
-    for f, pose in enumerate(asv):
-        h = pose.compose(sonar)
-        origin = h.translation
-        d = rays_s @ h.rotation.T  # (beams, elevations, 3) in W
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            t_low = (lows - origin) / d
-            t_high = (highs - origin) / d
-        t = np.where(d > 0, t_high, np.where(d < 0, t_low, np.inf))  # exit distance per axis
-        exit_axis = np.argmin(t, axis=-1)
-        exit_t = np.min(t, axis=-1)
-        wall = exit_axis < 2  # x or y walls; axis 2 is the floor or the surface
-        ranges = np.where(wall & (exit_t > 0), exit_t, np.inf)
-        edge = ranges.min(axis=1)
-        out[f] = np.where(np.isfinite(edge), edge, np.nan)
-    return out
+    h = asv.compose(sonar)
+    d = rays_s @ h.rotation.T  # (beams, rays, 3) in W
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        t_low = (lows - h.translation) / d
+        t_high = (highs - h.translation) / d
+    t = np.where(d > 0, t_high, np.where(d < 0, t_low, np.inf))  # exit distance per axis
+    exit_axis = np.argmin(t, axis=-1)
+    exit_t = np.min(t, axis=-1)
+    wall = exit_axis < 2  # x or y walls; axis 2 is the floor or the surface
+    edge = np.where(wall & (exit_t > 0), exit_t, np.inf).min(axis=1)
+    return np.where(np.isfinite(edge), edge, np.nan)
 
 
 def _spacing(frame: SonarFrame) -> float:
@@ -175,24 +168,27 @@ def _spacing(frame: SonarFrame) -> float:
     return float(np.median(np.abs(np.diff(azimuths)))) if len(azimuths) > 1 else 0.0
 
 
-def _image(frame: SonarFrame) -> Floats:
-    dtype = np.uint8 if frame.sample_bits == 8 else np.dtype("<u2")
-    raw = np.frombuffer(frame.image, dtype=dtype).reshape(frame.n_ranges, frame.n_beams)
-    image = raw.astype(np.float64)
-    return image if frame.sample_bits == 8 else image / 257.0
+def _smoothed_columns(frame: SonarFrame, step: int) -> Floats:
+    """Every `step`-th beam of the frame in 8-bit levels, averaged over 5 range bins."""
+    columns = unit_image(frame)[:, ::step].astype(np.float64) * 255.0
+    padded = np.pad(columns, ((2, 2), (0, 0)))
+    total = padded[: len(columns)].copy()
+    for k in range(1, 5):
+        total += padded[k : k + len(columns)]
+    out: Floats = total / 5.0
+    return out
 
 
 def measured_edge(
-    profile: Floats, ranges: Floats, predicted_m: float, window_m: float
+    smooth: Floats, ranges: Floats, predicted_m: float, window_m: float
 ) -> float | None:
-    """Where the wall band starts along one beam near `predicted_m`: half way up its edge."""
+    """Where the wall band starts along one (smoothed) beam near `predicted_m`: half way up."""
     inside = np.nonzero(np.abs(ranges - predicted_m) <= window_m)[0]
     before = np.nonzero((ranges < predicted_m - window_m) & (ranges > predicted_m - 3 * window_m))[
         0
     ]
     if len(inside) < 5 or len(before) < 5:
         return None
-    smooth = np.convolve(profile, np.ones(5) / 5.0, mode="same")
     water = float(np.median(smooth[before]))
     peak_at = inside[int(np.argmax(smooth[inside]))]
     peak = float(smooth[peak_at])
@@ -224,11 +220,11 @@ def _measure(
     for f, obs in enumerate(observations):
         frame = obs.frame
         azimuths = np.asarray(frame.azimuths_rad)[::BEAM_STEP]
-        rays, _ = _beam_directions(
+        rays = _beam_directions(
             mount, azimuths, frame.vertical_aperture_rad, params[2], _spacing(frame)
         )
-        predicted = predicted_edges([obs.asv], sonar, rays, tank)[0] / scale + offset
-        image = _image(frame)
+        predicted = predicted_edges(obs.asv, sonar, rays, tank) / scale + offset
+        smooth = _smoothed_columns(frame, BEAM_STEP)
         bins = np.arange(frame.n_ranges, dtype=np.float64) + 0.5
         ranges = frame.range_start_m + bins * frame.range_resolution_m
         reach = ranges[-1]
@@ -236,7 +232,7 @@ def _measure(
             if not np.isfinite(r_pred) or r_pred > 0.9 * reach or r_pred < 1.0:
                 continue
             window = max(0.3, 0.06 * r_pred)
-            edge = measured_edge(image[:, k * BEAM_STEP], ranges, float(r_pred), window)
+            edge = measured_edge(smooth[:, k], ranges, float(r_pred), window)
             if edge is not None:
                 frames_i.append(f)
                 beams_i.append(k * BEAM_STEP)
@@ -270,10 +266,10 @@ class _Edges:
             mask = self.frames == f
             frame = self.observations[f].frame
             azimuths = np.asarray(frame.azimuths_rad)[self.beams[mask]]
-            rays, _ = _beam_directions(
+            rays = _beam_directions(
                 self.mount, azimuths, frame.vertical_aperture_rad, p[2], _spacing(frame)
             )
-            edge = predicted_edges([self.observations[f].asv], sonar, rays, self.tank)[0]
+            edge = predicted_edges(self.observations[f].asv, sonar, rays, self.tank)
             predicted[mask] = edge / math.exp(p[3]) + p[4]
         out = self.ranges_m - predicted
         return np.where(np.isfinite(out), out, 0.0)
@@ -353,16 +349,12 @@ def fit_mount(
 
 def corrected(mount: SonarMountConfig, fit: MountFit) -> SonarMountConfig:
     """The mount with the determined corrections applied (angles stay in the config's terms)."""
-    import msgspec
-
     sonar = _mount_with(
         mount,
         math.radians(fit.yaw_deg) if fit.yaw_determined else 0.0,
         math.radians(fit.roll_deg) if fit.roll_determined else 0.0,
         (0.0, fit.shift_y_m if fit.shift_determined else 0.0),
     )
-    from capsd.geometry import matrix_to_euler_zyx
-
     yaw, pitch, roll = (math.degrees(v) for v in matrix_to_euler_zyx(sonar.rotation))
     x, y, z = (round(float(v), 4) for v in sonar.translation)
     return msgspec.structs.replace(

@@ -254,6 +254,18 @@ def report(figures: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def _ci(values: list[float]) -> str:
+    return f"[{values[0]:g}, {values[1]:g}]"
+
+
+def _targets(comparison: dict[str, Any]) -> tuple[str, bool]:
+    """Issue 24's two verdicts as table cells ("met | NOT met"), and whether both hold."""
+    ok_med = comparison["ours_med_mm"] <= MAX_MED_MM
+    ok_ratio = comparison["ratio_ci"][1] <= MAX_RATIO
+    cells = f"{'met' if ok_med else 'NOT met'} | {'met' if ok_ratio else 'NOT met'}"
+    return cells, ok_med and ok_ratio
+
+
 def common_report(figures: dict[str, Any]) -> list[str]:
     """Ours against both baselines on the pings both fix, with 95 % block-bootstrap intervals."""
     bias = figures["box_range_bias_mm"]
@@ -277,25 +289,19 @@ def common_report(figures: dict[str, Any]) -> list[str]:
             lines.append(f"| {name} | 0 | - | - | - | - | NOT met | NOT met |")
             all_met = False
             continue
-        ok_med = calibrated["ours_med_mm"] <= MAX_MED_MM
-        ok_ratio = calibrated["ratio_ci"][1] <= MAX_RATIO
-        all_met &= ok_med and ok_ratio
-
-        def ci(values: list[float]) -> str:
-            return f"[{values[0]:g}, {values[1]:g}]"
-
+        verdicts, met = _targets(calibrated)
+        all_met &= met
         published_med = (
-            f"{published['other_med_mm']} {ci(published['other_med_ci_mm'])}"
+            f"{published['other_med_mm']} {_ci(published['other_med_ci_mm'])}"
             if "other_med_mm" in published
             else "-"
         )
         lines.append(
             f"| {name} | {calibrated['common_pings']} "
-            f"| {calibrated['ours_med_mm']} {ci(calibrated['ours_med_ci_mm'])} "
+            f"| {calibrated['ours_med_mm']} {_ci(calibrated['ours_med_ci_mm'])} "
             f"| {published_med} "
-            f"| {calibrated['other_med_mm']} {ci(calibrated['other_med_ci_mm'])} "
-            f"| {calibrated['ratio']} {ci(calibrated['ratio_ci'])} "
-            f"| {'met' if ok_med else 'NOT met'} | {'met' if ok_ratio else 'NOT met'} |"
+            f"| {calibrated['other_med_mm']} {_ci(calibrated['other_med_ci_mm'])} "
+            f"| {calibrated['ratio']} {_ci(calibrated['ratio_ci'])} | {verdicts} |"
         )
     lines += [
         "",
@@ -329,18 +335,15 @@ def self_calibrated_report(figures: dict[str, Any]) -> list[str]:
             lines.append(f"| {name} | - | - | - | {before} | - | - | - | NOT met | NOT met |")
             all_met = False
             continue
-        ok_med = c["ours_med_mm"] <= MAX_MED_MM
-        ok_ratio = c["ratio_ci"][1] <= MAX_RATIO
-        all_met &= ok_med and ok_ratio
+        verdicts, met = _targets(c)
+        all_met &= met
         lines.append(
             f"| {name} | {cal['yaw_deg']} / {cal['yaw_wanted_deg']} "
             f"| {cal['roll_deg']} / {cal['roll_wanted_deg']} "
             f"| {cal['y_mm']} / {cal['y_wanted_mm']} "
-            f"| {before} | {c['ours_med_mm']} [{c['ours_med_ci_mm'][0]:g}, "
-            f"{c['ours_med_ci_mm'][1]:g}] | {c['other_med_mm']} [{c['other_med_ci_mm'][0]:g}, "
-            f"{c['other_med_ci_mm'][1]:g}] | {c['ratio']} [{c['ratio_ci'][0]:g}, "
-            f"{c['ratio_ci'][1]:g}] | {'met' if ok_med else 'NOT met'} "
-            f"| {'met' if ok_ratio else 'NOT met'} |"
+            f"| {before} | {c['ours_med_mm']} {_ci(c['ours_med_ci_mm'])} "
+            f"| {c['other_med_mm']} {_ci(c['other_med_ci_mm'])} "
+            f"| {c['ratio']} {_ci(c['ratio_ci'])} | {verdicts} |"
         )
     lines += ["", f"All met: {'yes' if all_met else 'no'}"]
     return lines

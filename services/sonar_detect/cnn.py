@@ -29,10 +29,10 @@ import torch
 from torch.nn import functional
 
 from capsd.payloads import Detection, SonarFrame
+from capsd.sonar_image import Image
 from services.sonar_detect.polar_input import (
     BeamTable,
     Grid,
-    Image,
     coarse_input,
     crop,
     crop_pair,

@@ -24,7 +24,7 @@ import numpy as np
 
 from capsd.codec import Codec
 from capsd.errors import CapsdError
-from capsd.keys import Subject
+from capsd.keys import Subject, subject_of
 from capsd.mounts import SonarMountConfig
 from capsd.payloads import AsvPose, RovFix, SonarFrame
 from capsd.pose_lookup import PoseLookup
@@ -56,12 +56,6 @@ class LabelSummary:
     unreadable: int
 
 
-def _key_subject(key: str) -> str:
-    """'cap/site/vehicle/sonar/frame' -> 'sonar/frame'."""
-    parts = key.split("/")
-    return "/".join(parts[3:]) if len(parts) > 3 else ""
-
-
 def label_recording(
     recording: Path, *, sonar: SonarMountConfig, max_sigma_m: float = 0.05
 ) -> tuple[list[LabelledPing], LabelSummary]:
@@ -72,7 +66,7 @@ def label_recording(
     unreadable = 0
     fix_codec, pose_codec, frame_codec = Codec(RovFix), Codec(AsvPose), Codec(SonarFrame)
     for message in read(recording):
-        subject = _key_subject(message.key)
+        subject = subject_of(message.key)
         try:
             if subject == Subject.SONAR_FRAME.value:
                 frame = frame_codec.decode(

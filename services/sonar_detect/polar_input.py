@@ -22,23 +22,13 @@ import numpy as np
 import numpy.typing as npt
 
 from capsd.payloads import SonarFrame
-
-Image = npt.NDArray[np.float32]
+from capsd.sonar_image import Image, unit_image
 
 COARSE_RANGE_M = 0.08
 COARSE_BEAMS = 128
 CROP_SIZE = 96
 CROP_STEP_M = 0.02
 CONTEXT_STEP_M = 0.08  # the context channel: the same grid 4x coarser, 7.7 m across
-
-
-def unit_image(frame: SonarFrame) -> Image:
-    """The frame's samples as float32 in 0..1 (8- and 16-bit alike), n_ranges x n_beams."""
-    if frame.sample_bits == 8:
-        raw = np.frombuffer(frame.image, dtype=np.uint8).reshape(frame.n_ranges, frame.n_beams)
-        return np.asarray(np.multiply(raw, np.float32(1.0 / 255.0), dtype=np.float32))
-    raw16 = np.frombuffer(frame.image, dtype="<u2").reshape(frame.n_ranges, frame.n_beams)
-    return np.asarray(np.multiply(raw16, np.float32(1.0 / 65535.0), dtype=np.float32))
 
 
 # The normalised input: each range row's background (the median over beams) at 0, the frame's

@@ -19,7 +19,6 @@ from capsd.codec import Codec
 from capsd.errors import CapsdError
 from capsd.geometry import Transform, matrix_to_quat
 from capsd.mount_calibration import (
-    BEAM_HALF_WIDTH,
     Observation,
     _beam_directions,
     _mount_with,
@@ -45,8 +44,8 @@ def _asv(heading_rad: float) -> Transform:
 def _frame(asv: Transform, true_sonar: Transform, rng: np.random.Generator, k: int) -> SonarFrame:
     """Water at ~20/255 with noise; each beam's wall band from where the true mount puts it."""
     spacing = float(AZIMUTHS[1] - AZIMUTHS[0])
-    rays, _ = _beam_directions(MOUNT, AZIMUTHS, math.radians(20.0), 0.0, spacing)
-    edges = predicted_edges([asv], true_sonar, rays, TANK)[0]
+    rays = _beam_directions(MOUNT, AZIMUTHS, math.radians(20.0), 0.0, spacing)
+    edges = predicted_edges(asv, true_sonar, rays, TANK)
     ranges = (np.arange(N_RANGES) + 0.5) * RESOLUTION_M
     image = rng.normal(20.0, 6.0, (N_RANGES, N_BEAMS))
     for b, edge in enumerate(edges):
@@ -87,7 +86,7 @@ def test_a_level_ray_meets_the_wall_it_points_at(x: float, y: float, heading: fl
     origin = Transform.from_euler_zyx((x, y, -1.0), yaw_rad=heading, pitch_rad=0.0, roll_rad=0.0)
     ray = np.array([[[1.0, 0.0, 0.0]]])  # along the sonar's x, level
     level = Transform.from_euler_zyx((0, 0, 0), yaw_rad=0.0, pitch_rad=0.0, roll_rad=0.0)
-    (edge,) = predicted_edges([origin], level, ray, TANK)[0]
+    (edge,) = predicted_edges(origin, level, ray, TANK)
     dx, dy = math.cos(heading), math.sin(heading)
     t = min(
         ((TANK.length_m - x) / dx) if dx > 1e-9 else (-x / dx) if dx < -1e-9 else math.inf,
@@ -105,7 +104,6 @@ def test_a_known_heading_and_roll_error_is_recovered(yaw_deg: float, roll_deg: f
     assert fit.roll_deg == pytest.approx(roll_deg, abs=0.2)
     assert fit.shift_y_m == pytest.approx(0.02, abs=0.01)
     assert abs(fit.yaw_deg - yaw_deg) < 4 * fit.yaw_sigma_deg + 0.01  # an honest sigma
-    assert BEAM_HALF_WIDTH > 0
 
 
 def test_without_walls_in_view_it_refuses() -> None:

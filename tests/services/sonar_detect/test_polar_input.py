@@ -9,6 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from capsd.payloads import SonarFrame
+from capsd.sonar_image import unit_image
 from services.sonar_detect.polar_input import (
     CROP_SIZE,
     CROP_STEP_M,
@@ -16,7 +17,6 @@ from services.sonar_detect.polar_input import (
     Grid,
     coarse_input,
     crop,
-    unit_image,
 )
 
 
