@@ -30,13 +30,18 @@ class Scored:
     covariance_m2: tuple[float, ...] | None = None  # the reported covariance of the estimate
 
 
-def score(fix: RovFix, label: SonarLabel) -> Scored:
+def scored(fix: RovFix, truth_m: tuple[float, float, float]) -> Scored:
+    """A fix against where the ROV truly was (the simulator's label, or a reference)."""
     good = fix.quality == "good"
     tracked = good and fix.position_m is not None
     estimate = fix.position_m or fix.raw_position_m if good else None
     raw = fix.raw_position_m if good else None
     covariance = fix.covariance_m2 if tracked else fix.raw_covariance_m2 if good else None
-    return Scored(fix.stamp_ns, estimate, raw, label.rov_position_m, covariance)
+    return Scored(fix.stamp_ns, estimate, raw, truth_m, covariance)
+
+
+def score(fix: RovFix, label: SonarLabel) -> Scored:
+    return scored(fix, label.rov_position_m)
 
 
 # 95 % of a chi-square law with 3 degrees of freedom: a consistent 3-D estimate's NEES is

@@ -512,6 +512,12 @@ def _cmd_import_bag(args: argparse.Namespace) -> int:
     if result["mapped_topics_missing"]:
         print(f"mapped but not in the bag: {result['mapped_topics_missing']}", file=sys.stderr)
     print(f"wrote {sum(result['written'].values())} messages to {args.output}")
+    if result["empty_topics"]:
+        return _fail(
+            f"import-bag: mapped topics gave no message: {result['empty_topics']} "
+            "(the rejections above say why)",
+            EXIT_CONFIG,
+        )
     return EXIT_OK
 
 
@@ -574,6 +580,19 @@ def _cmd_bench_calibrate(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_bench_evaluate(args: argparse.Namespace) -> int:
+    from capsd.bench import evaluate
+
+    result = evaluate.bench(
+        tank=args.tank,
+        trajectory=args.trajectory,
+        seed=args.seed,
+        duration_s=args.duration,
+        out_dir=args.out,
+    )
+    return EXIT_OK if all(result["verdicts"].values()) else EXIT_FAILURE
+
+
 def _cmd_bench_consistency(args: argparse.Namespace) -> int:
     from capsd.bench import consistency
 
@@ -626,6 +645,28 @@ def _cmd_label(args: argparse.Namespace) -> int:
         return _fail("label: no frame could be labelled (no confident tracked fix)", EXIT_FAILURE)
     sheets = write_labels(labels, args.out)
     print(f"labels in {args.out}: {len(sheets)} contact sheets; reject crops in rejected.txt")
+    return EXIT_OK
+
+
+def _cmd_evaluate(args: argparse.Namespace) -> int:
+    from capsd.evaluate import evaluate, load, report
+
+    try:
+        inputs = load(args.recording, reference=args.reference, fixes=args.fixes)
+        evaluation = evaluate(
+            inputs,
+            with_scale=args.fit == "similarity",
+            max_offset_s=args.max_clock_offset,
+            offset_s=None if args.clock_offset_ms is None else args.clock_offset_ms / 1000,
+            max_gap_s=args.max_gap,
+        )
+    except CapsdError as exc:
+        return _fail(f"evaluate: {exc}", EXIT_CONFIG)
+    figures = report(evaluation, args.out, title=", ".join(p.name for p in args.recording))
+    print((args.out / "evaluation.md").read_text())
+    print(f"written: {args.out}/evaluation.md, evaluation.json and 3 PNGs")
+    if figures["alignment"]["problems"]:
+        return _fail("evaluate: the alignment is not determined (see above)", EXIT_FAILURE)
     return EXIT_OK
 
 
@@ -1027,6 +1068,26 @@ def build_parser() -> argparse.ArgumentParser:
         "--out", type=Path, default=Path("reports/calibrate.json"), help="figures as JSON"
     )
     bcal.set_defaults(func=_cmd_bench_calibrate)
+    beval = bench_sub.add_parser(
+        "evaluate",
+        help="`capsd evaluate` on a simulated dive with a rotated, shifted, late reference",
+        description="The offline pipeline's fixes and a motion-capture stand-in (the tank "
+        "frame rotated 30 deg and shifted 2 m, stamps 150 ms late, 100 Hz, 0.5 mm noise, "
+        "marker swaps, an occlusion) in one recording; `capsd evaluate`'s recovered transform, "
+        "clock offset and MED against the known answer and the accuracy bench's MED.",
+    )
+    beval.add_argument("--tank", choices=["nfp", "mockup", "pond"], default="nfp")
+    beval.add_argument(
+        "--trajectory",
+        choices=["square", "lawnmower", "bouncing", "random", "two_floor"],
+        default="square",
+    )
+    beval.add_argument("--seed", type=int, default=0, help="simulator seed")
+    beval.add_argument("--duration", type=positive_float, default=300.0, help="simulated seconds")
+    beval.add_argument(
+        "--out", type=Path, default=Path("reports/bench-evaluate"), help="report folder"
+    )
+    beval.set_defaults(func=_cmd_bench_evaluate)
     bcons = bench_sub.add_parser(
         "consistency",
         help="the locator's covariance floor derived on tuning runs, NEES on held-out ones",
@@ -1149,8 +1210,11 @@ def build_parser() -> argparse.ArgumentParser:
     imp = sub.add_parser(
         "import-bag",
         help="a ROS 1/ROS 2 bag into a replayable MCAP recording, by a topic mapping file",
-        description="Convert the mapped topics (LaserScan, Imu, Odometry/PoseWithCovariance) "
-        "into CAP-SD payloads on their keys; `capsd replay` plays the result.",
+        description="Convert the mapped topics (LaserScan, Imu; PoseStamped, "
+        "PoseWithCovarianceStamped, TransformStamped, /tf, Odometry as an input pose or as a "
+        "reference for `capsd evaluate`) into CAP-SD payloads on their keys; `capsd replay` "
+        "plays the result. Exit 2 when a topic's type does not fit its mapping or a mapped "
+        "topic gives nothing.",
     )
     imp.add_argument("bag", type=Path, help="a ROS 1 .bag file or a ROS 2 bag directory")
     imp.add_argument("--mapping", type=Path, required=True, help="topic mapping YAML")
@@ -1283,6 +1347,31 @@ def build_parser() -> argparse.ArgumentParser:
     )
     cal.add_argument("-o", "--out", type=Path, required=True, help="the calibrated config")
     cal.set_defaults(func=_cmd_calibrate)
+    ev = sub.add_parser(
+        "evaluate",
+        help="score a recording's fixes against a reference system (motion capture)",
+        description="Align the reference (ReferencePose on `ref/pose`: `capsd import-bag` with "
+        "`as: reference`, or the ROS 2 input's reference_topic; or the simulator's truth) to "
+        "the fixes: rigid transform (or similarity) by robust Umeyama and the clock offset by "
+        "search; then the accuracy bench's report: MED, RMSE per axis, p95, availability, "
+        "3D trajectory, per-axis plots, error histogram. Exit 1 when the alignment is not "
+        "determined (a dive along a line, a vehicle that hardly moved).",
+    )
+    ev.add_argument("recording", type=Path, nargs="+", help="MCAP recordings (read together)")
+    ev.add_argument("--reference", default=None, help="the reference's key, or its end "
+                    "(default: the one `ref/pose` key)")  # fmt: skip
+    ev.add_argument("--fixes", default=None, help="the fixes' key (default: the one "
+                    "`locator/fix` key)")  # fmt: skip
+    ev.add_argument("--fit", choices=("rigid", "similarity"), default="rigid",
+                    help="similarity also fits a scale (a reference in other units)")  # fmt: skip
+    ev.add_argument("--clock-offset-ms", type=float, default=None,
+                    help="reference stamps minus fix stamps (default: estimated)")  # fmt: skip
+    ev.add_argument("--max-clock-offset", type=positive_float, default=1.0,
+                    help="seconds either way the offset search covers")  # fmt: skip
+    ev.add_argument("--max-gap", type=positive_float, default=0.1,
+                    help="seconds: no reference value across a longer gap")  # fmt: skip
+    ev.add_argument("--out", type=Path, default=Path("reports/evaluate"), help="report folder")
+    ev.set_defaults(func=_cmd_evaluate)
     tcal = train.add_parser(
         "calibrate",
         help="set the polar CNN's operating point on validation runs (part of `detector`)",

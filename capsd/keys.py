@@ -33,11 +33,20 @@ class Subject(StrEnum):
     SIM_ASV_POSE = "sim/asv_pose"
     SIM_DETECTIONS = "sim/detections"
     SIM_CONTROL = "sim/control"  # fault injection into the simulator (tests, benches)
+    # A reference system's pose of the vehicle (motion capture): what fixes are scored against.
+    REFERENCE_POSE = "ref/pose"
 
 
-# What only benches, taps and recordings may read: no service subscribes to these.
+# What only benches, taps, recordings and evaluation may read: no service subscribes to these
+# (the simulator's truth and a reference system's poses are what fixes are scored against).
 TRUTH_SUBJECTS = frozenset(
-    {Subject.SIM_TRUTH, Subject.SIM_LABEL, Subject.SIM_ASV_POSE, Subject.SIM_DETECTIONS}
+    {
+        Subject.SIM_TRUTH,
+        Subject.SIM_LABEL,
+        Subject.SIM_ASV_POSE,
+        Subject.SIM_DETECTIONS,
+        Subject.REFERENCE_POSE,
+    }
 )
 
 

@@ -366,6 +366,26 @@ class RovFix(Payload, frozen=True, kw_only=True):
             raise ValueError("a 'good' fix must carry a position")
 
 
+# ---------------------------------------------------------------- reference
+
+
+class ReferencePose(Payload, frozen=True, kw_only=True):
+    """A reference system's pose of a vehicle (motion capture, a survey): for evaluation only.
+
+    In the reference system's own frame (`frame_id`) and on its own clock: `capsd evaluate`
+    estimates both. `orientation_xyzw` is None where the system gives a position only.
+    """
+
+    position_m: Vec3
+    orientation_xyzw: QuatXYZW | None = None
+    frame_id: str = ""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.orientation_xyzw is not None:
+            _check_quaternion("orientation_xyzw", self.orientation_xyzw)
+
+
 # ---------------------------------------------------------------- simulator
 
 
@@ -436,6 +456,7 @@ ALL_PAYLOADS: tuple[type[Payload], ...] = (
     RovVelocity,
     RovStatus,
     RovFix,
+    ReferencePose,
     GroundTruth,
     SonarLabel,
     SimControl,

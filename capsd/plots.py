@@ -29,7 +29,9 @@ def _series(accuracy: Accuracy) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return t, truth, est
 
 
-def trajectory_3d(runs: dict[str, Accuracy], out: Path, *, title: str) -> None:
+def trajectory_3d(
+    runs: dict[str, Accuracy], out: Path, *, title: str, truth_label: str = "truth"
+) -> None:
     """Truth (black) and each method's estimates in 3D."""
     fig = plt.figure(figsize=(8, 6))
     ax = fig.add_subplot(projection="3d")
@@ -37,7 +39,7 @@ def trajectory_3d(runs: dict[str, Accuracy], out: Path, *, title: str) -> None:
     for name, accuracy in runs.items():
         _, truth, est = _series(accuracy)
         if not drawn_truth and len(truth):
-            ax.plot(truth[:, 0], truth[:, 1], truth[:, 2], color="black", lw=1.5, label="truth")
+            ax.plot(truth[:, 0], truth[:, 1], truth[:, 2], color="black", lw=1.5, label=truth_label)
             drawn_truth = True
         ax.plot(est[:, 0], est[:, 1], est[:, 2], lw=0.8, label=name)
     ax.set_xlabel("x (m)")
@@ -68,7 +70,9 @@ def _all_points(runs: dict[str, Accuracy]) -> np.ndarray:
     return points if len(points) else np.zeros((1, 3))
 
 
-def per_axis(runs: dict[str, Accuracy], out: Path, *, title: str) -> None:
+def per_axis(
+    runs: dict[str, Accuracy], out: Path, *, title: str, truth_label: str = "truth"
+) -> None:
     """x, y and z over time: truth and each method."""
     fig, axes = plt.subplots(3, 1, figsize=(10, 7), sharex=True)
     drawn_truth = False
@@ -76,7 +80,7 @@ def per_axis(runs: dict[str, Accuracy], out: Path, *, title: str) -> None:
         t, truth, est = _series(accuracy)
         for k, ax in enumerate(axes):
             if not drawn_truth:
-                ax.plot(t, truth[:, k], color="black", lw=1.5, label="truth")
+                ax.plot(t, truth[:, k], color="black", lw=1.5, label=truth_label)
             ax.plot(t, est[:, k], lw=0.8, label=name)
         drawn_truth = True
     for k, ax in enumerate(axes):

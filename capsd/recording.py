@@ -105,6 +105,12 @@ class McapRecorder:
         self._writer.finish()  # type: ignore[no-untyped-call]
         self._file.close()
 
+    def __enter__(self) -> McapRecorder:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
 
 def record(
     session: zenoh.Session,

@@ -383,7 +383,9 @@ class ServiceRunner:
         key = topic.key(self.config.site, vehicle or self.config.vehicle)
         if topic.subject in TRUTH_SUBJECTS:
             # Truth reaches benches, taps and recordings only, never a service's logic.
-            raise KeyExprError(f"'{key}' carries simulator truth: no service subscribes to it")
+            raise KeyExprError(
+                f"'{key}' carries simulator truth or a reference: no service subscribes to it"
+            )
         codec = Codec(topic.payload)
         counter = StreamCounter(key)
         transport = self.latency(f"transport {topic.subject.value}")

@@ -1,11 +1,14 @@
-"""ROS 2 sensors in: LaserScan, Imu and an external pose from rmw_zenoh, as CAP-SD payloads.
+"""ROS 2 sensors in: LaserScan, Imu, an external pose and a reference pose from rmw_zenoh.
 
 For ASVs that already run ROS 2 drivers (or a SLAM) over rmw_zenoh: this process subscribes to
 their topics on the same Zenoh network, decodes the CDR payloads with `rosbags` (the ROS 2
 message definitions of `distro`), and publishes the same LidarScan / ImuSample payloads the
 simulator and the TiM client publish, and the external pose as an AsvPose on
-`asv/pose_external` (for asv_pose's `source: external`). Stamps come from the messages'
-headers. rmw_zenoh keys are `<domain_id>/<topic without leading slash>/<DDS type>/<type hash>`;
+`asv/pose_external` (for asv_pose's `source: external`). A motion-capture system's pose of a
+vehicle (`reference_topic`) becomes a ReferencePose on `<reference_vehicle>/ref/pose`, which no
+service reads: `capsd record` keeps it beside the fixes for `capsd evaluate`. Conversions are
+capsd.ros_messages' (the same as `capsd import-bag`). Stamps come from the messages' headers.
+rmw_zenoh keys are `<domain_id>/<topic without leading slash>/<DDS type>/<type hash>`;
 the hash is matched by a wildcard, so any ROS 2 distribution's publisher is heard.
 
 Edge checks: a payload that does not decode, or decodes to nonsense (no ranges, a zero or NaN
@@ -22,24 +25,32 @@ from collections.abc import Callable
 from typing import Annotated, Any, Literal
 
 import msgspec
-import numpy as np
 import zenoh
 
 from capsd import topics
 from capsd.config import ServiceConfig
-from capsd.keys import is_concrete
-from capsd.payloads import AsvPose, ImuSample, LidarScan
+from capsd.errors import KeyExprError
+from capsd.keys import check_name, is_concrete
+from capsd.payloads import AsvPose, ReferencePose
+from capsd.ros_messages import (
+    IMU_TYPE,
+    POSE_TYPES,
+    SCAN_TYPE,
+    PoseSigma,
+    PoseType,
+    asv_pose,
+    imu_payload,
+    reference_pose,
+    scan_payload,
+    stamped_poses,
+)
 from capsd.runner import ServiceRunner
 
 logger = logging.getLogger(__name__)
 
 Distro = Literal["humble", "jazzy"]
-PoseType = Literal["odometry", "pose_with_covariance"]
-ROS_TYPES = {
-    "scan": "sensor_msgs/msg/LaserScan",
-    "imu": "sensor_msgs/msg/Imu",
-    "odometry": "nav_msgs/msg/Odometry",
-    "pose_with_covariance": "geometry_msgs/msg/PoseWithCovarianceStamped",
+ROS_TYPES: dict[str, str] = {"scan": SCAN_TYPE, "imu": IMU_TYPE} | {
+    kind: name for kind, name in POSE_TYPES.items()
 }
 
 
@@ -53,13 +64,38 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     imu_topic: str | None = "/imu/data"
     pose_topic: str | None = None  # e.g. /slam/odom: an existing SLAM's pose
     pose_type: PoseType = "odometry"
+    # For pose types without a covariance (pose_stamped, transform, tf): the pose's sigmas.
+    pose_position_sigma_m: Annotated[float, msgspec.Meta(gt=0.0)] | None = None
+    pose_angle_sigma_deg: Annotated[float, msgspec.Meta(gt=0.0)] | None = None
+    # A reference system (motion capture) tracking a vehicle, recorded for `capsd evaluate`.
+    reference_topic: str | None = None
+    reference_type: PoseType = "pose_stamped"
+    reference_vehicle: str = "rov"
+    # For `transform` / `tf` types: the tracked body's frame (a /tf message carries many).
+    child_frame: str | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        for name in ("scan_topic", "imu_topic", "pose_topic"):
+        for name in ("scan_topic", "imu_topic", "pose_topic", "reference_topic"):
             topic = getattr(self, name)
             if topic is not None and (not topic.strip("/") or any(c in topic for c in "*$?# ")):
                 raise ValueError(f"field '{name}': {topic!r} is not a ROS 2 topic name")
+        try:
+            check_name("vehicle", self.reference_vehicle)
+        except KeyExprError as exc:
+            raise ValueError(f"field 'reference_vehicle': {exc}") from None
+        if (self.pose_position_sigma_m is None) != (self.pose_angle_sigma_deg is None):
+            raise ValueError(
+                "fields 'pose_position_sigma_m' and 'pose_angle_sigma_deg' go together"
+            )
+        uses_frame = {self.reference_type} | ({self.pose_type} if self.pose_topic else set())
+        if "tf" in uses_frame and self.child_frame is None:
+            raise ValueError("field 'child_frame': a /tf pose needs the tracked body's frame")
+
+    def pose_sigma(self) -> PoseSigma | None:
+        if self.pose_position_sigma_m is None or self.pose_angle_sigma_deg is None:
+            return None
+        return PoseSigma(self.pose_position_sigma_m, math.radians(self.pose_angle_sigma_deg))
 
 
 def dds_type_name(ros_type: str) -> str:
@@ -71,86 +107,6 @@ def dds_type_name(ros_type: str) -> str:
 def ros_key(domain_id: int, topic: str, ros_type: str, type_hash: str = "*") -> str:
     """The rmw_zenoh key expression of a topic (any type hash by default)."""
     return f"{domain_id}/{topic.strip('/')}/{dds_type_name(ros_type)}/{type_hash}"
-
-
-def _stamp_ns(header: Any) -> int:
-    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
-
-
-def _finite(*values: float) -> bool:
-    return all(math.isfinite(v) for v in values)
-
-
-def scan_payload(msg: Any, seq: int) -> LidarScan:
-    """sensor_msgs/LaserScan -> LidarScan (ranges outside the valid band become 0)."""
-    ranges = np.asarray(msg.ranges, dtype=np.float64)
-    if ranges.size == 0:
-        raise ValueError("LaserScan without ranges")
-    increment = float(msg.angle_increment)
-    start = float(msg.angle_min)
-    if not _finite(increment, start) or increment == 0.0:
-        raise ValueError(f"LaserScan angle_increment {increment} / angle_min {start} unusable")
-    r_min, r_max = float(msg.range_min), float(msg.range_max)
-    if not _finite(r_min, r_max) or r_max <= 0.0:
-        raise ValueError(f"LaserScan range_max {r_max} unusable")
-    valid = np.isfinite(ranges) & (ranges >= r_min) & (ranges <= r_max)
-    ranges = np.where(valid, ranges, 0.0)
-    intensities = np.asarray(msg.intensities, dtype=np.float64)
-    if intensities.size != ranges.size or not np.all(np.isfinite(intensities)):
-        intensities = np.zeros(0)
-    if increment < 0.0:  # a scanner that turns clockwise: same rays, increasing angle
-        start = start + increment * (ranges.size - 1)
-        increment = -increment
-        ranges = ranges[::-1]
-        intensities = intensities[::-1]
-    return LidarScan(
-        stamp_ns=_stamp_ns(msg.header),
-        seq=seq,
-        angle_min_rad=start,
-        angle_increment_rad=increment,
-        time_increment_s=max(0.0, float(msg.time_increment)),
-        range_min_m=max(0.0, r_min),
-        range_max_m=r_max,
-        ranges_m=tuple(float(r) for r in ranges),
-        intensities=tuple(float(v) for v in intensities),
-    )
-
-
-def imu_payload(msg: Any, seq: int) -> ImuSample:
-    """sensor_msgs/Imu -> ImuSample (orientation, if any, is not used: our tilt filter runs)."""
-    w, a = msg.angular_velocity, msg.linear_acceleration
-    values = (float(w.x), float(w.y), float(w.z), float(a.x), float(a.y), float(a.z))
-    if not _finite(*values):
-        raise ValueError("Imu with non-finite rates or accelerations")
-    return ImuSample(
-        stamp_ns=_stamp_ns(msg.header),
-        seq=seq,
-        angular_velocity_rad_s=values[:3],
-        linear_acceleration_m_s2=values[3:],
-    )
-
-
-def pose_payload(msg: Any, seq: int, *, pose_type: PoseType) -> AsvPose:
-    """nav_msgs/Odometry or geometry_msgs/PoseWithCovarianceStamped -> AsvPose (external)."""
-    with_cov = msg.pose  # both carry a PoseWithCovariance at .pose
-    p, q = with_cov.pose.position, with_cov.pose.orientation
-    position = (float(p.x), float(p.y), float(p.z))
-    quat = (float(q.x), float(q.y), float(q.z), float(q.w))
-    cov = tuple(float(v) for v in np.asarray(with_cov.covariance, dtype=np.float64).ravel())
-    if len(cov) != 36 or not _finite(*position, *quat, *cov):
-        raise ValueError(f"{pose_type} pose or covariance not finite (or not 6 x 6)")
-    norm = math.sqrt(sum(v * v for v in quat))
-    if norm < 1e-6:
-        raise ValueError(f"{pose_type} orientation is not a rotation (zero quaternion)")
-    return AsvPose(
-        stamp_ns=_stamp_ns(msg.header),
-        seq=seq,
-        position_m=position,
-        orientation_xyzw=(quat[0] / norm, quat[1] / norm, quat[2] / norm, quat[3] / norm),
-        covariance=cov,
-        status="ok",
-        source="external",
-    )
 
 
 def main(config: Config) -> int:
@@ -166,7 +122,7 @@ def main(config: Config) -> int:
         def bridge(
             topic_name: str,
             ros_type: str,
-            convert: Callable[[Any, int], Any],
+            convert: Callable[[Any, Callable[[], int]], list[Any]],
             publish: Callable[[Any], None],
             next_seq: Callable[[], int],
             what: str,
@@ -181,13 +137,14 @@ def main(config: Config) -> int:
                     return
                 try:
                     msg = store.deserialize_cdr(sample.payload.to_bytes(), ros_type)
-                    payload = convert(msg, next_seq())
+                    payloads = convert(msg, next_seq)
                 except Exception as exc:  # rosbags raises many types for bad CDR
                     counts[f"{what}_rejected"] += 1
                     runner.report_error(f"ROS 2 {what} on '{key_expr}' dropped: {exc}")
                     return
-                publish(payload)
-                counts[what] += 1
+                for payload in payloads:  # a /tf message may carry none of the tracked frame
+                    publish(payload)
+                    counts[what] += 1
 
             subscribers.append(runner.session.declare_subscriber(key, on_sample))
             logger.info("bridging ROS 2 topic", extra={"fields": {"key": key, "as": what}})
@@ -197,7 +154,7 @@ def main(config: Config) -> int:
             bridge(
                 config.scan_topic,
                 ROS_TYPES["scan"],
-                scan_payload,
+                lambda msg, seq: [scan_payload(msg, seq())],
                 out_scan.put,
                 out_scan.next_seq,
                 "scans",
@@ -207,16 +164,18 @@ def main(config: Config) -> int:
             bridge(
                 config.imu_topic,
                 ROS_TYPES["imu"],
-                imu_payload,
+                lambda msg, seq: [imu_payload(msg, seq())],
                 out_imu.put,
                 out_imu.next_seq,
                 "imu",
             )
         if config.pose_topic is not None:
             out_pose = runner.publisher(topics.ASV_POSE_EXTERNAL)
+            sigma = config.pose_sigma()
 
-            def convert_pose(msg: Any, seq: int) -> AsvPose:
-                return pose_payload(msg, seq, pose_type=config.pose_type)
+            def convert_pose(msg: Any, seq: Callable[[], int]) -> list[AsvPose]:
+                poses = stamped_poses(msg, config.pose_type, child_frame=config.child_frame)
+                return [asv_pose(p, seq(), sigma=sigma) for p in poses]
 
             bridge(
                 config.pose_topic,
@@ -225,6 +184,23 @@ def main(config: Config) -> int:
                 out_pose.put,
                 out_pose.next_seq,
                 "poses",
+            )
+        if config.reference_topic is not None:
+            out_reference = runner.publisher(
+                topics.REFERENCE_POSE, vehicle=config.reference_vehicle
+            )
+
+            def convert_reference(msg: Any, seq: Callable[[], int]) -> list[ReferencePose]:
+                poses = stamped_poses(msg, config.reference_type, child_frame=config.child_frame)
+                return [reference_pose(p, seq()) for p in poses]
+
+            bridge(
+                config.reference_topic,
+                ROS_TYPES[config.reference_type],
+                convert_reference,
+                out_reference.put,
+                out_reference.next_seq,
+                "reference_poses",
             )
         try:
             runner.run()

@@ -15,6 +15,7 @@ from capsd.payloads import (
     LidarScan,
     Log,
     Payload,
+    ReferencePose,
     RovAttitude,
     RovDepth,
     RovFix,
@@ -75,4 +76,5 @@ SAMPLES: tuple[Payload, ...] = (
                 asv_orientation_xyzw=_IDENTITY,
                 rov_position_m=(3.0, 4.0, -2.0), rov_orientation_xyzw=_IDENTITY),
     SimControl(stamp_ns=STAMP, seq=1, mute=("asv/scan@asv",), for_s=5.0),
+    ReferencePose(stamp_ns=STAMP, seq=3, position_m=(0.5, -0.1, -1.1), frame_id="mocap"),
 )  # fmt: skip

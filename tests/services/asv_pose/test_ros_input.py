@@ -1,4 +1,4 @@
-"""ROS 2 input: CDR LaserScan / Imu / Odometry on rmw_zenoh keys into the pose service."""
+"""ROS 2 input: CDR LaserScan / Imu / Odometry into the pose service, a mocap pose as reference."""
 
 from __future__ import annotations
 
@@ -19,8 +19,9 @@ from capsd.codec import Codec
 from capsd.geometry import Transform, euler_zyx_to_matrix, matrix_to_euler_zyx, quat_to_matrix
 from capsd.health import query_health
 from capsd.keys import is_concrete
-from capsd.payloads import AsvPose, LidarScan
-from services.asv_pose.ros_input import ROS_TYPES, ros_key, scan_payload
+from capsd.payloads import AsvPose, LidarScan, ReferencePose
+from capsd.ros_messages import scan_payload
+from services.asv_pose.ros_input import ROS_TYPES, ros_key
 from simulator.lidar import LidarModel, scan
 from simulator.world import make_tank
 from tests.conftest import Proc, wait_for
@@ -213,3 +214,42 @@ def test_external_slam_pose_replaces_the_scan_matcher(
     last = [p for p in poses.got if p.status == "ok"][-1]
     assert last.source == "external"
     assert math.hypot(last.position_m[0] - truth[0], last.position_m[1] - truth[1]) < 0.01
+
+
+def _pose_stamped(stamp_ns: int, x: float) -> Any:
+    point = T["geometry_msgs/msg/Point"](x=x, y=1.0, z=-1.5)
+    quat = T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)
+    return T[ROS_TYPES["pose_stamped"]](
+        header=_header(stamp_ns), pose=T["geometry_msgs/msg/Pose"](position=point, orientation=quat)
+    )
+
+
+@pytest.mark.integration
+def test_a_mocap_pose_becomes_a_reference_no_service_reads(
+    spawn: Callable[..., Proc], router: Proc, endpoint: str, client: zenoh.Session, tmp_path: Path
+) -> None:
+    references = _Collect(client, topics.REFERENCE_POSE.key("tank", "rov"), ReferencePose)
+    ros_config = tmp_path / "ros.yaml"
+    ros_config.write_text(
+        "scan_topic: null\nimu_topic: null\nreference_topic: /mocap/rov/pose\n"
+        "reference_type: pose_stamped\nreference_vehicle: rov\n"
+    )
+    spawn("run", "ros_input", "--config", str(ros_config), "--connect", endpoint)
+    time.sleep(2.0)
+    key = ros_key(0, "/mocap/rov/pose", ROS_TYPES["pose_stamped"], HASH)
+    start = time.time_ns()
+    for k in range(20):
+        client.put(
+            key, _cdr(_pose_stamped(start + k * 10_000_000, 0.1 * k), ROS_TYPES["pose_stamped"])
+        )
+        time.sleep(0.01)
+    client.put(key, b"\x00\x01\x00\x00garbage")
+    wait_for(lambda: len(references.got) >= 20, timeout_s=10, what="20 reference poses")
+    got = sorted(references.got, key=lambda p: p.stamp_ns)
+    assert got[5].position_m == pytest.approx((0.5, 1.0, -1.5))
+    assert got[5].stamp_ns == start + 50_000_000
+    assert got[5].frame_id == "laser"  # the header's frame, as sent
+    health = query_health(client, site="tank", vehicle="asv", service="ros_input", timeout_s=2)
+    assert health is not None
+    assert health.counters["reference_poses"] == 20
+    assert health.counters["reference_poses_rejected"] == 1
