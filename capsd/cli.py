@@ -353,6 +353,17 @@ def _cmd_render_fan(args: argparse.Namespace) -> int:
     return render_fan(args)
 
 
+def _cmd_render_view(args: argparse.Namespace) -> int:
+    from capsd.view_preview import render
+
+    try:
+        used = render(args.recording, args.out)
+    except CapsdError as exc:
+        return _fail(f"render view: {exc}", EXIT_CONFIG)
+    print(f"wrote {args.out} from {sum(used.values())} view messages: {used}")
+    return EXIT_OK
+
+
 def _cmd_render_top_view(args: argparse.Namespace) -> int:
     from simulator.commands import render_top_view
 
@@ -418,6 +429,11 @@ def _cmd_record(args: argparse.Namespace) -> int:
         bus = bus_from_args(args, BusConfig())
         for expr in (args.keyexpr, *args.exclude):
             zenoh.KeyExpr(expr)
+        view = None
+        if args.view == "on":
+            from capsd.live_view import make_view
+
+            view = make_view(view_from_args(args))
     except (ConfigError, zenoh.ZError) as exc:
         return _fail(f"record: {exc}", EXIT_CONFIG)
 
@@ -433,6 +449,8 @@ def _cmd_record(args: argparse.Namespace) -> int:
                 stop=stop,
                 duration_s=args.duration,
                 exclude=tuple(args.exclude),
+                view=view,
+                logs="services/capsd-$*/log" if view is not None else None,
                 on_progress=progress,
             )
     except KeyboardInterrupt:
@@ -521,12 +539,49 @@ def _cmd_import_bag(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def add_view_flags(parser: argparse.ArgumentParser) -> None:
+    """What the operator's view draws from: the services' configs; how images are sent."""
+    parser.add_argument(
+        "--locator-config",
+        type=Path,
+        default=None,
+        help="the tank (box, fixtures) and sonar mount the services use (default: "
+        "deploy/config/locator.yaml where present)",
+    )
+    parser.add_argument(
+        "--asv-pose-config", type=Path, default=None, help="the LiDAR's place on the ASV"
+    )
+    parser.add_argument(
+        "--images", choices=("jpeg", "png", "off"), default="jpeg", help="sonar fan images"
+    )
+    parser.add_argument("--jpeg-quality", type=int, default=75, choices=range(1, 101),
+                        metavar="1-100", help="JPEG quality of the fan images")  # fmt: skip
+    parser.add_argument("--fan-hz", type=positive_float, default=2.0, help="fan images per second")
+
+
+def view_from_args(args: argparse.Namespace) -> Any:
+    """The view's settings from `add_view_flags`' flags (ConfigError names a bad config)."""
+    from capsd.live_view import view_settings
+
+    locator = args.locator_config
+    if locator is None and Path("deploy/config/locator.yaml").is_file():
+        locator = Path("deploy/config/locator.yaml")
+    return view_settings(
+        locator,
+        asv_pose_config=args.asv_pose_config,
+        images=args.images,
+        jpeg_quality=args.jpeg_quality,
+        fan_hz=args.fan_hz,
+    )
+
+
 def _cmd_live_view(args: argparse.Namespace) -> int:
     from capsd.bus import open_session
     from capsd.live_view import serve
 
     try:
         bus = bus_from_args(args, BusConfig())
+        settings = view_from_args(args)
     except ConfigError as exc:
         return _fail(str(exc), EXIT_CONFIG)
     print(f"live view on ws://{args.host}:{args.port} (open it in Foxglove)", flush=True)
@@ -537,9 +592,7 @@ def _cmd_live_view(args: argparse.Namespace) -> int:
                 site=args.site,
                 host=args.host,
                 port=args.port,
-                tank_length_m=args.tank_length,
-                tank_width_m=args.tank_width,
-                fan_hz=args.fan_hz,
+                settings=settings,
                 stop=stop,
                 on_status=lambda counts: print(f"live view: {counts}", file=sys.stderr),
             )
@@ -946,6 +999,16 @@ def build_parser() -> argparse.ArgumentParser:
     fan.add_argument("--ping", type=int, default=0, help="ping id")
     fan.add_argument("--out", "-o", required=True, help="PNG file to write")
     fan.set_defaults(func=_cmd_render_fan)
+    rview = rend_sub.add_parser(
+        "view",
+        help="the Foxglove layout's panels drawn from a recording's /capsd/... messages",
+        description="A PNG of what deploy/foxglove/capsd-layout.json shows (3D scene through "
+        "its transforms, fan image, fix x/y/z), drawn by capsd from a `capsd record` (or "
+        "`capsd demo --record`) file: a preview, not a viewer's screenshot.",
+    )
+    rview.add_argument("recording", type=Path, help="an .mcap with the view's channels")
+    rview.add_argument("--out", "-o", type=Path, required=True, help="PNG file to write")
+    rview.set_defaults(func=_cmd_render_view)
     top = rend_sub.add_parser(
         "topview",
         help="the tank, its clutter and the vehicles' tracks",
@@ -1172,6 +1235,14 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument(
         "--exclude", action="append", default=[], help="skip keys intersecting this (repeatable)"
     )
+    rec.add_argument(
+        "--view",
+        choices=("on", "off"),
+        default="on",
+        help="on: also the operator's scene (transforms, tank, trails, LiDAR, logs, fan "
+        "images) as Foxglove channels /capsd/...; excluded keys still feed it",
+    )
+    add_view_flags(rec)
     add_bus_flags(rec)
     rec.set_defaults(func=_cmd_record)
     rep = sub.add_parser(
@@ -1229,9 +1300,7 @@ def build_parser() -> argparse.ArgumentParser:
     live.add_argument("--site", default="tank")
     live.add_argument("--host", default="127.0.0.1", help="address to serve on")
     live.add_argument("--port", type=int, default=8765)
-    live.add_argument("--tank-length", type=float, default=28.0, help="tank length (m), map")
-    live.add_argument("--tank-width", type=float, default=16.0, help="tank width (m), map")
-    live.add_argument("--fan-hz", type=float, default=2.0, help="fan images per second")
+    add_view_flags(live)
     add_bus_flags(live)
     live.set_defaults(func=_cmd_live_view)
     dem = sub.add_parser(

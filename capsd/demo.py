@@ -117,13 +117,14 @@ def _write_configs(
     mav_port: int,
     sonar_hz: float = 20.0,
 ) -> dict[str, Path]:
+    import msgspec
     import yaml
 
     from capsd.geometry import matrix_to_euler_zyx
     from capsd.signing import SiteKey, write_key
     from simulator.config import Config as SimConfig
     from simulator.sim import Simulation
-    from simulator.world import make_tank
+    from simulator.world import make_tank, tank_bounds
 
     bus = {"connect": [endpoint]}
     # The site's fix key: the locator signs, the bridge checks (as deployed).
@@ -154,7 +155,8 @@ def _write_configs(
         "sonar_detect": {"bus": bus},
         "locator": {
             "bus": bus,
-            "tank": {**tank_box, "depth_m": t.depth_m},
+            # The tank as a site would describe it: its box and fixtures (the view draws them).
+            "tank": msgspec.to_builtins(tank_bounds(t)),
             "fix_key": str(fix_key),
         },
         "mav_bridge": {
@@ -301,7 +303,8 @@ def main(
         procs.start("autopilot", ["-m", "simulator.autopilot", "--port", str(mav_port)])
         if record is not None:
             # Started first and stopped last: the recording holds each service's whole life.
-            args = ["cap/**", "-o", str(record), "--exclude", "cap/*/*/sonar/frame"]
+            args = ["cap/**", "-o", str(record), "--exclude", "cap/*/*/sonar/frame",
+                    "--locator-config", str(configs["locator"])]  # fmt: skip
             procs.start("recorder", ["-m", "capsd", "record", *args, "--connect", endpoint])
         time.sleep(1.0)
         for _, name in SERVICES:
@@ -384,6 +387,11 @@ def main(
         codes.get(name) == 0
         for name in ("sim", "asv_pose", "sonar_detect", "locator", "mav_bridge")
     )
+    if record is not None and codes.get("recorder") != 0:
+        # A recording that failed is no recording: say so, and fail (its log says why).
+        print(f"capsd demo: the recorder exited {codes.get('recorder')}: see "
+              f"{logs}/recorder.log", file=stream, flush=True)  # fmt: skip
+        services_ok = False
     if interrupted:
         print("capsd demo: stopped by user", file=stream, flush=True)
         return 0 if services_ok else 1

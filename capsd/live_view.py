@@ -1,12 +1,14 @@
 """`capsd live-view`: a Foxglove WebSocket server a person opens to watch the site live.
 
-Channels (open ws://HOST:PORT in Foxglove):
-- every CAP-SD JSON payload on the site's keys, one channel per key, with its JSON Schema
-  (fixes, poses, detections, depth, Health of every service...);
-- `/capsd/sonar_fan`: the newest sonar frame as a fan with that ping's detections (PNG,
-  at most `fan_hz`, so a 40 Hz sonar does not flood a laptop's link);
-- `/capsd/tank_map`: the tank from above with the ASV (red) and the ROV's estimate (green),
-  at 1 Hz.
+Channels (open ws://HOST:PORT in Foxglove; `deploy/foxglove/capsd-layout.json` arranges them):
+- every CAP-SD JSON payload on the site's keys, one channel per key, with its JSON Schema in
+  the dialect viewers accept (fixes, poses, detections, depth, Health of every service...);
+- the operator's scene (capsd.scene, the same derivation `capsd record` writes): transforms,
+  the tank with its fixtures, the vehicles, the sonar's field of view, the fix with its
+  covariance, trails, the LiDAR scan, the services' logs, and the sonar fan as JPEG (at most
+  `fan_hz`, so a 40 Hz sonar does not flood a laptop's link);
+- `/capsd/tank_map`: the tank from above (its fixtures, the ASV's and the ROV's trails), 1 Hz.
+The tank and the sonar mount come from the locator's config: the services' own description.
 Bad payloads are counted (and shown in the console), never forwarded.
 """
 
@@ -15,40 +17,77 @@ from __future__ import annotations
 import threading
 import time
 from collections import Counter
+from pathlib import Path
 from typing import Any
 
-import cv2
 import msgspec
 import numpy as np
 import zenoh
 
+from capsd import foxglove_messages as fm
 from capsd.codec import SCHEMAS, decode_any, split_encoding, to_builtins
 from capsd.errors import PayloadError
 from capsd.keys import is_concrete
-from capsd.payloads import AsvPose, RovFix, SonarDetections, SonarFrame
+from capsd.payloads import SonarDetections, SonarFrame
+from capsd.scene import ImageFormat, SceneView, ViewSettings, encode_image
+from capsd.tank import TankBounds
+from capsd.viewer_schema import viewer_schema, without_nulls
+
+TANK_MAP = "/capsd/tank_map"
+
+
+def view_settings(
+    locator_config: Path | None,
+    *,
+    asv_pose_config: Path | None = None,
+    images: ImageFormat = "jpeg",
+    jpeg_quality: int = 75,
+    fan_hz: float = 2.0,
+) -> ViewSettings:
+    """The view of the site the services are configured for (their config files)."""
+    from capsd.config import load_config
+    from services.asv_pose.service import Config as AsvPoseConfig
+    from services.locator.service import Config as LocatorConfig
+
+    locator = load_config(locator_config, LocatorConfig) if locator_config else LocatorConfig()
+    lidar_xy = (0.0, 0.0)
+    if asv_pose_config is not None:
+        lidar_xy = load_config(asv_pose_config, AsvPoseConfig).lidar_xy_m
+    return ViewSettings(
+        tank=locator.tank or TankBounds(),
+        sonar=locator.sonar,
+        lidar_xy_m=lidar_xy,
+        images=images,
+        jpeg_quality=jpeg_quality,
+        fan_hz=fan_hz,
+    )
+
+
+def make_view(settings: ViewSettings) -> SceneView:
+    """The scene derivation with the sonar fan drawn as the detector's tools draw it."""
+
+    def fan(frame: SonarFrame, detections: SonarDetections | None) -> Any:
+        from services.sonar_detect.fan import fan_with_overlays
+
+        return fan_with_overlays(frame, None, detections)
+
+    return SceneView(settings, fan=fan)
 
 
 class LiveView:
     """Zenoh samples in, Foxglove channels out."""
 
-    def __init__(self, *, site: str, tank_length_m: float, tank_width_m: float, fan_hz: float):
+    def __init__(self, *, site: str, settings: ViewSettings):
         import foxglove
-        from foxglove.channels import CompressedImageChannel
 
         self.foxglove = foxglove
         self.site = site
-        self.tank = (tank_length_m, tank_width_m)
-        self.fan_period_s = 1.0 / fan_hz
+        self.settings = settings
+        self.scene = make_view(settings)
         self.channels: dict[str, Any] = {}
-        self.fan = CompressedImageChannel("/capsd/sonar_fan")
-        self.map = CompressedImageChannel("/capsd/tank_map")
         self.lock = threading.Lock()
         self.counts: Counter[str] = Counter()
         self.frame: SonarFrame | None = None
-        self.detections: dict[int, SonarDetections] = {}
-        self.asv: AsvPose | None = None
-        self.rov: RovFix | None = None
-        self._last_fan = 0.0
         self._last_map = 0.0
         self.last_error = ""
 
@@ -72,17 +111,10 @@ class LiveView:
         with self.lock:
             self.counts["samples"] += 1
             if isinstance(payload, SonarFrame):
-                self.frame = payload
+                self.frame = payload  # drawn from the main loop, not on the bus's thread
             else:
-                if isinstance(payload, SonarDetections):
-                    self.detections[payload.ping_id] = payload
-                    if len(self.detections) > 50:
-                        del self.detections[min(self.detections)]
-                elif isinstance(payload, AsvPose):
-                    self.asv = payload
-                elif isinstance(payload, RovFix) and payload.quality == "good":
-                    self.rov = payload
                 self._json(key, encoding, payload)
+                self._view(self.scene.on_payload(key, payload))
 
     def _json(self, key: str, encoding: str, payload: Any) -> None:
         channel = self.channels.get(key)
@@ -90,66 +122,63 @@ class LiveView:
             _, schema_name = split_encoding(encoding)
             cls = SCHEMAS[schema_name or ""]
             schema = self.foxglove.Schema(
-                name=cls.__name__,
+                name=getattr(cls, "SCHEMA_NAME", cls.__name__),
                 encoding="jsonschema",
-                data=msgspec.json.encode(msgspec.json.schema(cls)),
+                data=msgspec.json.encode(viewer_schema(cls)),
             )
             channel = self.foxglove.Channel(key, schema=schema, message_encoding="json")
             self.channels[key] = channel
-        channel.log(to_builtins(payload), log_time=payload.stamp_ns)
+        channel.log(without_nulls(to_builtins(payload)), log_time=payload.stamp_ns)
+
+    def _view(self, messages: list[tuple[str, Any]]) -> None:
+        for topic, message in messages:
+            channel = self.channels.get(topic)
+            if channel is None:
+                cls = type(message)
+                schema = self.foxglove.Schema(
+                    name=fm.SCHEMA_NAMES[cls],
+                    encoding="jsonschema",
+                    data=msgspec.json.encode(viewer_schema(cls)),
+                )
+                channel = self.foxglove.Channel(topic, schema=schema, message_encoding="json")
+                self.channels[topic] = channel
+            channel.log(msgspec.to_builtins(message))
+            self.counts[topic] += 1
 
     def tick(self) -> None:
         """Draw the fan and the map when due (called from the main loop)."""
-        from foxglove.schemas import CompressedImage, Timestamp
-
         now = time.monotonic()
         with self.lock:
-            frame = self.frame
-            detections = self.detections.get(frame.ping_id) if frame is not None else None
-            asv, rov = self.asv, self.rov
-        if frame is not None and now - self._last_fan >= self.fan_period_s:
-            from services.sonar_detect.fan import fan_with_overlays
-
-            self._last_fan = now
-            image = fan_with_overlays(frame, None, detections)
-            self.fan.log(
-                CompressedImage(
-                    timestamp=Timestamp.from_epoch_secs(frame.stamp_ns / 1e9),
-                    frame_id="sonar",
-                    data=_png(image),
-                    format="png",
-                )
-            )
-            self.counts["fan_images"] += 1
+            frame, self.frame = self.frame, None
+        if frame is not None:
+            messages = self.scene.on_payload("", frame)
+            with self.lock:
+                self._view(messages)
         if now - self._last_map >= 1.0:
             self._last_map = now
-            self.map.log(
-                CompressedImage(
-                    timestamp=Timestamp.from_epoch_secs(time.time()),
-                    frame_id="tank",
-                    data=_png(self._map_image(asv, rov)),
-                    format="png",
-                )
-            )
-            self.counts["map_images"] += 1
+            image = self._map_image()
+            stamp = fm.foxglove_time(time.time_ns())
+            with self.lock:
+                self._view([(TANK_MAP, fm.CompressedImage(
+                    timestamp=stamp, frame_id="tank", data=encode_image(image, "png", 0),
+                    format="png"))])  # fmt: skip
 
-    def _map_image(self, asv: AsvPose | None, rov: RovFix | None) -> Any:
+    def _map_image(self) -> Any:
         from simulator.render import top_view
-        from simulator.world import Tank
+        from simulator.world import Box, Tank
 
-        length, width = self.tank
-        tank = Tank("site", length, width, 8.0, 1.0)
-        asv_xy = np.array([asv.position_m[:2]]) if asv is not None else np.zeros((1, 2))
-        position = (rov.position_m or rov.raw_position_m) if rov is not None else None
-        rov_xy = np.array([position[:2]]) if position is not None else np.zeros((1, 2))
-        return top_view(tank, rov_xy, asv_xy, px_per_m=20.0)
+        tank = self.settings.tank
+        site = Tank(
+            self.site, tank.length_m, tank.width_m, tank.depth_m, 1.0,
+            boxes=tuple(Box(f.lo_m, f.hi_m, f.name) for f in tank.fixtures),
+        )  # fmt: skip
+        asv, rov = self.scene.trails()
 
+        def xy(poses: list[fm.Pose]) -> np.ndarray:
+            points = [(p.position.x, p.position.y) for p in reversed(poses)]  # newest marked
+            return np.array(points) if points else np.full((1, 2), -1000.0)
 
-def _png(image: Any) -> bytes:
-    ok, data = cv2.imencode(".png", image)
-    if not ok:
-        raise ValueError("PNG encoding failed")
-    return bytes(data.tobytes())
+        return top_view(site, xy(rov), xy(asv), px_per_m=20.0)
 
 
 def serve(
@@ -158,20 +187,19 @@ def serve(
     site: str,
     host: str,
     port: int,
-    tank_length_m: float,
-    tank_width_m: float,
-    fan_hz: float,
+    settings: ViewSettings,
     stop: threading.Event,
     on_status: Any = None,
 ) -> Counter[str]:
     """Serve until `stop`; returns what was forwarded."""
     import foxglove
 
-    view = LiveView(
-        site=site, tank_length_m=tank_length_m, tank_width_m=tank_width_m, fan_hz=fan_hz
-    )
+    view = LiveView(site=site, settings=settings)
     server = foxglove.start_server(name=f"capsd {site}", host=host, port=port)
-    subscriber = session.declare_subscriber(f"cap/{site}/**", view.on_sample)
+    subscribers = [
+        session.declare_subscriber(f"cap/{site}/**", view.on_sample),
+        session.declare_subscriber(f"services/capsd-{site}-$*/log", view.on_sample),
+    ]
     last_status = time.monotonic()
     try:
         while not stop.wait(0.05):
@@ -182,6 +210,7 @@ def serve(
                     {**view.counts, **({"last_error": view.last_error} if view.last_error else {})}
                 )
     finally:
-        subscriber.undeclare()
+        for subscriber in subscribers:
+            subscriber.undeclare()
         server.stop()
     return view.counts

@@ -36,7 +36,6 @@ from capsd.payloads import (
     SonarLabel,
 )
 from capsd.progress import Progress
-from capsd.tank import TankBounds
 from services.asv_pose.estimator import AsvPoseEstimator, EstimatorSettings, pose_payload
 from services.asv_pose.scan_match import tank_walls
 from services.asv_pose.tilt import TiltSettings
@@ -46,7 +45,7 @@ from services.sonar_detect.paper_box import box_centre
 from simulator.config import OFFLINE_START_NS
 from simulator.config import Config as SimConfig
 from simulator.sim import Simulation
-from simulator.world import make_tank
+from simulator.world import make_tank, tank_bounds
 
 DetectorKind = Literal["cnn", "classical", "box_centre"]
 TiltKind = Literal["ours", "paper"]
@@ -78,7 +77,7 @@ def locator_config(variant: Variant, sim: SimConfig) -> LocatorConfig:
         sonar=msgspec.structs.replace(sonar, beam_model=variant.beam_model),
         rov=sim.rov,
         method=variant.method,
-        tank=TankBounds(length_m=tank.length_m, width_m=tank.width_m, depth_m=tank.depth_m),
+        tank=tank_bounds(tank),
     )
     if variant.unmodelled_sigma_m is not None:
         config = msgspec.structs.replace(config, unmodelled_sigma_m=variant.unmodelled_sigma_m)

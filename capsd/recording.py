@@ -2,11 +2,18 @@
 
 Recording: every sample on the key expression becomes an MCAP message on a channel named by
 its key. CAP-SD payloads get their JSON Schema (from the msgspec Struct, the one source of
-truth) registered with encoding `jsonschema`; JSON payloads are `json` messages (Foxglove and
-the `mcap` tools read them), sonar frames `msgpack`. The Zenoh encoding is kept in the
-channel's metadata, so a replay puts the very same bytes with the very same encoding.
+truth, in the dialect viewers accept: capsd.viewer_schema) registered with encoding
+`jsonschema`; JSON payloads are `json` messages (Foxglove and the `mcap` tools read them),
+without their null members so that they validate against that schema (the same values: an
+absent optional field decodes to None), sonar frames `msgpack`, bytes as sent. The Zenoh
+encoding is kept in the channel's metadata, so a replay puts the same payloads with the very
+same encoding.
 `log_time` is the arrival (wall clock, ns); `publish_time` is the payload's `stamp_ns` when it
 has one. Wildcard keys (never a real publisher) are refused and counted.
+
+With a view (capsd.scene), the recording also holds the operator's 3D scene, trails, LiDAR,
+logs and sonar fan images as Foxglove messages on `/capsd/...` channels, derived as the live
+view derives them; replay leaves those channels out.
 
 Replay: messages in `log_time` order, at the recorded spacing divided by `speed`, bytes and
 stamps untouched; keys can be included or excluded by key expression (e.g. replay the
@@ -15,6 +22,7 @@ locator's inputs without its recorded fixes).
 
 from __future__ import annotations
 
+import dataclasses
 import queue
 import threading
 import time
@@ -22,17 +30,23 @@ from collections import Counter
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import msgspec
 import zenoh
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
-from capsd.codec import SCHEMAS, split_encoding
-from capsd.errors import CapsdError
+from capsd.codec import SCHEMAS, decode_any, split_encoding
+from capsd.errors import CapsdError, PayloadError
+from capsd.foxglove_messages import SCHEMA_NAMES
 from capsd.keys import is_concrete
+from capsd.scene import SceneView
+from capsd.viewer_schema import viewer_schema, without_nulls
 
 _STAMP = msgspec.json.Decoder(dict[str, object])
+_JSON = msgspec.json.Decoder()
+_ENCODE = msgspec.json.Encoder()
 
 
 @dataclass(frozen=True)
@@ -56,6 +70,15 @@ def _stamp_ns(sample: Sample) -> int:
     return sample.arrival_ns
 
 
+def _without_nulls(sample: Sample) -> Sample:
+    """A JSON payload without null members (left as it is when it is not JSON at all)."""
+    try:
+        value = _JSON.decode(sample.data)
+    except msgspec.DecodeError:
+        return sample  # recorded as it came; whoever reads it sees what was sent
+    return dataclasses.replace(sample, data=_ENCODE.encode(without_nulls(value)))
+
+
 class McapRecorder:
     """Writes samples to an MCAP file; channels and schemas registered on first sight."""
 
@@ -73,13 +96,17 @@ class McapRecorder:
         if cls is None:
             return 0  # not ours: recorded without a schema
         if cls.__name__ not in self._schemas:
-            schema = msgspec.json.encode(msgspec.json.schema(cls))
+            schema = msgspec.json.encode(viewer_schema(cls))
+            # Log lines keep Foxglove's name, so its Log panel takes the services' own channels.
             self._schemas[cls.__name__] = self._writer.register_schema(
-                name=cls.__name__, encoding="jsonschema", data=schema
+                name=getattr(cls, "SCHEMA_NAME", cls.__name__), encoding="jsonschema", data=schema
             )
         return self._schemas[cls.__name__]
 
     def write(self, sample: Sample) -> None:
+        mime, schema = split_encoding(sample.encoding)
+        if mime == "application/json" and schema in SCHEMAS:
+            sample = _without_nulls(sample)
         ident = (sample.key, sample.encoding)
         channel = self._channels.get(ident)
         if channel is None:
@@ -101,6 +128,33 @@ class McapRecorder:
         )
         self.counts[sample.key] += 1
 
+    def write_view(self, topic: str, message: msgspec.Struct, log_time_ns: int) -> None:
+        """One of the operator view's Foxglove messages (capsd.scene) on its own channel."""
+        cls = type(message)
+        name = SCHEMA_NAMES[cls]
+        if name not in self._schemas:
+            self._schemas[name] = self._writer.register_schema(
+                name=name, encoding="jsonschema", data=msgspec.json.encode(viewer_schema(cls))
+            )
+        channel = self._channels.get((topic, name))
+        if channel is None:
+            channel = self._writer.register_channel(
+                topic=topic, message_encoding="json", schema_id=self._schemas[name]
+            )
+            self._channels[(topic, name)] = channel
+        timestamp = getattr(message, "timestamp", None)
+        publish = log_time_ns
+        if timestamp is not None:
+            publish = timestamp.sec * 1_000_000_000 + timestamp.nsec
+        self._writer.add_message(
+            channel_id=channel,
+            log_time=log_time_ns,
+            data=msgspec.json.encode(message),
+            publish_time=publish,
+            sequence=self.counts[topic],
+        )
+        self.counts[topic] += 1
+
     def close(self) -> None:
         self._writer.finish()  # type: ignore[no-untyped-call]
         self._file.close()
@@ -120,13 +174,18 @@ def record(
     stop: threading.Event,
     duration_s: float | None = None,
     exclude: tuple[str, ...] = (),
+    view: SceneView | None = None,
+    logs: str | None = None,
     on_progress: Callable[[int], None] | None = None,
 ) -> Counter[str]:
     """Record until `stop` (or `duration_s`); returns the message count per key.
 
-    Keys intersecting an `exclude` expression are not written (e.g. the sonar images).
+    Keys intersecting an `exclude` expression are not written (e.g. the sonar images); with
+    `view`, every sample (excluded ones too) also feeds the operator's scene, whose messages are
+    written on their own channels (capsd.scene). `logs`: a key expression of log lines to
+    record as well (the services' `services/.../log`).
     """
-    pending: queue.Queue[Sample] = queue.Queue()
+    pending: queue.Queue[tuple[Sample, bool]] = queue.Queue()
     refused: Counter[str] = Counter()
     skip = [zenoh.KeyExpr(e) for e in exclude]
 
@@ -135,32 +194,56 @@ def record(
         if not is_concrete(key):
             refused["wildcard_keys"] += 1
             return
-        if any(e.intersects(s.key_expr) for e in skip):
-            return
-        pending.put(Sample(key, str(s.encoding), s.payload.to_bytes(), time.time_ns()))
+        keep = not any(e.intersects(s.key_expr) for e in skip)
+        if keep or view is not None:
+            pending.put((Sample(key, str(s.encoding), s.payload.to_bytes(), time.time_ns()), keep))
 
     recorder = McapRecorder(out)
-    subscriber = session.declare_subscriber(key_expr, on_sample)
+    if view is not None:
+        now = time.time_ns()
+        for topic, message in view.static(now):
+            recorder.write_view(topic, message, now)
+    subscribers = [session.declare_subscriber(key_expr, on_sample)]
+    if logs is not None:
+        subscribers.append(session.declare_subscriber(logs, on_sample))
     deadline = None if duration_s is None else time.monotonic() + duration_s
     written = 0
+
+    def write(sample: Sample, keep: bool) -> None:
+        if keep:
+            recorder.write(sample)
+        if view is not None:
+            for topic, message in _derive(view, sample):
+                recorder.write_view(topic, message, sample.arrival_ns)
+
     try:
         while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
             try:
-                recorder.write(pending.get(timeout=0.1))
+                write(*pending.get(timeout=0.1))
                 written += 1
                 if on_progress is not None and written % 200 == 0:
                     on_progress(written)
             except queue.Empty:
                 continue
     finally:
-        subscriber.undeclare()
+        for subscriber in subscribers:
+            subscriber.undeclare()
         while not pending.empty():
-            recorder.write(pending.get_nowait())
+            write(*pending.get_nowait())
         recorder.close()
     counts = Counter(recorder.counts)
     if refused:
         counts["(refused wildcard samples)"] = refused["wildcard_keys"]
     return counts
+
+
+def _derive(view: SceneView, sample: Sample) -> list[tuple[str, Any]]:
+    """The scene's messages from one sample (none from one that does not decode)."""
+    try:
+        payload = decode_any(sample.data, encoding=sample.encoding, key_expr=sample.key)
+    except PayloadError:
+        return []  # recorded as it came (or not at all), drawn by no one
+    return view.on_payload(sample.key, payload)
 
 
 @dataclass(frozen=True)
@@ -221,6 +304,8 @@ def replay(
     exc = [zenoh.KeyExpr(e) for e in exclude]
 
     def wanted(key: str) -> bool:
+        if key.startswith("/"):
+            return False  # the operator view's channels (capsd.scene): for viewers, not the bus
         k = zenoh.KeyExpr(key)
         return inc.intersects(k) and not any(e.intersects(k) for e in exc)
 

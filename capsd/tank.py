@@ -10,13 +10,30 @@ from capsd.config import ConfigSection
 from capsd.geometry import Array
 
 
+class TankFixture(ConfigSection, frozen=True, kw_only=True):
+    """Something fixed in the tank (a rack, a pipe, a sandbag), as its box in W."""
+
+    name: Annotated[str, msgspec.Meta(max_length=64)] = ""
+    lo_m: tuple[float, float, float]
+    hi_m: tuple[float, float, float]
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if any(lo >= hi for lo, hi in zip(self.lo_m, self.hi_m, strict=True)):
+            raise ValueError(f"fixture {self.name!r}: each of lo_m must be below hi_m")
+
+
 class TankBounds(ConfigSection, frozen=True, kw_only=True):
-    """The tank's box in W; a position outside it (plus `margin_m`) is not the ROV's."""
+    """The tank's box in W; a position outside it (plus `margin_m`) is not the ROV's.
+
+    `fixtures` (racks, pipes) are what the operator's view draws; no fix is refused for them.
+    """
 
     length_m: Annotated[float, msgspec.Meta(gt=0.0, le=10_000.0)] = 28.0
     width_m: Annotated[float, msgspec.Meta(gt=0.0, le=10_000.0)] = 16.0
     depth_m: Annotated[float, msgspec.Meta(gt=0.0, le=11_000.0)] = 8.0
     margin_m: Annotated[float, msgspec.Meta(ge=0.0, le=100.0)] = 0.3
+    fixtures: Annotated[tuple[TankFixture, ...], msgspec.Meta(max_length=1000)] = ()
 
     def contains(self, p: Array | tuple[float, float, float]) -> bool:
         m = self.margin_m

@@ -20,6 +20,7 @@ from typing import Literal
 import numpy as np
 
 from capsd.geometry import Array, euler_zyx_to_matrix
+from capsd.tank import TankBounds, TankFixture
 from simulator.sonar_look import Look
 
 TankName = Literal["nfp", "mockup", "pond"]
@@ -180,6 +181,20 @@ def make_tank(name: TankName, *, clutter: Literal["on", "off"] = "on") -> Tank:
     if clutter == "off":
         boxes, cylinders = (), ()
     return Tank(name, *dims, boxes=boxes, cylinders=cylinders)
+
+
+def tank_bounds(tank: Tank) -> TankBounds:
+    """The tank as the services are told it: its box and its fixtures (clutter) as boxes."""
+    fixtures = [TankFixture(name=b.kind, lo_m=b.lo, hi_m=b.hi) for b in tank.boxes]
+    for c in tank.cylinders:
+        k = "xyz".index(c.axis)
+        lo = [v - c.radius for v in c.start]
+        hi = [v + c.radius for v in c.start]
+        lo[k], hi[k] = c.start[k], c.start[k] + c.length
+        fixtures.append(TankFixture(name=c.kind, lo_m=(lo[0], lo[1], lo[2]),
+                                    hi_m=(hi[0], hi[1], hi[2])))  # fmt: skip
+    return TankBounds(length_m=tank.length_m, width_m=tank.width_m, depth_m=tank.depth_m,
+                      fixtures=tuple(fixtures))  # fmt: skip
 
 
 def with_look(tank: Tank, look: Look, rng: np.random.Generator) -> Tank:

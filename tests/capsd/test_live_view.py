@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import base64
 import json
 import struct
 from collections.abc import Callable
@@ -10,6 +11,7 @@ from collections.abc import Callable
 import pytest
 import websockets
 
+from capsd.viewer_schema import viewer_rules
 from tests.conftest import Proc, free_port
 
 pytestmark = pytest.mark.integration
@@ -39,7 +41,8 @@ async def _client(port: int) -> tuple[dict[str, dict[str, object]], bytes]:
                 if body.get("op") == "advertise":
                     for channel in body["channels"]:
                         channels[channel["topic"]] = channel
-                wanted = {"/capsd/sonar_fan", "/capsd/tank_map", "cap/tank/sim/health/sim"}
+                wanted = {"/capsd/sonar_fan", "/capsd/tank_map", "cap/tank/sim/health/sim",
+                          "/capsd/scene", "/capsd/lidar"}  # fmt: skip
                 if not subscribed and wanted <= set(channels):
                     fan = channels["/capsd/sonar_fan"]["id"]
                     await ws.send(
@@ -64,5 +67,15 @@ def test_live_view_serves_the_channels(
     channels, payload = asyncio.run(_client(port))
     assert channels["cap/tank/rov/rov/depth"]["encoding"] == "json"
     assert channels["cap/tank/rov/rov/depth"]["schemaName"]
-    # A CompressedImage carrying a PNG (its magic is in the message).
-    assert b"\x89PNG" in payload
+    # Every JSON channel's schema is one viewers accept (Lichtblick's parser's rules).
+    for topic, channel in channels.items():
+        if channel["encoding"] == "json":
+            assert viewer_rules(json.loads(str(channel["schema"]))) == [], topic
+    # The operator's scene, in Foxglove's own schemas (its 3D and Image panels take them).
+    assert channels["/capsd/scene"]["schemaName"] == "foxglove.SceneUpdate"
+    assert channels["/capsd/lidar"]["schemaName"] == "foxglove.LaserScan"
+    assert channels["/capsd/sonar_fan"]["schemaName"] == "foxglove.CompressedImage"
+    # A CompressedImage carrying a JPEG (JSON: the bytes in base64).
+    image = json.loads(payload)
+    assert image["format"] == "jpeg"
+    assert base64.b64decode(image["data"])[:3] == b"\xff\xd8\xff"

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
 
+import jsonschema
 import msgspec
 import pytest
 import zenoh
@@ -18,6 +20,7 @@ from capsd.errors import CapsdError
 from capsd.payloads import RovFix
 from capsd.recording import channel_counts, read
 from capsd.replay_check import compare
+from capsd.viewer_schema import viewer_rules
 from tests.conftest import REPO, Proc, relay
 
 pytestmark = pytest.mark.integration
@@ -84,9 +87,31 @@ def test_record_then_replay_into_a_fresh_locator_gives_the_same_fixes(
     assert summary is not None
     schemas = {s.name: s.encoding for s in summary.schemas.values()}
     assert schemas["RovFix"] == "jsonschema"
+    # Every channel's schema is one viewers accept, and every JSON message validates against
+    # it (an independent validator: jsonschema).
+    by_id = {s.id: json.loads(s.data) for s in summary.schemas.values()}
+    for channel in summary.channels.values():
+        assert viewer_rules(by_id[channel.schema_id]) == [], channel.topic
+    validators = {
+        c.topic: jsonschema.Draft202012Validator(by_id[c.schema_id])
+        for c in summary.channels.values()
+        if c.message_encoding == "json"
+    }
+    for r in read(mcap_file):
+        if r.key in validators:
+            validators[r.key].validate(json.loads(r.data))
     counts = channel_counts(mcap_file)
     assert counts[FIX_KEY] >= 80  # 10 s at 20 Hz, less start-up
     assert not any(key.endswith("sonar/frame") for key in counts)
+    # The operator's scene beside the data (frames excluded from the file still feed it),
+    # and the services' log lines.
+    for topic in ("/capsd/tf", "/capsd/scene", "/capsd/rov_trail", "/capsd/lidar",
+                  "/capsd/sonar_fan", "/capsd/log"):  # fmt: skip
+        assert counts.get(topic, 0) > 0, topic
+    assert any(key.startswith("services/capsd-tank-") for key in counts)
+    preview = _capsd("render", "view", str(mcap_file), "-o", str(tmp_path / "view.png"))
+    assert preview.returncode == 0, preview.stderr
+    assert (tmp_path / "view.png").stat().st_size > 50_000
     info = _capsd("replay", str(mcap_file), "--info")
     assert info.returncode == 0
     assert FIX_KEY in info.stdout
