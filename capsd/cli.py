@@ -701,6 +701,31 @@ def _cmd_label(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_docs_figures(args: argparse.Namespace) -> int:
+    from capsd.readme_figures import blocks, render
+
+    try:
+        text = args.file.read_text()
+        new = render(text, root=args.file.resolve().parent)
+    except OSError as exc:
+        return _fail(f"docs figures: {args.file}: {exc}", EXIT_CONFIG)
+    except CapsdError as exc:
+        return _fail(f"docs figures: {args.file}: {exc}", EXIT_CONFIG)
+    found = blocks(text)
+    if args.check:
+        if new != text:
+            return _fail(
+                f"docs figures: {args.file} is not up to date with its figures' JSON "
+                "(run `capsd docs figures`)",
+                EXIT_FAILURE,
+            )
+        print(f"{args.file}: {len(found)} figure blocks up to date")
+        return EXIT_OK
+    args.file.write_text(new)
+    print(f"{args.file}: {len(found)} figure blocks written ({', '.join(n for n, _ in found)})")
+    return EXIT_OK
+
+
 def _cmd_evaluate(args: argparse.Namespace) -> int:
     from capsd.evaluate import evaluate, load, report
 
@@ -1416,6 +1441,22 @@ def build_parser() -> argparse.ArgumentParser:
     )
     cal.add_argument("-o", "--out", type=Path, required=True, help="the calibrated config")
     cal.set_defaults(func=_cmd_calibrate)
+    docs = sub.add_parser(
+        "docs",
+        help="the README's figures: tables written from the benches' JSON",
+        description="Documentation written by commands, never by hand.",
+    )
+    docs_sub = docs.add_subparsers(dest="docs_command", required=True, metavar="WHAT")
+    dfig = docs_sub.add_parser(
+        "figures",
+        help="rewrite the tables between `<!-- figures: NAME JSON -->` markers",
+        description="Each block names a table and the bench JSON it comes from (docs/figures/); "
+        "the block is rewritten from that JSON with a line naming the bench's command. "
+        "--check: exit 1 when the file is not up to date.",
+    )
+    dfig.add_argument("--file", type=Path, default=Path("README.md"), help="Markdown file")
+    dfig.add_argument("--check", action="store_true", help="only say whether it is up to date")
+    dfig.set_defaults(func=_cmd_docs_figures)
     ev = sub.add_parser(
         "evaluate",
         help="score a recording's fixes against a reference system (motion capture)",
