@@ -124,7 +124,7 @@ def _write_configs(
     from capsd.signing import SiteKey, write_key
     from simulator.config import Config as SimConfig
     from simulator.sim import Simulation
-    from simulator.world import make_tank, tank_bounds
+    from simulator.world import tank_bounds
 
     bus = {"connect": [endpoint]}
     # The site's fix key: the locator signs, the bridge checks (as deployed).
@@ -142,7 +142,7 @@ def _write_configs(
     start = Simulation(SimConfig(tank=tank, trajectory=trajectory, seed=seed), horizon_s=10)
     # The person putting the ASV in the water knows roughly which way it points: 20 deg off.
     heading = math.degrees(matrix_to_euler_zyx(start.asv_pose(0.0).rotation)[0]) + 20.0
-    t = make_tank(tank)
+    t = SimConfig(tank=tank, trajectory=trajectory, seed=seed).world_tank()
     tank_box = {"length_m": t.length_m, "width_m": t.width_m}
     configs = {
         "sim": sim,

@@ -71,7 +71,7 @@ class Variant:
 
 def locator_config(variant: Variant, sim: SimConfig) -> LocatorConfig:
     """The locator as deployed for this tank: the nominal mounts (or the variant's), its walls."""
-    tank = make_tank(sim.tank)
+    tank = sim.world_tank()
     sonar = variant.sonar if variant.sonar is not None else sim.sonar
     config = LocatorConfig(
         sonar=msgspec.structs.replace(sonar, beam_model=variant.beam_model),

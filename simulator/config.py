@@ -17,7 +17,7 @@ from simulator.install_errors import InstallErrorsConfig
 from simulator.lidar import LidarModel
 from simulator.sonar import SonarModel
 from simulator.sonar_look import Look, Variety
-from simulator.world import TankName, TrajectoryName, Waves, make_tank
+from simulator.world import Tank, TankName, TrajectoryName, Waves, make_tank
 
 Rate = Annotated[float, msgspec.Meta(gt=0.0, le=400.0)]
 Sigma = Annotated[float, msgspec.Meta(ge=0.0, le=10.0)]
@@ -137,6 +137,11 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     rov_vehicle: str = "rov"
     tank: TankName = "nfp"
     clutter: OnOff = "on"
+    # per_seed: the preset's clutter laid out anew for every run (its racks, sandbags, fixtures
+    # and pipes moved; simulator.world.drawn), from `layout_seed` or else the run's seed;
+    # preset: the tank's one fixed layout.
+    clutter_layout: Literal["per_seed", "preset"] = "per_seed"
+    layout_seed: int | None = None
     trajectory: TrajectoryName = "square"
     rov_speed_m_s: Annotated[float, msgspec.Meta(gt=0.0, le=0.5)] = 0.3
     seed: int = 0
@@ -169,6 +174,12 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
                 raise ValueError(
                     f"`sonar_dropouts_s[{i}]` must be [start, end] with 0 <= start < end"
                 )
+
+    def world_tank(self) -> Tank:
+        """The run's tank: the preset with this run's clutter layout."""
+        seed = self.seed if self.layout_seed is None else self.layout_seed
+        per_seed = self.clutter_layout == "per_seed"
+        return make_tank(self.tank, clutter=self.clutter, layout_seed=seed if per_seed else None)
 
     def look(self) -> Look | None:
         """The run's draw of the look knobs (None: the fixed look)."""

@@ -52,7 +52,6 @@ from simulator.world import (
     RovMotion,
     RovState,
     asv_motion,
-    make_tank,
     rov_motion,
     with_look,
 )
@@ -95,7 +94,7 @@ class Simulation:
             name: np.random.default_rng(s) for name, s in zip(_STREAMS, seeds, strict=False)
         }
         clock_rng = np.random.default_rng(seeds[-1])
-        self.tank = make_tank(config.tank, clutter=config.clutter)
+        self.tank = config.world_tank()
         look = config.look()
         if look is not None:
             look_seed = config.sonar_image.look_seed

@@ -164,10 +164,13 @@ def _mockup_clutter(
     return boxes, cylinders
 
 
-def make_tank(name: TankName, *, clutter: Literal["on", "off"] = "on") -> Tank:
+def make_tank(
+    name: TankName, *, clutter: Literal["on", "off"] = "on", layout_seed: int | None = None
+) -> Tank:
     """A tank preset: `nfp` (the paper's pool), `mockup` (its real test tank), or `pond`.
 
     `pond` is a storage pond of another size and layout, held out of training and tuning.
+    With `layout_seed`, the clutter is the preset's kinds and numbers laid out anew (`drawn`).
     """
     if name == "nfp":
         dims = (28.0, 16.0, 8.0, 1.0)
@@ -180,7 +183,65 @@ def make_tank(name: TankName, *, clutter: Literal["on", "off"] = "on") -> Tank:
         boxes, cylinders = _mockup_clutter(*dims[:3])
     if clutter == "off":
         boxes, cylinders = (), ()
+    elif layout_seed is not None:
+        # The layout's own stream: a run's other draws (noise, looks) stay as they were.
+        rng = np.random.default_rng([layout_seed % 2**32, 0x1A70])
+        boxes, cylinders = drawn(boxes, cylinders, dims[:3], rng)
     return Tank(name, *dims, boxes=boxes, cylinders=cylinders)
+
+
+# How far a drawn layout moves things: floor objects (racks, skips) in the plane, fixtures
+# along their wall, pipes along the walls up or down.
+_FLOOR_SHIFT_M = 0.75
+_WALL_SHIFT_M = 1.5
+_PIPE_SHIFT_M = 0.5
+
+
+def drawn(
+    boxes: tuple[Box, ...],
+    cylinders: tuple[Cylinder, ...],
+    size: tuple[float, float, float],
+    rng: np.random.Generator,
+) -> tuple[tuple[Box, ...], tuple[Cylinder, ...]]:
+    """The same kinds and numbers of clutter, laid out anew (a run's own tank layout).
+
+    Sandbags anywhere on the floor; racks and skips shifted in the plane; wall fixtures slid
+    along their wall; pipes along the walls raised or lowered, posts and ladders slid along
+    their wall. Everything stays inside the tank.
+    """
+    length, width, depth = size
+    limits = ((0.0, length), (0.0, width))
+    out: list[Box] = []
+    for b in boxes:
+        lo, hi = list(b.lo), list(b.hi)
+        on_wall = [k for k in (0, 1) if lo[k] <= 0.0 or hi[k] >= limits[k][1]]
+        if b.kind == "sandbag":
+            moves = [float(rng.uniform(1.0, limits[k][1] - 1.5)) - lo[k] for k in (0, 1)]
+        elif on_wall:
+            moves = [0.0, 0.0]
+            moves[1 - on_wall[0]] = float(rng.uniform(-_WALL_SHIFT_M, _WALL_SHIFT_M))
+        else:
+            moves = [float(v) for v in rng.uniform(-_FLOOR_SHIFT_M, _FLOOR_SHIFT_M, 2)]
+        for k in (0, 1):
+            # Inside the tank, clear of the walls it did not touch.
+            low = limits[k][0] if k in on_wall else limits[k][0] + 0.3
+            high = limits[k][1] if k in on_wall else limits[k][1] - 0.3
+            move = min(max(moves[k], low - lo[k]), high - hi[k])
+            lo[k] = float(lo[k] + move)
+            hi[k] = float(hi[k] + move)
+        out.append(replace(b, lo=(lo[0], lo[1], lo[2]), hi=(hi[0], hi[1], hi[2])))
+    pipes: list[Cylinder] = []
+    for c in cylinders:
+        start = list(c.start)
+        if c.axis == "z":
+            k = 0 if min(start[1], width - start[1]) < min(start[0], length - start[0]) else 1
+            shifted = start[k] + float(rng.uniform(-_WALL_SHIFT_M, _WALL_SHIFT_M))
+            start[k] = min(max(shifted, 0.3), limits[k][1] - 0.3)
+        else:
+            shifted = start[2] + float(rng.uniform(-_PIPE_SHIFT_M, _PIPE_SHIFT_M))
+            start[2] = min(max(shifted, -depth + 0.5), -0.3)
+        pipes.append(replace(c, start=(start[0], start[1], start[2])))
+    return tuple(out), tuple(pipes)
 
 
 def tank_bounds(tank: Tank) -> TankBounds:
