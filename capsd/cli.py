@@ -415,7 +415,11 @@ def _cmd_bench_detect(args: argparse.Namespace) -> int:
         if not weights.is_file():
             return _fail(f"bench detect: --weights {weights}: no such file", EXIT_CONFIG)
     return detect.run(
-        duration_s=args.duration, which=args.detector, fixtures=args.fixtures, weights=args.weights
+        duration_s=args.duration,
+        which=args.detector,
+        fixtures=args.fixtures,
+        weights=args.weights,
+        json_out=args.json,
     )
 
 
@@ -1088,6 +1092,7 @@ def build_parser() -> argparse.ArgumentParser:
         "allowed); or time per frame.",
     )
     bdet.add_argument("--duration", type=positive_float, default=15.0, help="seconds per run")
+    bdet.add_argument("--json", type=Path, default=None, help="also write the figures as JSON")
     bdet.add_argument(
         "--fixtures",
         type=Path,

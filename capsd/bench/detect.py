@@ -16,6 +16,7 @@ the service's tracking (frames 25 ms apart) and searching every frame alone (the
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import statistics
@@ -287,9 +288,20 @@ def run(
     which: str = "all",
     fixtures: Path | None = None,
     weights: list[Path] | None = None,
+    json_out: Path | None = None,
 ) -> int:
     detectors = _detectors(which, weights)
     tallies = evaluate(detectors, duration_s=duration_s)
+    if json_out is not None:
+        json_out.parent.mkdir(parents=True, exist_ok=True)
+        figures = {
+            "runs": [list(r) for r in RUNS],
+            "looks": list(LOOKS),
+            "duration_s_per_run": duration_s,
+            "min_confidence": MIN_CONFIDENCE,
+            "groups": {name: tally.summary() for name, tally in sorted(tallies.items())},
+        }
+        json_out.write_text(json.dumps(figures, indent=1) + "\n")
     print()
     print(
         f"{len(RUNS)} held-out runs of {duration_s:g} s in each look ({', '.join(LOOKS)}): "
