@@ -113,6 +113,58 @@ def demo_summary(figures: dict[str, Any]) -> list[str]:
     ]
 
 
+_LATENCY_SERVICES = ("asv_pose", "sonar_detect", "locator", "mav_bridge")
+# The pipeline's order (the bench's JSON has its stages in sorted order): by first word.
+_STAGE_ORDER = ("sonar", "frame", "detection", "of", "detections", "fix", "fix transport",
+                "bridge", "END")  # fmt: skip
+
+
+def _stage_rank(stage: str) -> int:
+    words = stage.replace(":", "").split()
+    for key in (" ".join(words[:2]), words[0]):
+        if key in _STAGE_ORDER:
+            return _STAGE_ORDER.index(key)
+    return len(_STAGE_ORDER)
+
+
+def latency_table(figures: dict[str, Any]) -> list[str]:
+    """Per-stage medians (p99) in ms at each sonar rate, CPU, memory, the Zenoh floor."""
+    rates = sorted(figures["rates"], key=lambda r: r["rate_hz"])
+    stages = sorted(rates[0]["stages"], key=_stage_rank)
+
+    def cell(s: dict[str, Any]) -> str:
+        if s.get("median_ms") is None:
+            return "-"
+        return f"{s['median_ms']:.1f} ({s['p99_ms']:.1f})"
+
+    lines = [
+        "| stage | " + " | ".join(f"{r['rate_hz']:g} Hz" for r in rates) + " |",
+        "|---|" + "---:|" * len(rates),
+    ]
+    for stage in stages:
+        label = stage.strip()
+        lines.append(f"| {label} | " + " | ".join(cell(r["stages"][stage]) for r in rates) + " |")
+
+    def row(label: str, cells: list[str]) -> str:
+        return f"| {label} | " + " | ".join(cells) + " |"
+
+    cpu = [sum(r["cpu_cores"].get(n, 0.0) for n in _LATENCY_SERVICES) for r in rates]
+    lines.append(row("CPU of the four services (cores)", [f"{c:.2f}" for c in cpu]))
+    for service in ("mav_bridge", "sonar_detect"):
+        rss = [f"{r['rss_mb'].get(service, 0.0):.0f}" for r in rates]
+        lines.append(row(f"{service} resident MB", rss))
+    sent = [f"{r['frames']['vpe_sent']} / {r['frames']['published']}" for r in rates]
+    lines.append(row("VPE sent / frames published", sent))
+    floor = ", ".join(
+        f"{name} ({f['bytes']} B) {f['median_ms']:.2f} ms" for name, f in figures["floor"].items()
+    )
+    problems = [p for r in rates for p in r["problems"]]
+    lines += ["", f"Zenoh floor, bare put to callback through the router: {floor}."]
+    if problems:
+        lines.append("Problems: " + "; ".join(problems))
+    return lines
+
+
 def box_range_bias(figures: dict[str, Any]) -> list[str]:
     """The paper's box-centre range shortfall the calibrated baseline adds back."""
     bias = figures["box_range_bias_mm"]
@@ -254,6 +306,7 @@ RENDERERS: dict[str, tuple[Callable[[dict[str, Any]], list[str]], str]] = {
     "box_range_bias": (box_range_bias, "capsd bench accuracy"),
     "evaluate_checks": (evaluate_checks, "capsd bench evaluate"),
     "demo_summary": (demo_summary, "capsd demo"),
+    "latency_table": (latency_table, "capsd bench latency"),
     "detect_table": (detect_table, "capsd bench detect --json FILE"),
     "consistency_table": (consistency_table, "capsd bench consistency"),
     "calibrate_table": (calibrate_table, "capsd bench calibrate"),
