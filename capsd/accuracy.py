@@ -30,13 +30,20 @@ class Scored:
     covariance_m2: tuple[float, ...] | None = None  # the reported covariance of the estimate
 
 
+def fix_estimate(
+    fix: RovFix,
+) -> tuple[tuple[float, float, float] | None, tuple[float, ...] | None]:
+    """The position a fix offers and its covariance: the tracked one, else the single-ping one."""
+    if fix.position_m is not None:
+        return fix.position_m, fix.covariance_m2
+    return fix.raw_position_m, fix.raw_covariance_m2
+
+
 def scored(fix: RovFix, truth_m: tuple[float, float, float]) -> Scored:
     """A fix against where the ROV truly was (the simulator's label, or a reference)."""
     good = fix.quality == "good"
-    tracked = good and fix.position_m is not None
-    estimate = fix.position_m or fix.raw_position_m if good else None
+    estimate, covariance = fix_estimate(fix) if good else (None, None)
     raw = fix.raw_position_m if good else None
-    covariance = fix.covariance_m2 if tracked else fix.raw_covariance_m2 if good else None
     return Scored(fix.stamp_ns, estimate, raw, truth_m, covariance)
 
 

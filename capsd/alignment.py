@@ -35,6 +35,12 @@ _MEDIAN_DISTANCE_SIGMAS = 1.5382
 OUTLIER_FLOOR_M = 0.01
 
 
+def rotation_angle_deg(rotation: np.ndarray) -> float:
+    """The angle (deg) of a rotation matrix about its axis."""
+    cos = (float(np.trace(rotation)) - 1.0) / 2.0
+    return math.degrees(math.acos(max(-1.0, min(1.0, cos))))
+
+
 @dataclass(frozen=True)
 class Similarity:
     """p_tank = scale * rotation @ p_reference + translation_m."""
@@ -53,12 +59,11 @@ class Similarity:
 
     def describe(self) -> dict[str, float]:
         yaw, pitch, roll = matrix_to_euler_zyx(self.rotation)
-        angle = math.acos(max(-1.0, min(1.0, (float(np.trace(self.rotation)) - 1.0) / 2.0)))
         return {
             "yaw_deg": round(math.degrees(yaw), 4),
             "pitch_deg": round(math.degrees(pitch), 4),
             "roll_deg": round(math.degrees(roll), 4),
-            "rotation_angle_deg": round(math.degrees(angle), 4),
+            "rotation_angle_deg": round(rotation_angle_deg(self.rotation), 4),
             "x_m": round(float(self.translation_m[0]), 4),
             "y_m": round(float(self.translation_m[1]), 4),
             "z_m": round(float(self.translation_m[2]), 4),

@@ -25,7 +25,6 @@ convert is counted with its reason and skipped; a mapped topic that yields nothi
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
@@ -75,9 +74,7 @@ class TopicMap(ConfigSection, frozen=True, kw_only=True):
             raise ValueError("fields 'position_sigma_m' and 'angle_sigma_deg' go together")
 
     def sigma(self) -> PoseSigma | None:
-        if self.position_sigma_m is None or self.angle_sigma_deg is None:
-            return None
-        return PoseSigma(self.position_sigma_m, math.radians(self.angle_sigma_deg))
+        return PoseSigma.from_degrees(self.position_sigma_m, self.angle_sigma_deg)
 
 
 class Mapping(ConfigSection, frozen=True, kw_only=True):

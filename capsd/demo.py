@@ -139,10 +139,11 @@ def _write_configs(
         "streams": {"detections_truth_noise": "off", "asv_pose_truth_noise": "off"},
         "rates": {"sonar_hz": sonar_hz},
     }
-    start = Simulation(SimConfig(tank=tank, trajectory=trajectory, seed=seed), horizon_s=10)
+    run = SimConfig(tank=tank, trajectory=trajectory, seed=seed)
+    start = Simulation(run, horizon_s=10)
     # The person putting the ASV in the water knows roughly which way it points: 20 deg off.
     heading = math.degrees(matrix_to_euler_zyx(start.asv_pose(0.0).rotation)[0]) + 20.0
-    t = SimConfig(tank=tank, trajectory=trajectory, seed=seed).world_tank()
+    t = run.world_tank()
     tank_box = {"length_m": t.length_m, "width_m": t.width_m}
     configs = {
         "sim": sim,

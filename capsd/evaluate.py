@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from capsd.accuracy import HEADER, Accuracy, row, scored
+from capsd.accuracy import HEADER, Accuracy, fix_estimate, row, scored
 from capsd.alignment import Alignment, Track, align
 from capsd.codec import Codec
 from capsd.errors import CapsdError, PayloadError
@@ -113,7 +113,7 @@ def evaluate(
     """Align the reference to the good fixes, then score every fix the reference covers."""
     track = Track.of(inputs.reference_stamps_ns, inputs.reference_m, max_gap_s=max_gap_s)
     good = [f for f in inputs.fixes if f.quality == "good"]
-    estimates = np.array([_estimate(f) for f in good])
+    estimates = np.array([fix_estimate(f)[0] for f in good])
     stamps = np.array([f.stamp_ns for f in good], dtype=np.int64)
     try:
         alignment = align(
@@ -130,12 +130,6 @@ def evaluate(
         if ok:
             accuracy.add(scored(fix, (float(truth[0]), float(truth[1]), float(truth[2]))))
     return Evaluation(accuracy, alignment, inputs, int(np.count_nonzero(~valid)), track.spikes)
-
-
-def _estimate(fix: RovFix) -> tuple[float, float, float]:
-    position = fix.position_m or fix.raw_position_m
-    assert position is not None  # a good fix carries one (RovFix checks)
-    return position
 
 
 def report(evaluation: Evaluation, out_dir: Path, *, title: str) -> dict[str, Any]:

@@ -190,7 +190,6 @@ class Log(msgspec.Struct, frozen=True):
     line: int = 0
 
 
-ViewMessage = FrameTransforms | PosesInFrame | LaserScan | SceneUpdate | CompressedImage | Log
 SCHEMA_NAMES: dict[type[msgspec.Struct], str] = {
     cls: f"foxglove.{cls.__name__}"
     for cls in (FrameTransforms, PosesInFrame, LaserScan, SceneUpdate, CompressedImage, Log)

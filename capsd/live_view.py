@@ -25,7 +25,7 @@ import numpy as np
 import zenoh
 
 from capsd import foxglove_messages as fm
-from capsd.codec import SCHEMAS, decode_any, split_encoding, to_builtins
+from capsd.codec import decode_any, to_builtins
 from capsd.errors import PayloadError
 from capsd.keys import is_concrete
 from capsd.payloads import SonarDetections, SonarFrame
@@ -102,46 +102,41 @@ class LiveView:
             self.counts["bad_payloads"] += 1
             return
         try:
-            self._forward(key, encoding, payload)
+            self._forward(key, payload)
         except Exception as exc:  # a viewer must never take the bus callback down
             self.counts["forward_errors"] += 1
             self.last_error = f"{key}: {exc}"
 
-    def _forward(self, key: str, encoding: str, payload: Any) -> None:
+    def _forward(self, key: str, payload: Any) -> None:
         with self.lock:
             self.counts["samples"] += 1
             if isinstance(payload, SonarFrame):
                 self.frame = payload  # drawn from the main loop, not on the bus's thread
             else:
-                self._json(key, encoding, payload)
+                self._json(key, payload)
                 self._view(self.scene.on_payload(key, payload))
 
-    def _json(self, key: str, encoding: str, payload: Any) -> None:
-        channel = self.channels.get(key)
+    def _channel(self, topic: str, cls: type[Any], schema_name: str) -> Any:
+        """The topic's channel, advertised with its viewer schema on first use."""
+        channel = self.channels.get(topic)
         if channel is None:
-            _, schema_name = split_encoding(encoding)
-            cls = SCHEMAS[schema_name or ""]
             schema = self.foxglove.Schema(
-                name=getattr(cls, "SCHEMA_NAME", cls.__name__),
+                name=schema_name,
                 encoding="jsonschema",
                 data=msgspec.json.encode(viewer_schema(cls)),
             )
-            channel = self.foxglove.Channel(key, schema=schema, message_encoding="json")
-            self.channels[key] = channel
+            channel = self.foxglove.Channel(topic, schema=schema, message_encoding="json")
+            self.channels[topic] = channel
+        return channel
+
+    def _json(self, key: str, payload: Any) -> None:
+        cls = type(payload)
+        channel = self._channel(key, cls, getattr(cls, "SCHEMA_NAME", cls.__name__))
         channel.log(without_nulls(to_builtins(payload)), log_time=payload.stamp_ns)
 
     def _view(self, messages: list[tuple[str, Any]]) -> None:
         for topic, message in messages:
-            channel = self.channels.get(topic)
-            if channel is None:
-                cls = type(message)
-                schema = self.foxglove.Schema(
-                    name=fm.SCHEMA_NAMES[cls],
-                    encoding="jsonschema",
-                    data=msgspec.json.encode(viewer_schema(cls)),
-                )
-                channel = self.foxglove.Channel(topic, schema=schema, message_encoding="json")
-                self.channels[topic] = channel
+            channel = self._channel(topic, type(message), fm.SCHEMA_NAMES[type(message)])
             channel.log(msgspec.to_builtins(message))
             self.counts[topic] += 1
 

@@ -58,6 +58,13 @@ class PoseSigma:
     position_m: float
     angle_rad: float
 
+    @classmethod
+    def from_degrees(cls, position_m: float | None, angle_deg: float | None) -> PoseSigma | None:
+        """From a config's two optional fields (None unless both are given)."""
+        if position_m is None or angle_deg is None:
+            return None
+        return cls(position_m, math.radians(angle_deg))
+
     def covariance(self) -> tuple[float, ...]:
         diagonal = [self.position_m**2] * 3 + [self.angle_rad**2] * 3
         return tuple(float(v) for v in np.diag(diagonal).ravel())

@@ -28,6 +28,7 @@ from typing import Any, Literal
 import numpy as np
 
 from capsd import foxglove_messages as fm
+from capsd.accuracy import fix_estimate
 from capsd.geometry import matrix_to_quat
 from capsd.keys import Subject, subject_of
 from capsd.mounts import SonarMountConfig
@@ -97,6 +98,12 @@ def _pose(position: Any = (0.0, 0.0, 0.0), orientation: Any = (0.0, 0.0, 0.0, 1.
     return fm.Pose(position=_vec(position), orientation=_quat(orientation))
 
 
+def _segments(points: list[fm.Vector3], *, thickness: float, color: fm.Color) -> fm.LinePrimitive:
+    """Line segments (a line list: points in pairs), thickness in pixels."""
+    return fm.LinePrimitive(type=2, pose=_pose(), thickness=thickness, scale_invariant=True,
+                            points=tuple(points), color=color)  # fmt: skip
+
+
 class _Every:
     """True at most once per period of the payloads' own stamps."""
 
@@ -144,14 +151,7 @@ class SceneView:
                 edges += [fm.Vector3(x=a[0], y=a[1], z=z), fm.Vector3(x=b[0], y=b[1], z=z)]
         for x, y in corners:
             edges += [fm.Vector3(x=x, y=y, z=0.0), fm.Vector3(x=x, y=y, z=-tank.depth_m)]
-        walls = fm.LinePrimitive(
-            type=2,
-            pose=_pose(),
-            thickness=2.0,
-            scale_invariant=True,
-            points=tuple(edges),
-            color=_GREY,
-        )
+        walls = _segments(edges, thickness=2.0, color=_GREY)
         floor = fm.CubePrimitive(
             pose=_pose((tank.length_m / 2, tank.width_m / 2, -tank.depth_m - 0.01)),
             size=fm.Vector3(x=tank.length_m, y=tank.width_m, z=0.02),
@@ -295,7 +295,7 @@ class SceneView:
         return out
 
     def _fix(self, fix: RovFix) -> Out:
-        position = fix.position_m or fix.raw_position_m
+        position, covariance = fix_estimate(fix)
         color = _QUALITY.get(fix.quality)
         if position is None or color is None:
             return []
@@ -317,7 +317,6 @@ class SceneView:
                 ),
             ),
         ]
-        covariance = fix.covariance_m2 if fix.position_m is not None else fix.raw_covariance_m2
         spheres: tuple[fm.SpherePrimitive, ...] = ()
         if covariance is not None:
             values, vectors = np.linalg.eigh(np.array(covariance).reshape(3, 3))
@@ -416,14 +415,7 @@ class SceneView:
         for azimuth in (az0, az1):
             for r in (near, far):
                 points += [ray(r, azimuth, -half), ray(r, azimuth, half)]
-        lines = fm.LinePrimitive(
-            type=2,
-            pose=_pose(),
-            thickness=1.5,
-            scale_invariant=True,
-            points=tuple(points),
-            color=_FAN,
-        )
+        lines = _segments(points, thickness=1.5, color=_FAN)
         return fm.SceneEntity(
             timestamp=fm.foxglove_time(frame.stamp_ns),
             frame_id="sonar",

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from capsd import topics
-from capsd.alignment import Similarity
+from capsd.alignment import Similarity, rotation_angle_deg
 from capsd.codec import Codec
 from capsd.evaluate import evaluate, load, report
 from capsd.geometry import euler_zyx_to_matrix
@@ -117,12 +117,6 @@ def simulated_dive(
     }
 
 
-def rotation_error_deg(a: np.ndarray, b: np.ndarray) -> float:
-    """The angle of the rotation taking `b` to `a`."""
-    cos = (float(np.trace(a @ b.T)) - 1.0) / 2.0
-    return math.degrees(math.acos(max(-1.0, min(1.0, cos))))
-
-
 def bench(
     *,
     tank: TankName,
@@ -149,7 +143,7 @@ def bench(
     bench_med = dive["bench"]["med_mm"]
     eval_med = figures["accuracy"]["med_mm"]
     checks = {
-        "rotation_error_deg": round(rotation_error_deg(got.rotation, wanted.rotation), 4),
+        "rotation_error_deg": round(rotation_angle_deg(got.rotation @ wanted.rotation.T), 4),
         "translation_error_mm": round(float(np.max(moved)) * 1000, 2),
         "offset_error_ms": round(
             evaluation.alignment.offset_ns / 1e6 - dive["expected_offset_ms"], 2

@@ -19,7 +19,6 @@ that are NaN, infinite or outside [range_min, range_max] become 0 (no return), a
 from __future__ import annotations
 
 import logging
-import math
 from collections import Counter
 from collections.abc import Callable
 from typing import Annotated, Any, Literal
@@ -93,9 +92,7 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
             raise ValueError("field 'child_frame': a /tf pose needs the tracked body's frame")
 
     def pose_sigma(self) -> PoseSigma | None:
-        if self.pose_position_sigma_m is None or self.pose_angle_sigma_deg is None:
-            return None
-        return PoseSigma(self.pose_position_sigma_m, math.radians(self.pose_angle_sigma_deg))
+        return PoseSigma.from_degrees(self.pose_position_sigma_m, self.pose_angle_sigma_deg)
 
 
 def dds_type_name(ros_type: str) -> str:
