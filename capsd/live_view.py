@@ -29,7 +29,7 @@ from capsd.codec import decode_any, to_builtins
 from capsd.errors import PayloadError
 from capsd.keys import is_concrete
 from capsd.payloads import SonarDetections, SonarFrame
-from capsd.scene import ImageFormat, SceneView, ViewSettings, encode_image
+from capsd.scene import TOPIC_TYPES, ImageFormat, SceneView, ViewSettings, encode_image
 from capsd.tank import TankBounds
 from capsd.viewer_schema import viewer_schema, without_nulls
 
@@ -90,6 +90,12 @@ class LiveView:
         self.frame: SonarFrame | None = None
         self._last_map = 0.0
         self.last_error = ""
+        # The view's own channels exist before any client connects: a channel created while a
+        # client is connected is advertised to it in a race with the server's own bookkeeping
+        # (foxglove-sdk 0.30: a subscribe sent at once can get "Unknown channel ID").
+        fixed: dict[str, type[msgspec.Struct]] = {**TOPIC_TYPES, TANK_MAP: fm.CompressedImage}
+        for topic, cls in fixed.items():
+            self._channel(topic, cls, fm.SCHEMA_NAMES[cls])
 
     def on_sample(self, sample: zenoh.Sample) -> None:
         key, encoding = str(sample.key_expr), str(sample.encoding)

@@ -25,6 +25,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Literal
 
+import msgspec
 import numpy as np
 
 from capsd import foxglove_messages as fm
@@ -50,7 +51,17 @@ ROV_TRAIL = "/capsd/rov_trail"
 LIDAR = "/capsd/lidar"
 LOG = "/capsd/log"
 SONAR_FAN = "/capsd/sonar_fan"
-TOPICS = (TF, SCENE, ASV_TRAIL, ROV_TRAIL, LIDAR, LOG, SONAR_FAN)
+# Each topic and the one message type it carries.
+TOPIC_TYPES: dict[str, type[msgspec.Struct]] = {
+    TF: fm.FrameTransforms,
+    SCENE: fm.SceneUpdate,
+    ASV_TRAIL: fm.PosesInFrame,
+    ROV_TRAIL: fm.PosesInFrame,
+    LIDAR: fm.LaserScan,
+    LOG: fm.Log,
+    SONAR_FAN: fm.CompressedImage,
+}
+TOPICS = tuple(TOPIC_TYPES)
 
 ImageFormat = Literal["jpeg", "png", "off"]
 Out = list[tuple[str, Any]]
@@ -437,4 +448,4 @@ def encode_image(image: Any, fmt: ImageFormat, quality: int) -> bytes:
     return bytes(data.tobytes())
 
 
-__all__ = ["TOPICS", "SceneView", "ViewSettings", "encode_image"]
+__all__ = ["TOPICS", "TOPIC_TYPES", "SceneView", "ViewSettings", "encode_image"]
