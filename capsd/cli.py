@@ -261,8 +261,8 @@ def _cmd_list(args: argparse.Namespace) -> int:
 def _mav_tool(args: argparse.Namespace, tool: Callable[[Any], int]) -> int:
     """Run a `capsd mav` tool with the checks they share: the extra, the connection string."""
     try:
-        from services.mav_bridge import check
-        from services.mav_bridge.mavlink import check_connection
+        from capsd.services.mav_bridge import check
+        from capsd.services.mav_bridge.mavlink import check_connection
     except ImportError as exc:  # the base install has no pymavlink: it comes with [rov]
         return _fail(
             f"`capsd mav` needs the rov extra (pip install 'capsd[rov]'): {exc}", EXIT_FAILURE
@@ -331,13 +331,13 @@ def _cmd_mav_zero_depth(args: argparse.Namespace) -> int:
 
 
 def _sim_config(args: argparse.Namespace) -> Any:
-    from simulator.commands import config_from_args
+    from capsd.simulator.commands import config_from_args
 
     return config_from_args(args)
 
 
 def _cmd_sim(args: argparse.Namespace) -> int:
-    from simulator.commands import run_sim
+    from capsd.simulator.commands import run_sim
 
     try:
         config = _sim_config(args)
@@ -348,7 +348,7 @@ def _cmd_sim(args: argparse.Namespace) -> int:
 
 
 def _cmd_render_fan(args: argparse.Namespace) -> int:
-    from simulator.commands import render_fan
+    from capsd.simulator.commands import render_fan
 
     return render_fan(args)
 
@@ -365,7 +365,7 @@ def _cmd_render_view(args: argparse.Namespace) -> int:
 
 
 def _cmd_render_top_view(args: argparse.Namespace) -> int:
-    from simulator.commands import render_top_view
+    from capsd.simulator.commands import render_top_view
 
     try:
         config = _sim_config(args)
@@ -670,7 +670,7 @@ def _cmd_bench_accuracy(args: argparse.Namespace) -> int:
 
 
 def _cmd_train_calibrate(args: argparse.Namespace) -> int:
-    from services.sonar_detect.train import recalibrate
+    from capsd.services.sonar_detect.train import recalibrate
 
     try:
         recalibrate(args.weights, duration_s=args.duration)
@@ -681,8 +681,8 @@ def _cmd_train_calibrate(args: argparse.Namespace) -> int:
 
 def _cmd_label(args: argparse.Namespace) -> int:
     from capsd.config import load_config
-    from services.locator.service import Config as LocatorConfig
-    from services.sonar_detect.labelling import label_recording, write_labels
+    from capsd.services.locator.service import Config as LocatorConfig
+    from capsd.services.sonar_detect.labelling import label_recording, write_labels
 
     if not 0.0 < args.max_sigma <= 1.0:
         return _fail(f"label: --max-sigma must be in (0, 1] m, not {args.max_sigma}", EXIT_CONFIG)
@@ -755,7 +755,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 def _cmd_calibrate(args: argparse.Namespace) -> int:
     from capsd.calibrate import calibrate, write_config
     from capsd.config import load_config
-    from services.locator.service import Config as LocatorConfig
+    from capsd.services.locator.service import Config as LocatorConfig
 
     try:
         locator = load_config(args.locator_config, LocatorConfig)
@@ -780,10 +780,10 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def _cmd_train_detector(args: argparse.Namespace) -> int:
-    from services.sonar_detect.train import TrainConfig, train
+    from capsd.services.sonar_detect.train import TrainConfig, train
 
     if args.finetune is not None:
-        from services.sonar_detect.finetune import FinetuneConfig, finetune
+        from capsd.services.sonar_detect.finetune import FinetuneConfig, finetune
 
         try:
             finetune(

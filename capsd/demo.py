@@ -36,7 +36,7 @@ from capsd.errors import PayloadError
 from capsd.health import query_health
 from capsd.keys import is_concrete
 from capsd.payloads import Health, RovFix, SonarLabel
-from simulator.world import TankName, TrajectoryName
+from capsd.simulator.world import TankName, TrajectoryName
 
 SERVICES = (
     ("sim", "sim"),
@@ -122,9 +122,9 @@ def _write_configs(
 
     from capsd.geometry import matrix_to_euler_zyx
     from capsd.signing import SiteKey, write_key
-    from simulator.config import Config as SimConfig
-    from simulator.sim import Simulation
-    from simulator.world import tank_bounds
+    from capsd.simulator.config import Config as SimConfig
+    from capsd.simulator.sim import Simulation
+    from capsd.simulator.world import tank_bounds
 
     bus = {"connect": [endpoint]}
     # The site's fix key: the locator signs, the bridge checks (as deployed).
@@ -301,7 +301,7 @@ def main(
     )
     try:
         procs.start("router", ["-m", "capsd", "router", "--listen", endpoint])
-        procs.start("autopilot", ["-m", "simulator.autopilot", "--port", str(mav_port)])
+        procs.start("autopilot", ["-m", "capsd.simulator.autopilot", "--port", str(mav_port)])
         if record is not None:
             # Started first and stopped last: the recording holds each service's whole life.
             args = ["cap/**", "-o", str(record), "--exclude", "cap/*/*/sonar/frame",

@@ -46,8 +46,8 @@ def view_settings(
 ) -> ViewSettings:
     """The view of the site the services are configured for (their config files)."""
     from capsd.config import load_config
-    from services.asv_pose.service import Config as AsvPoseConfig
-    from services.locator.service import Config as LocatorConfig
+    from capsd.services.asv_pose.service import Config as AsvPoseConfig
+    from capsd.services.locator.service import Config as LocatorConfig
 
     locator = load_config(locator_config, LocatorConfig) if locator_config else LocatorConfig()
     lidar_xy = (0.0, 0.0)
@@ -67,7 +67,7 @@ def make_view(settings: ViewSettings) -> SceneView:
     """The scene derivation with the sonar fan drawn as the detector's tools draw it."""
 
     def fan(frame: SonarFrame, detections: SonarDetections | None) -> Any:
-        from services.sonar_detect.fan import fan_with_overlays
+        from capsd.services.sonar_detect.fan import fan_with_overlays
 
         return fan_with_overlays(frame, None, detections)
 
@@ -165,8 +165,8 @@ class LiveView:
                     format="png"))])  # fmt: skip
 
     def _map_image(self) -> Any:
-        from simulator.render import top_view
-        from simulator.world import Box, Tank
+        from capsd.simulator.render import top_view
+        from capsd.simulator.world import Box, Tank
 
         tank = self.settings.tank
         site = Tank(

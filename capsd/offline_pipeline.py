@@ -36,16 +36,16 @@ from capsd.payloads import (
     SonarLabel,
 )
 from capsd.progress import Progress
-from services.asv_pose.estimator import AsvPoseEstimator, EstimatorSettings, pose_payload
-from services.asv_pose.scan_match import tank_walls
-from services.asv_pose.tilt import TiltSettings
-from services.locator.service import Config as LocatorConfig
-from services.locator.service import Locator, MethodConfig
-from services.sonar_detect.paper_box import box_centre
-from simulator.config import OFFLINE_START_NS
-from simulator.config import Config as SimConfig
-from simulator.sim import Simulation
-from simulator.world import make_tank, tank_bounds
+from capsd.services.asv_pose.estimator import AsvPoseEstimator, EstimatorSettings, pose_payload
+from capsd.services.asv_pose.scan_match import tank_walls
+from capsd.services.asv_pose.tilt import TiltSettings
+from capsd.services.locator.service import Config as LocatorConfig
+from capsd.services.locator.service import Locator, MethodConfig
+from capsd.services.sonar_detect.paper_box import box_centre
+from capsd.simulator.config import OFFLINE_START_NS
+from capsd.simulator.config import Config as SimConfig
+from capsd.simulator.sim import Simulation
+from capsd.simulator.world import make_tank, tank_bounds
 
 DetectorKind = Literal["cnn", "classical", "box_centre"]
 TiltKind = Literal["ours", "paper"]
@@ -110,11 +110,11 @@ def _detectors(
 ) -> dict[DetectorKind, Callable[[SonarFrame], list[Detection]]]:
     out: dict[DetectorKind, Callable[[SonarFrame], list[Detection]]] = {}
     if "cnn" in kinds:
-        from services.sonar_detect.cnn import CnnDetector
+        from capsd.services.sonar_detect.cnn import CnnDetector
 
         out["cnn"] = CnnDetector().detect
     if "classical" in kinds:
-        from services.sonar_detect.classical import ClassicalDetector
+        from capsd.services.sonar_detect.classical import ClassicalDetector
 
         out["classical"] = ClassicalDetector().detect
     return out

@@ -28,47 +28,47 @@ SERVICES: dict[str, ServiceEntry] = {
     for entry in (
         ServiceEntry(
             "asv_pose",
-            "services.asv_pose.service",
+            "capsd.services.asv_pose.service",
             "ASV pose from IMU and LiDAR (tilt filter, scan matching)",
         ),
         ServiceEntry(
             "tim5xx",
-            "services.asv_pose.tim5xx",
+            "capsd.services.asv_pose.tim5xx",
             "SICK TiM5xx LiDAR client (CoLa-A): scans onto the bus",
         ),
         ServiceEntry(
             "ros_input",
-            "services.asv_pose.ros_input",
+            "capsd.services.asv_pose.ros_input",
             "ROS 2 LaserScan/Imu/pose over rmw_zenoh (CDR) onto the bus",
         ),
         ServiceEntry(
             "locator",
-            "services.locator.service",
+            "capsd.services.locator.service",
             "CAP-SD fix from detections, ASV pose and ROV depth",
         ),
         ServiceEntry(
             "mav_bridge",
-            "services.mav_bridge.service",
+            "capsd.services.mav_bridge.service",
             "ArduSub telemetry onto the bus, gated estimates into ArduSub",
         ),
         ServiceEntry(
             "oculus",
-            "services.sonar_detect.driver",
+            "capsd.services.sonar_detect.driver",
             "Oculus multibeam driver: sonar frames onto the bus",
         ),
         ServiceEntry(
             "sonar_detect",
-            "services.sonar_detect.service",
+            "capsd.services.sonar_detect.service",
             "ROV detection in sonar frames (polar CNN, or classical CFAR)",
         ),
         ServiceEntry(
             "sonar_replay",
-            "services.sonar_detect.replay",
+            "capsd.services.sonar_detect.replay",
             "recorded sonar frames (Oculus bytes or a dataset) onto the bus, paced",
         ),
         ServiceEntry(
             "sim",
-            "simulator.service",
+            "capsd.simulator.service",
             "simulated tank: ASV pose, ROV depth/attitude, detections, truth",
         ),
     )

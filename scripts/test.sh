@@ -18,7 +18,7 @@ rm -rf .venv-rov && "$PY" -m venv .venv-rov
 import contextlib, importlib.util, io
 for heavy in ("torch", "scipy", "cv2"):
     assert importlib.util.find_spec(heavy) is None, f"{heavy} is installed in the rov role"
-import services.mav_bridge.service  # noqa: F401
+import capsd.services.mav_bridge.service  # noqa: F401
 from capsd.cli import main
 with contextlib.redirect_stdout(io.StringIO()):
     assert main(["run", "mav_bridge", "--print-config"]) == 0

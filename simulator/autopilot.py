@@ -20,7 +20,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Self
 
-from services.mav_bridge.mavlink import (
+from capsd.services.mav_bridge.mavlink import (
     MAV_CMD_PREFLIGHT_CALIBRATION,
     MAV_CMD_SET_MESSAGE_INTERVAL,
     MAV_RESULT_ACCEPTED,
@@ -268,12 +268,12 @@ class AutopilotStandIn:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """`python -m simulator.autopilot --port P`: serve until SIGINT/SIGTERM, then report."""
+    """`python -m capsd.simulator.autopilot --port P`: serve until SIGINT/SIGTERM, then report."""
     import argparse
     import signal
 
     parser = argparse.ArgumentParser(
-        prog="python -m simulator.autopilot",
+        prog="python -m capsd.simulator.autopilot",
         description="An ArduSub stand-in on tcpin:127.0.0.1:PORT.",
     )
     parser.add_argument("--port", type=int, default=5777)

@@ -12,9 +12,9 @@ import numpy as np
 from capsd.errors import CapsdError
 from capsd.launch import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK, service_config_from_args
 from capsd.payloads import SonarDetections, SonarFrame, SonarLabel
-from simulator import dataset, render
-from simulator.config import Config
-from simulator.sim import Simulation
+from capsd.simulator import dataset, render
+from capsd.simulator.config import Config
+from capsd.simulator.sim import Simulation
 
 
 def config_from_args(args: argparse.Namespace) -> Config:
@@ -37,7 +37,7 @@ def run_sim(args: argparse.Namespace, config: Config) -> int:
             f"seed {config.seed} ({counts})"
         )
         return EXIT_OK
-    from simulator.service import main
+    from capsd.simulator.service import main
 
     return main(config)
 

@@ -10,14 +10,14 @@ import msgspec
 from capsd.config import ConfigSection, ServiceConfig
 from capsd.geometry import Transform
 from capsd.mounts import RovConfig, SonarMountConfig
-from simulator import sonar_look
-from simulator.clock import ClockModel
-from simulator.imu import ImuModel
-from simulator.install_errors import InstallErrorsConfig
-from simulator.lidar import LidarModel
-from simulator.sonar import SonarModel
-from simulator.sonar_look import Look, Variety
-from simulator.world import Tank, TankName, TrajectoryName, Waves, make_tank
+from capsd.simulator import sonar_look
+from capsd.simulator.clock import ClockModel
+from capsd.simulator.imu import ImuModel
+from capsd.simulator.install_errors import InstallErrorsConfig
+from capsd.simulator.lidar import LidarModel
+from capsd.simulator.sonar import SonarModel
+from capsd.simulator.sonar_look import Look, Variety
+from capsd.simulator.world import Tank, TankName, TrajectoryName, Waves, make_tank
 
 Rate = Annotated[float, msgspec.Meta(gt=0.0, le=400.0)]
 Sigma = Annotated[float, msgspec.Meta(ge=0.0, le=10.0)]
@@ -58,7 +58,7 @@ class SonarImageConfig(ConfigSection, frozen=True, kw_only=True):
     gain_percent: Annotated[float, msgspec.Meta(ge=0.0, le=100.0)] = 50.0
     noise_level: Sigma = 0.0004
     ghost_gain: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.12
-    # off: the fixed look; train / heldout: every knob of simulator.sonar_look drawn per seed
+    # off: the fixed look; train / heldout: every knob of capsd.simulator.sonar_look drawn per seed
     # (sonar settings, image formation, ROV detail, floor, floating clutter, fish).
     variety: Variety = "off"
     # The look drawn from this seed instead of the run's: one site's sonar and tank (its
@@ -138,7 +138,7 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     tank: TankName = "nfp"
     clutter: OnOff = "on"
     # per_seed: the preset's clutter laid out anew for every run (its racks, sandbags, fixtures
-    # and pipes moved; simulator.world.drawn), from `layout_seed` or else the run's seed;
+    # and pipes moved; capsd.simulator.world.drawn), from `layout_seed` or else the run's seed;
     # preset: the tank's one fixed layout.
     clutter_layout: Literal["per_seed", "preset"] = "per_seed"
     layout_seed: int | None = None
@@ -160,7 +160,7 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     noise: Noise = Noise()
     clocks: Clocks = Clocks()
     streams: Streams = Streams()
-    # What the installation gets wrong, unknown to the services (simulator.install_errors).
+    # What the installation gets wrong, unknown to the services (capsd.simulator.install_errors).
     install_errors: InstallErrorsConfig = InstallErrorsConfig()
     # Sim-time windows [start_s, end_s] in which the sonar sees nothing (the ROV out of view).
     sonar_dropouts_s: tuple[tuple[float, float], ...] = ()

@@ -24,9 +24,9 @@ from capsd.codec import Codec
 from capsd.errors import CapsdError
 from capsd.payloads import Payload
 from capsd.progress import Progress
+from capsd.simulator.config import OFFLINE_START_NS, Config
+from capsd.simulator.sim import Simulation
 from capsd.topics import ALL_TOPICS, Topic
-from simulator.config import OFFLINE_START_NS, Config
-from simulator.sim import Simulation
 
 FORMAT = "capsd-sim-dataset"
 VERSION = 1

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from capsd.geometry import Array
-from simulator.world import GRAVITY
+from capsd.simulator.world import GRAVITY
 
 
 @dataclass(frozen=True)

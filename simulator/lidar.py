@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from capsd.geometry import Array, Transform
-from simulator import scene
-from simulator.world import Tank
+from capsd.simulator import scene
+from capsd.simulator.world import Tank
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""Pictures for people: a tank top view (the sonar fan is services.sonar_detect.fan)."""
+"""Pictures for people: a tank top view (the sonar fan is capsd.services.sonar_detect.fan)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import numpy as np
 import numpy.typing as npt
 
 from capsd.geometry import Array
-from services.sonar_detect.fan import draw_fan, write_png
-from simulator.world import Tank
+from capsd.services.sonar_detect.fan import draw_fan, write_png
+from capsd.simulator.world import Tank
 
 Image = npt.NDArray[np.uint8]
 

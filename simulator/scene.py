@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from capsd.geometry import Array, IndexArray
-from simulator.world import Tank
+from capsd.simulator.world import Tank
 
 NONE, WALL, FLOOR, CLUTTER, ROV = 0, 1, 2, 3, 4
 _EPS = 1e-9

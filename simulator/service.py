@@ -20,8 +20,8 @@ from capsd import topics
 from capsd.logs import log_fields
 from capsd.payloads import Payload, SimControl, SonarFrame
 from capsd.runner import Publisher, ServiceRunner
-from simulator.config import Config
-from simulator.sim import Event, Simulation
+from capsd.simulator.config import Config
+from capsd.simulator.sim import Event, Simulation
 
 __all__ = ["Config", "main"]
 

@@ -38,16 +38,14 @@ from capsd.payloads import (
     SonarFrame,
     SonarLabel,
 )
-from capsd.sonar_geometry import to_polar
-from capsd.topics import Topic
-from simulator.clock import VehicleClock
-from simulator.config import Config
-from simulator.imu import Imu
-from simulator.install_errors import InstallErrors
-from simulator.lidar import scan
-from simulator.scene import BLUEROV2_SEMI_AXES, Ellipsoid
-from simulator.sonar import Label, SonarRenderer
-from simulator.world import (
+from capsd.simulator.clock import VehicleClock
+from capsd.simulator.config import Config
+from capsd.simulator.imu import Imu
+from capsd.simulator.install_errors import InstallErrors
+from capsd.simulator.lidar import scan
+from capsd.simulator.scene import BLUEROV2_SEMI_AXES, Ellipsoid
+from capsd.simulator.sonar import Label, SonarRenderer
+from capsd.simulator.world import (
     AsvMotion,
     RovMotion,
     RovState,
@@ -55,6 +53,8 @@ from simulator.world import (
     rov_motion,
     with_look,
 )
+from capsd.sonar_geometry import to_polar
+from capsd.topics import Topic
 
 
 @dataclass(frozen=True)

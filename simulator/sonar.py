@@ -27,11 +27,11 @@ import numpy.typing as npt
 
 from capsd.geometry import Array, IndexArray, MaskArray, Transform
 from capsd.payloads import SonarFrame
+from capsd.simulator import scene
+from capsd.simulator.scene import Ellipsoid
+from capsd.simulator.sonar_look import Look
+from capsd.simulator.world import Tank
 from capsd.sonar_geometry import BeamModel, to_polar
-from simulator import scene
-from simulator.scene import Ellipsoid
-from simulator.sonar_look import Look
-from simulator.world import Tank
 
 
 @dataclass(frozen=True)
@@ -55,7 +55,7 @@ class SonarModel:
     incidence_exponent: float = 2.0
     dynamic_range_db: float = 35.0
     gamma: float = 0.8
-    # The knobs of simulator.sonar_look; these defaults are the fixed look (variety: off).
+    # The knobs of capsd.simulator.sonar_look; these defaults are the fixed look (variety: off).
     tvg_residual_db: float = 0.0
     gain_jitter_db: float = 0.0
     compression: Literal["log", "linear"] = "log"

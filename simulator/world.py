@@ -20,8 +20,8 @@ from typing import Literal
 import numpy as np
 
 from capsd.geometry import Array, euler_zyx_to_matrix
+from capsd.simulator.sonar_look import Look
 from capsd.tank import TankBounds, TankFixture
-from simulator.sonar_look import Look
 
 TankName = Literal["nfp", "mockup", "pond"]
 # Never used to train the detector or tune anything: the benches' held-out tank.

@@ -1,4 +1,4 @@
-"""The repository stands alone: a copy anywhere collects every test, nothing reads outside it."""
+"""The repository stands alone and installs one package: a copy anywhere collects every test."""
 
 from __future__ import annotations
 
@@ -6,6 +6,7 @@ import re
 import shutil
 import subprocess
 import sys
+import zipfile
 from pathlib import Path
 
 from tests.conftest import REPO
@@ -38,6 +39,17 @@ def _collected(root: Path) -> set[str]:
     return {line for line in out.stdout.splitlines() if "::" in line}
 
 
+def _copy(root: Path) -> None:
+    """What a clone holds, links as links (capsd/services and capsd/simulator are links)."""
+    for path in _files():
+        target = root / path.relative_to(REPO)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        if path.is_symlink():
+            target.symlink_to(path.readlink())
+        elif path.is_file():
+            shutil.copy2(path, target)
+
+
 def test_no_file_reads_or_links_outside_the_repository() -> None:
     offenders = []
     for path in _files():
@@ -55,13 +67,37 @@ def test_no_file_reads_or_links_outside_the_repository() -> None:
 def test_a_copy_in_another_folder_collects_every_test(tmp_path: Path) -> None:
     # A folder with no sibling `shared/`: what a fresh clone anywhere looks like.
     clone = tmp_path / "elsewhere" / "capsd"
-    for path in _files():
-        if path.is_file():
-            target = clone / path.relative_to(REPO)
-            target.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(path, target)
+    _copy(clone)
     assert not (clone.parent / "shared").exists()
     here = _collected(REPO)
     there = _collected(clone)
     assert len(here) > 100
     assert there == here
+
+
+def test_the_wheel_installs_one_top_level_package(tmp_path: Path) -> None:
+    # Generic names such as `services` or `simulator` in site-packages collide with other
+    # software: the folders are mapped into capsd (capsd.services, capsd.simulator).
+    source = tmp_path / "source"
+    _copy(source)
+    out = subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q"]
+        + ["--disable-pip-version-check", "-w", str(tmp_path / "wheel"), str(source)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert out.returncode == 0, out.stderr[-3000:]
+    (wheel,) = (tmp_path / "wheel").glob("capsd-*.whl")
+    with zipfile.ZipFile(wheel) as archive:
+        names = archive.namelist()
+    top = {name.split("/")[0] for name in names if not name.split("/")[0].endswith(".dist-info")}
+    assert top == {"capsd"}
+    for module in (
+        "capsd/services/locator/service.py",
+        "capsd/simulator/service.py",
+        "capsd/services/sonar_detect/weights/polar_net.pt",
+        "capsd/py.typed",
+    ):
+        assert module in names, f"{module} is not in the wheel"

@@ -24,10 +24,10 @@ from capsd.bench.baseline import box_range_bias
 from capsd.mounts import SonarMountConfig
 from capsd.offline_pipeline import Variant, ablations, locator_config, run
 from capsd.progress import Progress
-from simulator.config import Config as SimConfig
-from simulator.install_errors import InstallErrorsConfig
-from simulator.sim import Simulation
-from simulator.world import TankName, TrajectoryName
+from capsd.simulator.config import Config as SimConfig
+from capsd.simulator.install_errors import InstallErrorsConfig
+from capsd.simulator.sim import Simulation
+from capsd.simulator.world import TankName, TrajectoryName
 
 RUNS: tuple[tuple[TankName, TrajectoryName], ...] = (
     ("nfp", "square"),

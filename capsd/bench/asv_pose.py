@@ -17,12 +17,12 @@ import numpy as np
 from capsd.geometry import matrix_to_euler_zyx
 from capsd.payloads import ImuSample, LidarScan
 from capsd.progress import Progress
-from services.asv_pose.estimator import AsvPoseEstimator
-from services.asv_pose.scan_match import tank_walls
-from simulator.config import Config, Streams
-from simulator.lidar import LidarModel
-from simulator.sim import Simulation
-from simulator.world import TankName, make_tank
+from capsd.services.asv_pose.estimator import AsvPoseEstimator
+from capsd.services.asv_pose.scan_match import tank_walls
+from capsd.simulator.config import Config, Streams
+from capsd.simulator.lidar import LidarModel
+from capsd.simulator.sim import Simulation
+from capsd.simulator.world import TankName, make_tank
 
 TARGETS = {"position_mm": 20.0, "yaw_deg": 0.3, "roll_deg": 0.2, "pitch_deg": 0.2}
 

@@ -14,11 +14,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from capsd.progress import Progress
-from services.sonar_detect.paper_box import box_centre
-from simulator.config import OFFLINE_START_NS, Rates, Streams
-from simulator.config import Config as SimConfig
-from simulator.sim import Simulation
-from simulator.world import TankName, TrajectoryName
+from capsd.services.sonar_detect.paper_box import box_centre
+from capsd.simulator.config import OFFLINE_START_NS, Rates, Streams
+from capsd.simulator.config import Config as SimConfig
+from capsd.simulator.sim import Simulation
+from capsd.simulator.world import TankName, TrajectoryName
 
 # (tank, trajectory, seed): seeds used by no bench and no validation run.
 TRAINING_RUNS: tuple[tuple[TankName, TrajectoryName, int], ...] = (

@@ -22,11 +22,11 @@ from capsd.offline_pipeline import Variant, locator_config, run
 from capsd.payloads import AsvPose, Payload, SonarFrame
 from capsd.pose_lookup import PoseLookup
 from capsd.progress import Progress
-from simulator.config import OFFLINE_START_NS, Rates
-from simulator.config import Config as SimConfig
-from simulator.install_errors import InstallErrorsConfig
-from simulator.sim import Simulation
-from simulator.world import TankName, TrajectoryName
+from capsd.simulator.config import OFFLINE_START_NS, Rates
+from capsd.simulator.config import Config as SimConfig
+from capsd.simulator.install_errors import InstallErrorsConfig
+from capsd.simulator.sim import Simulation
+from capsd.simulator.world import TankName, TrajectoryName
 
 # Yaw within 0.1 deg and roll (tilt) within 0.3 deg, mean over the seeds (issue 24).
 YAW_TARGET_DEG = 0.1

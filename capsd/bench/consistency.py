@@ -19,9 +19,9 @@ import numpy as np
 from capsd.accuracy import CHI2_3_95, Scored, nees
 from capsd.offline_pipeline import Variant, run
 from capsd.progress import Progress
-from services.locator.service import Config as LocatorConfig
-from simulator.config import Config as SimConfig
-from simulator.world import TankName, TrajectoryName
+from capsd.services.locator.service import Config as LocatorConfig
+from capsd.simulator.config import Config as SimConfig
+from capsd.simulator.world import TankName, TrajectoryName
 
 Run = tuple[TankName, TrajectoryName, int]
 TUNING_RUNS: tuple[Run, ...] = (

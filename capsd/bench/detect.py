@@ -32,11 +32,11 @@ import numpy as np
 
 from capsd.payloads import Detection, SonarFrame, SonarLabel
 from capsd.progress import Progress
-from services.sonar_detect.paper_box import box_centre
-from simulator.config import OFFLINE_START_NS, Config, SonarImageConfig, Streams
-from simulator.sim import Simulation
-from simulator.sonar_look import Variety
-from simulator.world import TankName, TrajectoryName
+from capsd.services.sonar_detect.paper_box import box_centre
+from capsd.simulator.config import OFFLINE_START_NS, Config, SonarImageConfig, Streams
+from capsd.simulator.sim import Simulation
+from capsd.simulator.sonar_look import Variety
+from capsd.simulator.world import TankName, TrajectoryName
 
 AsvMode = Literal["follow", "stationary"]
 Run = tuple[TankName, TrajectoryName, AsvMode, int]
@@ -222,13 +222,13 @@ def _detectors(which: str, weights: list[Path] | None = None) -> dict[str, Detec
     """The detectors by name; one CNN pair per weights file ('cnn (FOLDER)'), or the shipped."""
     from dataclasses import replace
 
-    from services.sonar_detect.classical import ClassicalDetector
+    from capsd.services.sonar_detect.classical import ClassicalDetector
 
     out: dict[str, Detector] = {}
     if which in ("all", "classical"):
         out["classical"] = ClassicalDetector().detect
     if which in ("all", "cnn"):
-        from services.sonar_detect.cnn import NETWORK_ALONE, CnnDetector, CnnSettings
+        from capsd.services.sonar_detect.cnn import NETWORK_ALONE, CnnDetector, CnnSettings
 
         choices: list[Path | None] = list(weights) if weights else [None]
         for path in choices:
@@ -245,7 +245,7 @@ def _detectors(which: str, weights: list[Path] | None = None) -> dict[str, Detec
 
 def evaluate_cnn(net: Any, *, duration_s: float) -> dict[str, Any]:
     """The evaluation stored with trained weights: the CNN and the baseline, as JSON figures."""
-    from services.sonar_detect.cnn import NETWORK_ALONE, CnnDetector
+    from capsd.services.sonar_detect.cnn import NETWORK_ALONE, CnnDetector
 
     detector = CnnDetector(NETWORK_ALONE, net=net)
     tallies = evaluate({"cnn": detector.detect}, duration_s=duration_s)
@@ -260,9 +260,9 @@ def evaluate_cnn(net: Any, *, duration_s: float) -> dict[str, Any]:
 
 def real_pings(path: Path) -> list[SonarFrame]:
     """Frames of a raw Oculus capture (the repository's fixtures: a real sonar, no ROV in view)."""
-    from services.sonar_detect.driver import Config as DriverConfig
-    from services.sonar_detect.driver import to_frame
-    from services.sonar_detect.oculus import PingStream, ProtocolError
+    from capsd.services.sonar_detect.driver import Config as DriverConfig
+    from capsd.services.sonar_detect.driver import to_frame
+    from capsd.services.sonar_detect.oculus import PingStream, ProtocolError
 
     stream = PingStream()
     frames: list[SonarFrame] = []
@@ -332,8 +332,8 @@ def run(
 
 def sweep_prior(priors: list[float], *, duration_s: float) -> int:
     """The hysteresis prior on the validation runs (never the bench's), both kinds of look."""
-    from services.sonar_detect.cnn import CnnDetector, CnnSettings
-    from services.sonar_detect.train import VALIDATION_RUNS
+    from capsd.services.sonar_detect.cnn import CnnDetector, CnnSettings
+    from capsd.services.sonar_detect.train import VALIDATION_RUNS
 
     print(
         f"validation runs (seeds {', '.join(str(r[3]) for r in VALIDATION_RUNS)}), {duration_s:g} s"

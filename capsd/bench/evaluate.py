@@ -27,10 +27,10 @@ from capsd.geometry import euler_zyx_to_matrix
 from capsd.payloads import Payload, ReferencePose, RovFix
 from capsd.progress import Progress
 from capsd.recording import McapRecorder, Sample
-from simulator.config import OFFLINE_START_NS
-from simulator.config import Config as SimConfig
-from simulator.sim import Simulation
-from simulator.world import TankName, TrajectoryName
+from capsd.simulator.config import OFFLINE_START_NS
+from capsd.simulator.config import Config as SimConfig
+from capsd.simulator.sim import Simulation
+from capsd.simulator.world import TankName, TrajectoryName
 
 OURS = "ours (CAP-SD)"
 # Issue 23's acceptance.

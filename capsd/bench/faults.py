@@ -203,7 +203,7 @@ class Pipeline:
             "autopilot",
             [
                 "-m",
-                "simulator.autopilot",
+                "capsd.simulator.autopilot",
                 "--port",
                 str(self._mav_port),
                 "--estimates-out",
@@ -487,7 +487,7 @@ def malformed_configs(out: Path) -> Window:
 
 
 def _judge_into(windows: list[Window], pipe: Pipeline) -> None:
-    from services.mav_bridge.service import NedConfig
+    from capsd.services.mav_bridge.service import NedConfig
 
     ned = NedConfig().tank_to_ned()
     estimates = [json.loads(line) for line in pipe.estimates_file.read_text().splitlines()]

@@ -2,7 +2,7 @@
 
 1. A "first dive": a simulated run whose sonar look lies outside the training variety (five
    knobs past their trained range: water level, dynamic range, gamma, ROV strength, speckle
-   shape; simulator.sonar_look, region "outside"), through the offline pipeline with the
+   shape; capsd.simulator.sonar_look, region "outside"), through the offline pipeline with the
    shipped detector, written as an MCAP recording of what the live system would record
    (frames, ASV poses, fixes).
 2. `capsd label` on it: confident tracked fixes projected back into the frames.
@@ -28,9 +28,9 @@ from capsd.offline_pipeline import run as run_pipeline
 from capsd.payloads import AsvPose, Payload, RovFix, SonarFrame
 from capsd.progress import Progress
 from capsd.recording import McapRecorder, Sample
-from simulator.config import Config as SimConfig
-from simulator.config import Rates, SonarImageConfig
-from simulator.world import TankName, TrajectoryName
+from capsd.simulator.config import Config as SimConfig
+from capsd.simulator.config import Rates, SonarImageConfig
+from capsd.simulator.world import TankName, TrajectoryName
 
 DIVE: tuple[TankName, TrajectoryName, int] = ("nfp", "square", 404)  # the "first dive"
 # Held-out runs at the same site (the dive's sonar, tank and look), other motions and seeds:
@@ -80,16 +80,16 @@ def record_dive(path: Path, *, duration_s: float, sonar_hz: float) -> int:
 
 
 def _cnn(weights: Path) -> Any:
-    from services.sonar_detect.cnn import CnnDetector, CnnSettings
+    from capsd.services.sonar_detect.cnn import CnnDetector, CnnSettings
 
     return CnnDetector(CnnSettings(weights=weights)).detect
 
 
 def run(*, out: Path, duration_s: float, eval_duration_s: float) -> int:
-    from services.locator.service import Config as LocatorConfig
-    from services.sonar_detect.cnn import DEFAULT_WEIGHTS
-    from services.sonar_detect.finetune import FinetuneConfig, finetune
-    from services.sonar_detect.labelling import label_recording, write_labels
+    from capsd.services.locator.service import Config as LocatorConfig
+    from capsd.services.sonar_detect.cnn import DEFAULT_WEIGHTS
+    from capsd.services.sonar_detect.finetune import FinetuneConfig, finetune
+    from capsd.services.sonar_detect.labelling import label_recording, write_labels
 
     out.mkdir(parents=True, exist_ok=True)
     started = time.monotonic()

@@ -78,7 +78,7 @@ def bridge(*, runs: int, settle_s: float) -> int:
     from capsd.bus import open_session
     from capsd.config import BusConfig
     from capsd.signing import SiteKey, write_key
-    from simulator.autopilot import AutopilotStandIn
+    from capsd.simulator.autopilot import AutopilotStandIn
 
     def free_port() -> int:
         with socket.socket() as sock:

@@ -89,8 +89,8 @@ def _cpu_s(pid: int) -> float:
 def payload_sizes() -> dict[str, int]:
     """Encoded sizes of one sonar frame (the simulator's 512 x 1000), detections and a fix."""
     from capsd.bench.detect import sonar_only
-    from simulator.config import OFFLINE_START_NS
-    from simulator.sim import Simulation
+    from capsd.simulator.config import OFFLINE_START_NS
+    from capsd.simulator.sim import Simulation
 
     sim = Simulation(sonar_only("nfp", "square", "follow", 1), horizon_s=3)
     frame = next(iter(sim.labelled_pings(start_ns=OFFLINE_START_NS, duration_s=1.0)))[1]
@@ -226,7 +226,7 @@ def measure_rate(
     result = RateResult(rate_hz=rate_hz, window_s=0.0)
     try:
         procs.start("router", ["-m", "capsd", "router", "--listen", endpoint])
-        procs.start("autopilot", ["-m", "simulator.autopilot", "--port", str(mav_port)])
+        procs.start("autopilot", ["-m", "capsd.simulator.autopilot", "--port", str(mav_port)])
         time.sleep(1.0)
         for name in ("sim", *SERVICES):
             start_service(procs, name, configs[name])

@@ -1,6 +1,6 @@
 """The ASV's pose from its IMU and LiDAR: tilt at IMU rate, (x, y, yaw) from scan matching.
 
-- Roll/pitch: the tilt filter (services.asv_pose.tilt), fed the ASV's own acceleration from a
+- Roll/pitch: the tilt filter (capsd.services.asv_pose.tilt), fed the ASV's own acceleration from a
   quadratic fit to the last ~0.7 s of scan matches (rotated into the body frame), so manoeuvres
   do not leak into tilt.
 - Yaw between scans: integrated from the gyro (world z rate from the body rates and tilt).
@@ -11,7 +11,7 @@
   consecutive failures the pose is reported lost.
 - Output at IMU rate: position extrapolated from the last match with the track's velocity,
   orientation from yaw and tilt, a 6 x 6 covariance growing with the time since the last match.
-- Global search (services.asv_pose.global_search) at start-up and after `lost_after`
+- Global search (capsd.services.asv_pose.global_search) at start-up and after `lost_after`
   consecutive failures, at most once per `search_interval_s`: no position seed is needed. The
   bare rectangle is 180-degree symmetric, so a heading prior picks the side: the configured one
   at start-up (compass or launch orientation; None: only a map without that symmetry works),
@@ -28,9 +28,9 @@ import numpy as np
 
 from capsd.geometry import Array, euler_zyx_to_matrix, matrix_to_quat
 from capsd.payloads import AsvPose, AsvPoseSource, AsvPoseStatus
-from services.asv_pose.global_search import MapRaster, SearchSettings, search
-from services.asv_pose.scan_match import MatchResult, Segment, level_points, match
-from services.asv_pose.tilt import TiltFilter, TiltSettings
+from capsd.services.asv_pose.global_search import MapRaster, SearchSettings, search
+from capsd.services.asv_pose.scan_match import MatchResult, Segment, level_points, match
+from capsd.services.asv_pose.tilt import TiltFilter, TiltSettings
 
 
 @dataclass(frozen=True)

@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 
 from capsd.geometry import Array
-from services.asv_pose.scan_match import MatchResult, Segment, match
+from capsd.services.asv_pose.scan_match import MatchResult, Segment, match
 
 
 @dataclass(frozen=True)

@@ -1,8 +1,8 @@
 """The ASV pose service: IMU and LiDAR scans in, the ASV's pose out at IMU rate.
 
-See services.asv_pose.estimator for the method. It finds itself by a global search (no position
-seed); the bare rectangle is 180-degree symmetric, so `heading_prior_deg` (which way the ASV
-was put in the water, or a compass) picks the side, within `heading_prior_tolerance_deg`.
+See capsd.services.asv_pose.estimator for the method. It finds itself by a global search (no
+position seed); the bare rectangle is 180-degree symmetric, so `heading_prior_deg` (which way the
+ASV was put in the water, or a compass) picks the side, within `heading_prior_tolerance_deg`.
 """
 
 from __future__ import annotations
@@ -24,10 +24,10 @@ from capsd.geometry import (
 )
 from capsd.payloads import AsvPose, ImuSample, LidarScan
 from capsd.runner import Publisher, ServiceRunner
-from services.asv_pose.estimator import AsvPoseEstimator, EstimatorSettings, pose_payload
-from services.asv_pose.global_search import SearchSettings
-from services.asv_pose.scan_match import tank_walls
-from services.asv_pose.tilt import TiltSettings
+from capsd.services.asv_pose.estimator import AsvPoseEstimator, EstimatorSettings, pose_payload
+from capsd.services.asv_pose.global_search import SearchSettings
+from capsd.services.asv_pose.scan_match import tank_walls
+from capsd.services.asv_pose.tilt import TiltSettings
 
 logger = logging.getLogger(__name__)
 

@@ -26,7 +26,13 @@ from capsd import topics
 from capsd.config import ServiceConfig
 from capsd.payloads import LidarScan
 from capsd.runner import Publisher, ServiceRunner
-from services.asv_pose.cola import START_STREAM, ColaError, ColaStream, ScanTelegram, parse_scan
+from capsd.services.asv_pose.cola import (
+    START_STREAM,
+    ColaError,
+    ColaStream,
+    ScanTelegram,
+    parse_scan,
+)
 
 logger = logging.getLogger(__name__)
 COLA_PORT = 2112

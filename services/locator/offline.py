@@ -15,7 +15,7 @@ from capsd.payloads import (
     SonarDetections,
     SonarLabel,
 )
-from services.locator.service import Config, Locator
+from capsd.services.locator.service import Config, Locator
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """The locator service: ROV fixes from detections, ASV pose and ROV depth/attitude, tracked.
 
 Per ping: inputs are time-aligned at the ping's `stamp_ns` (pose: linear + slerp; depth: linear;
-attitude: slerp), every candidate detection is solved exactly (services.locator.fix), ghosts
+attitude: slerp), every candidate detection is solved exactly (capsd.services.locator.fix), ghosts
 (no valid root, outside the tank) are dropped, and the tracker fuses the candidate consistent
 with the track. The paper's method is one `method` preset away, for the benchmark; each of its
 choices can also be switched alone (for ablations).
@@ -35,12 +35,12 @@ from capsd.payloads import (
     SonarDetections,
 )
 from capsd.runner import Publisher, ServiceRunner
+from capsd.services.locator.fix import FixUncertainty, rov_centre_z, solve_fix
+from capsd.services.locator.paper import paper_fix
+from capsd.services.locator.timeline import Lookup, Timeline
+from capsd.services.locator.tracker import Tracker, TrackerSettings
 from capsd.signing import SiteKey
 from capsd.tank import TankBounds
-from services.locator.fix import FixUncertainty, rov_centre_z, solve_fix
-from services.locator.paper import paper_fix
-from services.locator.timeline import Lookup, Timeline
-from services.locator.tracker import Tracker, TrackerSettings
 
 logger = logging.getLogger(__name__)
 
@@ -96,7 +96,7 @@ class MethodConfig(ConfigSection, frozen=True, kw_only=True):
 
 
 class TrackingConfig(ConfigSection, frozen=True, kw_only=True):
-    """Tracker tuning (services.locator.tracker)."""
+    """Tracker tuning (capsd.services.locator.tracker)."""
 
     accel_density_xy: Positive = 0.02
     accel_density_z: Positive = 0.01

@@ -13,7 +13,7 @@ import time
 from dataclasses import dataclass
 from typing import Literal, TextIO
 
-from services.mav_bridge.mavlink import (
+from capsd.services.mav_bridge.mavlink import (
     MAV_CMD_PREFLIGHT_CALIBRATION,
     MAV_RESULT_ACCEPTED,
     CommandAck,

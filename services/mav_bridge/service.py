@@ -8,7 +8,7 @@ Vehicle to bus (stamps from the autopilot's boot clock mapped to Unix time):
   configured; rho is 1000 kg/m^3 x the vehicle's BARO_SPEC_GRAV unless configured.
 - attitude from ATTITUDE (FRD in NED, converted to FLU in the tank frame W);
 - armed state and mode from HEARTBEAT, EKF flags from EKF_STATUS_REPORT.
-Bus to vehicle: RovFix estimates through the safety gate (services.mav_bridge.gate), converted
+Bus to vehicle: RovFix estimates through the safety gate (capsd.services.mav_bridge.gate), converted
 to NED, as VISION_POSITION_ESTIMATE (or GPS_INPUT), usec = the estimate's measurement time.
 """
 
@@ -34,11 +34,9 @@ from capsd.keys import check_name
 from capsd.mailbox import Mailbox
 from capsd.payloads import RovAttitude, RovDepth, RovFix, RovStatus
 from capsd.runner import Publisher, ServiceRunner, StreamCounter
-from capsd.signing import SiteKey
-from capsd.tank import TankBounds
-from services.mav_bridge.clock import BootClock
-from services.mav_bridge.gate import GateSettings, Passed, SafetyGate
-from services.mav_bridge.mavlink import (
+from capsd.services.mav_bridge.clock import BootClock
+from capsd.services.mav_bridge.gate import GateSettings, Passed, SafetyGate
+from capsd.services.mav_bridge.mavlink import (
     MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY,
     Attitude,
     EkfStatus,
@@ -51,7 +49,9 @@ from services.mav_bridge.mavlink import (
     message_id,
     mode_name,
 )
-from services.mav_bridge.ned import TankToNed, upper_triangle
+from capsd.services.mav_bridge.ned import TankToNed, upper_triangle
+from capsd.signing import SiteKey
+from capsd.tank import TankBounds
 
 logger = logging.getLogger(__name__)
 
@@ -110,7 +110,7 @@ class DepthConfig(ConfigSection, frozen=True, kw_only=True):
 
 
 class GateConfig(ConfigSection, frozen=True, kw_only=True):
-    """The safety gate (services.mav_bridge.gate)."""
+    """The safety gate (capsd.services.mav_bridge.gate)."""
 
     max_age_s: Annotated[float, msgspec.Meta(gt=0.0, le=0.5)] = 0.3
     max_sigma_m: Annotated[float, msgspec.Meta(gt=0.0, le=5.0)] = 0.5

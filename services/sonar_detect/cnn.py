@@ -29,8 +29,7 @@ import torch
 from torch.nn import functional
 
 from capsd.payloads import Detection, SonarFrame
-from capsd.sonar_image import Image
-from services.sonar_detect.polar_input import (
+from capsd.services.sonar_detect.polar_input import (
     BeamTable,
     Grid,
     coarse_input,
@@ -38,12 +37,13 @@ from services.sonar_detect.polar_input import (
     crop_pair,
     normalised_image,
 )
-from services.sonar_detect.polar_net import (
+from capsd.services.sonar_detect.polar_net import (
     OFFSET_SCALE_M,
     PolarNet,
     fused_for_inference,
     load,
 )
+from capsd.sonar_image import Image
 
 DEFAULT_WEIGHTS = Path(__file__).with_name("weights") / "polar_net.pt"
 LAPLACE_SIGMA = math.sqrt(2.0)  # standard deviation of a Laplace law per unit scale

@@ -31,7 +31,7 @@ from capsd import topics
 from capsd.config import ConfigSection, ServiceConfig
 from capsd.payloads import SonarFrame
 from capsd.runner import Publisher, ServiceRunner
-from services.sonar_detect.oculus import (
+from capsd.services.sonar_detect.oculus import (
     DATA_PORT,
     STATUS_PORT,
     FireFlag,

@@ -23,15 +23,15 @@ import torch
 
 from capsd.errors import CapsdError
 from capsd.payloads import SonarLabel
-from services.sonar_detect.labelling import LabelledPing, frames_of, read_labels
-from services.sonar_detect.polar_net import PolarNet, load, save
-from services.sonar_detect.train import (
+from capsd.services.sonar_detect.labelling import LabelledPing, frames_of, read_labels
+from capsd.services.sonar_detect.polar_net import PolarNet, load, save
+from capsd.services.sonar_detect.train import (
     TrainConfig,
     _train_proposal,
     _train_refine,
     operating_offset,
 )
-from services.sonar_detect.training_data import Samples, plan_runs, render, samples_of_ping
+from capsd.services.sonar_detect.training_data import Samples, plan_runs, render, samples_of_ping
 
 # A BlueROV2's echo: about 0.4 m deep in range, 0.5 m across (for the extent targets).
 ECHO_RANGE_EXTENT_M = 0.4
@@ -81,7 +81,7 @@ def recalibrate_on_labels(net: PolarNet, labels: list[LabelledPing]) -> dict[str
     becomes the lowest that keeps those at most MAX_SITE_FALSE_ALARMS_PER_FRAME (never lower
     than the shipped one: fine-tuning only ever makes the detector more cautious here).
     """
-    from services.sonar_detect.cnn import NETWORK_ALONE, Candidate, CnnDetector, distance
+    from capsd.services.sonar_detect.cnn import NETWORK_ALONE, Candidate, CnnDetector, distance
 
     shipped = float(net.logit_offset)
     net.logit_offset.zero_()

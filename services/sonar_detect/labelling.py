@@ -162,7 +162,7 @@ def contact_sheets(labels: list[LabelledPing], out: Path) -> list[Path]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from services.sonar_detect.polar_input import (
+    from capsd.services.sonar_detect.polar_input import (
         NORM_HIGH,
         NORM_LOW,
         BeamTable,

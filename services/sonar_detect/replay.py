@@ -4,7 +4,7 @@ Two recordings are read:
 - `oculus`: raw Oculus protocol bytes as captured off the wire (the fixtures in
   tests/fixtures/oculus are such files); parsed with the driver's stream parser (broken
   messages are counted and skipped, as live) and played at `ping_rate_hz`;
-- `dataset`: a simulator dataset directory (simulator.dataset); its sonar frames are played
+- `dataset`: a simulator dataset directory (capsd.simulator.dataset); its sonar frames are played
   with their recorded spacing divided by `speed`.
 Each frame is re-stamped to the moment it is published (`stamps: now`, for a live pipeline) or
 keeps its recorded stamp (`stamps: original`). The file is checked before the first frame: a
@@ -27,9 +27,9 @@ from capsd.config import ServiceConfig
 from capsd.errors import CapsdError, ConfigError
 from capsd.payloads import SonarFrame
 from capsd.runner import ServiceRunner
-from services.sonar_detect.driver import Config as DriverConfig
-from services.sonar_detect.driver import to_frame
-from services.sonar_detect.oculus import PingStream, ProtocolError
+from capsd.services.sonar_detect.driver import Config as DriverConfig
+from capsd.services.sonar_detect.driver import to_frame
+from capsd.services.sonar_detect.oculus import PingStream, ProtocolError
 
 logger = logging.getLogger(__name__)
 CHUNK_BYTES = 1 << 16
@@ -53,7 +53,7 @@ def recorded_frames(config: Config, counts: Counter[str]) -> Iterator[tuple[floa
     """(seconds after the first frame, frame) for one pass over the recording."""
     path = Path(config.path)
     if config.format == "dataset":
-        from simulator.dataset import read
+        from capsd.simulator.dataset import read
 
         first_ns: int | None = None
         for record in read(path):

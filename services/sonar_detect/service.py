@@ -28,8 +28,8 @@ from capsd.mailbox import Mailbox
 from capsd.mounts import SonarMountConfig
 from capsd.payloads import AsvPose, Detection, RovDepth, SonarDetections, SonarFrame
 from capsd.runner import Publisher, ServiceRunner
-from services.sonar_detect.classical import ClassicalDetector, ClassicalSettings
-from services.sonar_detect.depth_gate import DepthGate
+from capsd.services.sonar_detect.classical import ClassicalDetector, ClassicalSettings
+from capsd.services.sonar_detect.depth_gate import DepthGate
 
 logger = logging.getLogger(__name__)
 
@@ -137,7 +137,7 @@ def make_detector(config: Config) -> Detector:
     if config.detector == "classical":
         return ClassicalDetector(config.classical.settings())
     try:
-        from services.sonar_detect.cnn import DEFAULT_WEIGHTS, CnnDetector, CnnSettings
+        from capsd.services.sonar_detect.cnn import DEFAULT_WEIGHTS, CnnDetector, CnnSettings
     except ImportError as exc:
         raise ConfigError(
             "config", "detector", f"'cnn' needs torch (install capsd[detect]): {exc}"
@@ -291,7 +291,7 @@ def main(config: Config) -> int:
 
 
 def _snapshot(config: Config, frame: SonarFrame, found: list[Detection]) -> None:
-    from services.sonar_detect.fan import draw_fan
+    from capsd.services.sonar_detect.fan import draw_fan
 
     detections = SonarDetections(
         stamp_ns=frame.stamp_ns,

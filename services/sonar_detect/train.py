@@ -36,10 +36,10 @@ from torch.nn import functional
 from capsd.bench.detect import Run
 from capsd.errors import CapsdError
 from capsd.progress import Progress
-from services.sonar_detect.polar_input import NORM_HIGH, NORM_LOW, U8_SCALE
-from services.sonar_detect.polar_net import OFFSET_SCALE_M, PolarNet, save
-from services.sonar_detect.training_data import Samples, plan_runs, render
-from simulator.sonar_look import Variety
+from capsd.services.sonar_detect.polar_input import NORM_HIGH, NORM_LOW, U8_SCALE
+from capsd.services.sonar_detect.polar_net import OFFSET_SCALE_M, PolarNet, save
+from capsd.services.sonar_detect.training_data import Samples, plan_runs, render
+from capsd.simulator.sonar_look import Variety
 
 
 @dataclass(frozen=True)
@@ -385,9 +385,9 @@ def calibrate(net: PolarNet, *, duration_s: float) -> dict[str, Any]:
     Confidence 0.5 becomes the lowest threshold with at most MAX_FALSE_ALARMS_PER_FRAME.
     """
     from capsd.bench.detect import MATCH_M, sonar_only
-    from services.sonar_detect.cnn import NETWORK_ALONE, CnnDetector
-    from simulator.config import OFFLINE_START_NS
-    from simulator.sim import Simulation
+    from capsd.services.sonar_detect.cnn import NETWORK_ALONE, CnnDetector
+    from capsd.simulator.config import OFFLINE_START_NS
+    from capsd.simulator.sim import Simulation
 
     net.logit_offset.zero_()
     # The refiner's own logits on every proposal of every frame.
@@ -448,7 +448,7 @@ def calibrate(net: PolarNet, *, duration_s: float) -> dict[str, Any]:
 def recalibrate(weights: Path, *, duration_s: float) -> dict[str, Any]:
     """Calibrate existing weights in place and refresh their evaluation (capsd train calibrate)."""
     from capsd.bench.detect import evaluate_cnn
-    from services.sonar_detect.polar_net import load
+    from capsd.services.sonar_detect.polar_net import load
 
     net = load(weights)
     meta_path = weights.with_suffix(".json")

@@ -1,7 +1,7 @@
 """Training samples for the polar network, rendered by the simulator from labelled pings.
 
 Each simulated run (tank, trajectory, ASV mode and stand-off, seed, gain, ghost strength and
-noise drawn per run; four runs in five also draw the sonar's whole look: simulator.sonar_look,
+noise drawn per run; four runs in five also draw the sonar's whole look: capsd.simulator.sonar_look,
 docs/SONAR-VARIETY.md) gives, per ping, in the normalised input (polar_input):
 - the coarse grid (uint8) and the ROV centre in heatmap cells (or none when not visible);
 - crops: positives around the true centre with the offset a proposal would have, and
@@ -23,7 +23,7 @@ import numpy.typing as npt
 
 from capsd.payloads import SonarFrame, SonarLabel
 from capsd.progress import Progress
-from services.sonar_detect.polar_input import (
+from capsd.services.sonar_detect.polar_input import (
     BeamTable,
     Grid,
     coarse_input,
@@ -31,7 +31,7 @@ from services.sonar_detect.polar_input import (
     normalised_image,
     to_u8,
 )
-from simulator.config import (
+from capsd.simulator.config import (
     OFFLINE_START_NS,
     Config,
     Noise,
@@ -39,9 +39,9 @@ from simulator.config import (
     SonarImageConfig,
     Streams,
 )
-from simulator.sim import Simulation
-from simulator.sonar_look import Variety
-from simulator.world import TUNING_TANKS, TankName, TrajectoryName
+from capsd.simulator.sim import Simulation
+from capsd.simulator.sonar_look import Variety
+from capsd.simulator.world import TUNING_TANKS, TankName, TrajectoryName
 
 TRAJECTORIES: tuple[TrajectoryName, ...] = (
     "square",
@@ -93,7 +93,7 @@ class RunPlan:
 def plan_runs(*, runs: int, seed: int, duration_s: float, sonar_hz: float) -> list[RunPlan]:
     """`runs` varied runs drawn from `seed` (both tanks, every trajectory, both ASV modes).
 
-    Every run but each fifth draws the sonar's look (simulator.sonar_look, training region);
+    Every run but each fifth draws the sonar's look (capsd.simulator.sonar_look, training region);
     each fifth keeps the simulator's fixed look with its gain and noise varied a little.
     """
     rng = np.random.default_rng(seed)
@@ -222,7 +222,7 @@ def samples_of_ping(
         out.grid_targets.append((0.0, 0.0, 0.0, 0.0, 0.0))
     places = _negative_places(frame, grid, coarse, table, label, rng)
     if proposal is not None:
-        from services.sonar_detect.cnn import propose
+        from capsd.services.sonar_detect.cnn import propose
 
         peaks = propose(proposal, frame, image, table, threshold=0.05, max_candidates=3)
         places += [(c.range_m, c.azimuth_rad) for c in peaks]
@@ -287,7 +287,7 @@ def _proposal_net(state: bytes) -> Any:
 
         import torch
 
-        from services.sonar_detect.polar_net import ProposalNet
+        from capsd.services.sonar_detect.polar_net import ProposalNet
 
         torch.set_num_threads(1)
         net = ProposalNet()

@@ -16,8 +16,8 @@ from capsd.accuracy import Accuracy, LivePairing, Scored, bootstrap_med, common_
 from capsd.bench.baseline import box_range_bias
 from capsd.offline_pipeline import Variant, ablations, run
 from capsd.payloads import RovFix, SonarLabel
-from services.locator.service import MethodConfig
-from simulator.config import Config as SimConfig
+from capsd.services.locator.service import MethodConfig
+from capsd.simulator.config import Config as SimConfig
 from tests.conftest import REPO
 
 

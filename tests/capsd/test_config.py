@@ -10,7 +10,7 @@ import pytest
 from capsd.config import BusConfig, ServiceConfig, dump_config, load_config, parse_config
 from capsd.errors import ConfigError
 from capsd.mounts import SonarMountConfig
-from services.locator.service import Config as LocatorConfig
+from capsd.services.locator.service import Config as LocatorConfig
 
 
 def _error(text: str, cls: type = ServiceConfig) -> ConfigError:

@@ -96,7 +96,7 @@ def test_install_script_for_the_rov_role(tmp_path: Path) -> None:
         [
             str(prefix / "venv" / "bin" / "python"),
             "-c",
-            "import importlib.util as u, services.mav_bridge.service; "
+            "import importlib.util as u, capsd.services.mav_bridge.service; "
             "print([m for m in ('torch', 'scipy', 'cv2') if u.find_spec(m)])",
         ],
         capture_output=True,

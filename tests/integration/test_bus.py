@@ -478,8 +478,8 @@ def test_asv_pose_service_tracks_the_simulated_asv(
     )
     pose_config = tmp_path / "asv_pose.yaml"
     # Stationary at the tank centre; the ASV faces the ROV's start (the heading prior).
-    from simulator.config import Config as SimConfig
-    from simulator.sim import Simulation
+    from capsd.simulator.config import Config as SimConfig
+    from capsd.simulator.sim import Simulation
 
     start = Simulation(
         msgspec.convert({"asv_mode": "stationary", "asv_start_xy": [14.0, 8.0]}, SimConfig),

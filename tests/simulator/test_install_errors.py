@@ -10,9 +10,9 @@ import pytest
 from capsd.geometry import matrix_to_euler_zyx, quat_to_matrix
 from capsd.offline_pipeline import ablations, run
 from capsd.payloads import RovAttitude, RovDepth, SonarFrame
-from simulator.config import OFFLINE_START_NS, Config
-from simulator.install_errors import InstallErrors, InstallErrorsConfig
-from simulator.sim import Simulation
+from capsd.simulator.config import OFFLINE_START_NS, Config
+from capsd.simulator.install_errors import InstallErrors, InstallErrorsConfig
+from capsd.simulator.sim import Simulation
 
 REALISTIC = InstallErrorsConfig(mode="realistic")
 

@@ -1,8 +1,8 @@
 from __future__ import annotations
 
 from capsd.payloads import SonarFrame, SonarLabel
-from simulator.config import OFFLINE_START_NS, Config, Rates, Streams
-from simulator.sim import Simulation
+from capsd.simulator.config import OFFLINE_START_NS, Config, Rates, Streams
+from capsd.simulator.sim import Simulation
 
 
 def test_pings_too_late_to_render_are_skipped_not_sent_late() -> None:

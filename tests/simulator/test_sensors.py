@@ -12,14 +12,14 @@ import pytest
 
 from capsd.geometry import Transform, euler_zyx_to_matrix
 from capsd.payloads import GroundTruth, ImuSample, LidarScan, RovDepth, SonarFrame, SonarLabel
-from simulator import dataset
-from simulator.config import ClockConfig, Clocks, Config, Noise, Streams, WavesConfig
-from simulator.imu import Imu, ImuModel
-from simulator.lidar import LidarModel, scan
-from simulator.scene import BLUEROV2_SEMI_AXES, Ellipsoid
-from simulator.sim import Simulation
-from simulator.sonar import SonarModel, SonarRenderer
-from simulator.world import GRAVITY, TRAJECTORIES, make_tank, rov_motion
+from capsd.simulator import dataset
+from capsd.simulator.config import ClockConfig, Clocks, Config, Noise, Streams, WavesConfig
+from capsd.simulator.imu import Imu, ImuModel
+from capsd.simulator.lidar import LidarModel, scan
+from capsd.simulator.scene import BLUEROV2_SEMI_AXES, Ellipsoid
+from capsd.simulator.sim import Simulation
+from capsd.simulator.sonar import SonarModel, SonarRenderer
+from capsd.simulator.world import GRAVITY, TRAJECTORIES, make_tank, rov_motion
 
 START_NS = 1_767_225_600_000_000_000
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from simulator.config import Config
-from simulator.world import TankName, make_tank
+from capsd.simulator.config import Config
+from capsd.simulator.world import TankName, make_tank
 
 
 @settings(max_examples=40, deadline=None)

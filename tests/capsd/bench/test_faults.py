@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from capsd.bench.faults import judge
-from services.mav_bridge.service import NedConfig
+from capsd.services.mav_bridge.service import NedConfig
 
 NED = NedConfig().tank_to_ned()
 TRUTH = (5.0, 4.0, -2.0)

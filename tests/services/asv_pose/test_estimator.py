@@ -7,7 +7,7 @@ from typing import Literal
 import pytest
 
 from capsd.bench.asv_pose import rms_errors
-from simulator.world import TankName
+from capsd.simulator.world import TankName
 
 
 def _rms_errors(

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from capsd.geometry import Transform, euler_zyx_to_matrix, matrix_to_euler_zyx
-from services.asv_pose.estimator import AsvPoseEstimator
-from services.asv_pose.global_search import search
-from services.asv_pose.scan_match import level_points, tank_walls
-from simulator.lidar import LidarModel, scan
-from simulator.world import TankName, make_tank
+from capsd.services.asv_pose.estimator import AsvPoseEstimator
+from capsd.services.asv_pose.global_search import search
+from capsd.services.asv_pose.scan_match import level_points, tank_walls
+from capsd.simulator.lidar import LidarModel, scan
+from capsd.simulator.world import TankName, make_tank
 
 GRAVITY = np.array([0.0, 0.0, 9.81])
 

@@ -21,9 +21,9 @@ from capsd.health import query_health
 from capsd.keys import is_concrete
 from capsd.payloads import AsvPose, LidarScan, ReferencePose
 from capsd.ros_messages import scan_payload
-from services.asv_pose.ros_input import ROS_TYPES, ros_key
-from simulator.lidar import LidarModel, scan
-from simulator.world import make_tank
+from capsd.services.asv_pose.ros_input import ROS_TYPES, ros_key
+from capsd.simulator.lidar import LidarModel, scan
+from capsd.simulator.world import make_tank
 from tests.conftest import Proc, wait_for
 
 STORE = get_typestore(Stores.ROS2_HUMBLE)

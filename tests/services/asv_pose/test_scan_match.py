@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from capsd.geometry import Transform, euler_zyx_to_matrix
-from services.asv_pose.scan_match import level_points, match, tank_walls
-from simulator.lidar import LidarModel, scan
-from simulator.world import make_tank
+from capsd.services.asv_pose.scan_match import level_points, match, tank_walls
+from capsd.simulator.lidar import LidarModel, scan
+from capsd.simulator.world import make_tank
 
 
 def _scan(x: float, y: float, yaw: float, roll: float, pitch: float, seed: int) -> np.ndarray:

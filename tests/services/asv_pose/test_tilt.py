@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from capsd.geometry import euler_zyx_to_matrix
-from services.asv_pose.tilt import G, TiltFilter, TiltSettings
-from simulator.imu import Imu, ImuModel
+from capsd.services.asv_pose.tilt import G, TiltFilter, TiltSettings
+from capsd.simulator.imu import Imu, ImuModel
 
 RATE_HZ = 200.0
 

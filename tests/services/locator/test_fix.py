@@ -10,8 +10,8 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from capsd.geometry import Transform, euler_zyx_to_matrix, rotvec_to_matrix
+from capsd.services.locator.fix import FixUncertainty, rov_centre_z, solve_fix
 from capsd.sonar_geometry import BeamModel, beam_direction, to_polar
-from services.locator.fix import FixUncertainty, rov_centre_z, solve_fix
 from tests.services.locator.nees import mean_nees_bounds
 
 APERTURE = math.radians(20.0)

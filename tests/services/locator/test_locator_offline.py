@@ -6,11 +6,11 @@ import msgspec
 import numpy as np
 
 from capsd.mounts import SonarMountConfig
-from services.locator.offline import Scored, run_offline
-from services.locator.service import Config, MethodConfig, TrackingConfig
-from simulator.config import Config as SimConfig
-from simulator.config import Rates, Streams
-from simulator.sim import Simulation
+from capsd.services.locator.offline import Scored, run_offline
+from capsd.services.locator.service import Config, MethodConfig, TrackingConfig
+from capsd.simulator.config import Config as SimConfig
+from capsd.simulator.config import Rates, Streams
+from capsd.simulator.sim import Simulation
 
 START_NS = 1_800_000_000_000_000_000
 # The simulator's truth-plus-noise pose and detections play asv_pose and sonar_detect here,

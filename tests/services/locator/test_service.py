@@ -8,9 +8,9 @@ import numpy as np
 
 from capsd.geometry import Transform
 from capsd.payloads import AsvPose, Detection, RovAttitude, RovDepth, SonarDetections
+from capsd.services.locator.service import Config, Locator, MethodConfig
 from capsd.sonar_geometry import to_polar
 from capsd.tank import TankBounds
-from services.locator.service import Config, Locator, MethodConfig
 
 SECOND = 1_000_000_000
 IDENTITY_Q = (0.0, 0.0, 0.0, 1.0)

@@ -6,7 +6,7 @@ import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 
-from services.locator.timeline import Timeline
+from capsd.services.locator.timeline import Timeline
 
 
 def _lerp(a: float, b: float, f: float) -> float:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services.locator.tracker import Tracker, TrackerSettings
+from capsd.services.locator.tracker import Tracker, TrackerSettings
 from tests.services.locator.nees import mean_nees_bounds
 
 SECOND = 1_000_000_000

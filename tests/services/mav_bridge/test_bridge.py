@@ -21,9 +21,9 @@ from capsd.config import BusConfig
 from capsd.health import query_health
 from capsd.keys import is_concrete
 from capsd.payloads import Health, RovAttitude, RovDepth, RovFix, RovStatus
+from capsd.services.mav_bridge.ned import TankToNed
 from capsd.signing import SiteKey, write_key
-from services.mav_bridge.ned import TankToNed
-from simulator.autopilot import AutopilotStandIn, VehicleState
+from capsd.simulator.autopilot import AutopilotStandIn, VehicleState
 from tests.conftest import REPO, Proc, free_port, wait_for
 
 pytestmark = pytest.mark.integration
@@ -422,7 +422,7 @@ def test_gps_input_output_and_requested_rates(
     assert gps.fix_type == 3
     assert gps.horiz_accuracy_m == pytest.approx(math.sqrt(0.020), rel=1e-3)
     # The bridge asked for its message rates (MAV_CMD_SET_MESSAGE_INTERVAL) and got them.
-    from services.mav_bridge.mavlink import message_id
+    from capsd.services.mav_bridge.mavlink import message_id
 
     assert autopilot.rates_hz()[message_id("ATTITUDE")] == pytest.approx(20.0)
     assert autopilot.rates_hz()[message_id("SCALED_PRESSURE2")] == pytest.approx(20.0)

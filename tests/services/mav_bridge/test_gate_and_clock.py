@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 from capsd.payloads import RovFix
-from services.mav_bridge.clock import BootClock
-from services.mav_bridge.gate import GateSettings, Passed, SafetyGate
+from capsd.services.mav_bridge.clock import BootClock
+from capsd.services.mav_bridge.gate import GateSettings, Passed, SafetyGate
 
 NOW = 1_800_000_000_000_000_000
 MS = 1_000_000
@@ -101,7 +101,7 @@ def test_boot_clock_takes_the_minimum_latency_and_detects_reboots() -> None:
 def test_serial_link_writes_mavlink2_to_a_pseudo_terminal() -> None:
     import os
 
-    from services.mav_bridge.mavlink import MavLink
+    from capsd.services.mav_bridge.mavlink import MavLink
 
     master, slave = os.openpty()
     try:

@@ -9,10 +9,10 @@ import pytest
 
 from capsd.geometry import Transform, euler_zyx_to_matrix
 from capsd.payloads import SonarFrame
-from services.sonar_detect.classical import ClassicalDetector
-from simulator.scene import BLUEROV2_SEMI_AXES, Ellipsoid
-from simulator.sonar import SonarModel, SonarRenderer
-from simulator.world import make_tank
+from capsd.services.sonar_detect.classical import ClassicalDetector
+from capsd.simulator.scene import BLUEROV2_SEMI_AXES, Ellipsoid
+from capsd.simulator.sonar import SonarModel, SonarRenderer
+from capsd.simulator.world import make_tank
 
 
 def _frame(

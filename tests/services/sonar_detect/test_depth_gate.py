@@ -7,8 +7,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from capsd.geometry import Transform
+from capsd.services.sonar_detect.depth_gate import DepthGate
 from capsd.sonar_geometry import BeamModel, beam_direction, to_polar
-from services.sonar_detect.depth_gate import DepthGate
 
 HALF_APERTURE = math.radians(10.0)
 

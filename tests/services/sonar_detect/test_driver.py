@@ -15,8 +15,8 @@ from capsd import topics
 from capsd.codec import Codec
 from capsd.health import query_health
 from capsd.payloads import Health, SonarFrame
-from services.sonar_detect.oculus import parse_ping
-from simulator.oculus_fake import FakeOculus
+from capsd.services.sonar_detect.oculus import parse_ping
+from capsd.simulator.oculus_fake import FakeOculus
 from tests.conftest import OCULUS_FIXTURES, Proc, free_port, wait_for
 
 pytestmark = pytest.mark.integration
@@ -152,8 +152,8 @@ def test_detection_service_keeps_up_and_never_processes_stale_frames(
         topics.SONAR_FRAME.key("tank", "asv"), encoding=zenoh.Encoding(frame_codec.encoding)
     )
     base = parse_ping(ONE)
-    from services.sonar_detect.driver import Config as DriverConfig
-    from services.sonar_detect.driver import to_frame
+    from capsd.services.sonar_detect.driver import Config as DriverConfig
+    from capsd.services.sonar_detect.driver import to_frame
 
     def frame(i: int) -> bytes:
         return frame_codec.encode(to_frame(base, config=DriverConfig(), stamp_ns=1_000 + i, seq=i))
@@ -180,8 +180,8 @@ def test_detection_service_keeps_up_and_never_processes_stale_frames(
 
 
 def test_fire_config_names_each_flag() -> None:
-    from services.sonar_detect.driver import FireConfig
-    from services.sonar_detect.oculus import FireFlag
+    from capsd.services.sonar_detect.driver import FireConfig
+    from capsd.services.sonar_detect.oculus import FireFlag
 
     # An M3000d as deployed: metres, simple return, 512 beams, fixed gain, 8 bits.
     assert FireConfig().flags() == 0x49

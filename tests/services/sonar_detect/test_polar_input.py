@@ -9,8 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from capsd.payloads import SonarFrame
-from capsd.sonar_image import unit_image
-from services.sonar_detect.polar_input import (
+from capsd.services.sonar_detect.polar_input import (
     CROP_SIZE,
     CROP_STEP_M,
     BeamTable,
@@ -18,6 +17,7 @@ from services.sonar_detect.polar_input import (
     coarse_input,
     crop,
 )
+from capsd.sonar_image import unit_image
 
 
 def _frame(image: np.ndarray, *, resolution_m: float, half_fov_deg: float = 65.0) -> SonarFrame:

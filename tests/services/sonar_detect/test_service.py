@@ -139,7 +139,7 @@ def test_bad_recording_or_weights_is_a_config_error(
 
 
 def test_cadence_refuses_a_frame_older_than_the_ping_period() -> None:
-    from services.sonar_detect.service import Cadence
+    from capsd.services.sonar_detect.service import Cadence
 
     cadence = Cadence()
     period, ms = 25_000_000, 1_000_000  # 40 Hz
