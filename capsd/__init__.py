@@ -1,3 +1,3 @@
-"""CAP-SD shared package: payloads, keys, config, geometry, codec and the service runner."""
+"""CAP-SD: core (payloads, keys, config, codec, runner, geometry), services, simulator, tools."""
 
 __version__ = "0.1.0"

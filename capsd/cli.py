@@ -261,8 +261,8 @@ def _cmd_list(args: argparse.Namespace) -> int:
 def _mav_tool(args: argparse.Namespace, tool: Callable[[Any], int]) -> int:
     """Run a `capsd mav` tool with the checks they share: the extra, the connection string."""
     try:
+        from capsd.protocols.mavlink import check_connection
         from capsd.services.mav_bridge import check
-        from capsd.services.mav_bridge.mavlink import check_connection
     except ImportError as exc:  # the base install has no pymavlink: it comes with [rov]
         return _fail(
             f"`capsd mav` needs the rov extra (pip install 'capsd[rov]'): {exc}", EXIT_FAILURE
@@ -670,7 +670,7 @@ def _cmd_bench_accuracy(args: argparse.Namespace) -> int:
 
 
 def _cmd_train_calibrate(args: argparse.Namespace) -> int:
-    from capsd.services.sonar_detect.train import recalibrate
+    from capsd.train.detector import recalibrate
 
     try:
         recalibrate(args.weights, duration_s=args.duration)
@@ -682,7 +682,7 @@ def _cmd_train_calibrate(args: argparse.Namespace) -> int:
 def _cmd_label(args: argparse.Namespace) -> int:
     from capsd.config import load_config
     from capsd.services.locator.service import Config as LocatorConfig
-    from capsd.services.sonar_detect.labelling import label_recording, write_labels
+    from capsd.train.labelling import label_recording, write_labels
 
     if not 0.0 < args.max_sigma <= 1.0:
         return _fail(f"label: --max-sigma must be in (0, 1] m, not {args.max_sigma}", EXIT_CONFIG)
@@ -780,10 +780,10 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def _cmd_train_detector(args: argparse.Namespace) -> int:
-    from capsd.services.sonar_detect.train import TrainConfig, train
+    from capsd.train.detector import TrainConfig, train
 
     if args.finetune is not None:
-        from capsd.services.sonar_detect.finetune import FinetuneConfig, finetune
+        from capsd.train.finetune import FinetuneConfig, finetune
 
         try:
             finetune(
@@ -833,6 +833,7 @@ def _cmd_bench_latency(args: argparse.Namespace) -> int:
         duration_s=args.duration,
         warmup_s=args.warmup,
         out=args.out,
+        busy_cores=args.busy_cores,
     )
 
 
@@ -1237,6 +1238,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     blat.add_argument(
         "--warmup", type=positive_float, default=5.0, help="seconds after the first VPE"
+    )
+    blat.add_argument(
+        "--busy-cores",
+        type=non_negative_int,
+        default=0,
+        help="other processes that each keep a core busy during the run (a loaded computer)",
     )
     blat.add_argument("--out", type=Path, default=Path("reports/latency"), help="report folder")
     blat.set_defaults(func=_cmd_bench_latency)

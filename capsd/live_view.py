@@ -67,7 +67,7 @@ def make_view(settings: ViewSettings) -> SceneView:
     """The scene derivation with the sonar fan drawn as the detector's tools draw it."""
 
     def fan(frame: SonarFrame, detections: SonarDetections | None) -> Any:
-        from capsd.services.sonar_detect.fan import fan_with_overlays
+        from capsd.fan import fan_with_overlays
 
         return fan_with_overlays(frame, None, detections)
 

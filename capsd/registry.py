@@ -63,7 +63,7 @@ SERVICES: dict[str, ServiceEntry] = {
         ),
         ServiceEntry(
             "sonar_replay",
-            "capsd.services.sonar_detect.replay",
+            "capsd.sonar_replay",
             "recorded sonar frames (Oculus bytes or a dataset) onto the bus, paced",
         ),
         ServiceEntry(

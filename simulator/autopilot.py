@@ -20,7 +20,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Self
 
-from capsd.services.mav_bridge.mavlink import (
+from capsd.protocols.mavlink import (
     MAV_CMD_PREFLIGHT_CALIBRATION,
     MAV_CMD_SET_MESSAGE_INTERVAL,
     MAV_RESULT_ACCEPTED,

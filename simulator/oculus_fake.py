@@ -17,7 +17,7 @@ from typing import Self
 
 import numpy as np
 
-from capsd.services.sonar_detect.oculus import HEADER, MSG_SIMPLE_FIRE, OCULUS_ID, STATUS
+from capsd.protocols.oculus import HEADER, MSG_SIMPLE_FIRE, OCULUS_ID, STATUS
 
 
 class FakeOculus:

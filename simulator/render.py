@@ -1,4 +1,4 @@
-"""Pictures for people: a tank top view (the sonar fan is capsd.services.sonar_detect.fan)."""
+"""Pictures for people: a tank top view (the sonar fan is capsd.fan)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from capsd.fan import draw_fan, write_png
 from capsd.geometry import Array
-from capsd.services.sonar_detect.fan import draw_fan, write_png
 from capsd.simulator.world import Tank
 
 Image = npt.NDArray[np.uint8]

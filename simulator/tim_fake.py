@@ -17,7 +17,7 @@ from typing import Self
 
 import numpy as np
 
-from capsd.services.asv_pose.cola import ColaStream, format_scan, telegram
+from capsd.protocols.cola import ColaStream, format_scan, telegram
 
 # A TiM571: 270 deg at 1/3 deg, 15 Hz; SICK angles (90 = ahead), so -45 .. 225.
 START_ANGLE_DEG = -45.0

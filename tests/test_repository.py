@@ -81,8 +81,10 @@ def test_the_wheel_installs_one_top_level_package(tmp_path: Path) -> None:
     source = tmp_path / "source"
     _copy(source)
     out = subprocess.run(
-        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q"]
-        + ["--disable-pip-version-check", "-w", str(tmp_path / "wheel"), str(source)],
+        [
+            *(sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q"),
+            *("--disable-pip-version-check", "-w", str(tmp_path / "wheel"), str(source)),
+        ],
         capture_output=True,
         text=True,
         timeout=300,

@@ -260,9 +260,9 @@ def evaluate_cnn(net: Any, *, duration_s: float) -> dict[str, Any]:
 
 def real_pings(path: Path) -> list[SonarFrame]:
     """Frames of a raw Oculus capture (the repository's fixtures: a real sonar, no ROV in view)."""
+    from capsd.protocols.oculus import PingStream, ProtocolError
     from capsd.services.sonar_detect.driver import Config as DriverConfig
     from capsd.services.sonar_detect.driver import to_frame
-    from capsd.services.sonar_detect.oculus import PingStream, ProtocolError
 
     stream = PingStream()
     frames: list[SonarFrame] = []
@@ -333,7 +333,7 @@ def run(
 def sweep_prior(priors: list[float], *, duration_s: float) -> int:
     """The hysteresis prior on the validation runs (never the bench's), both kinds of look."""
     from capsd.services.sonar_detect.cnn import CnnDetector, CnnSettings
-    from capsd.services.sonar_detect.train import VALIDATION_RUNS
+    from capsd.train.detector import VALIDATION_RUNS
 
     print(
         f"validation runs (seeds {', '.join(str(r[3]) for r in VALIDATION_RUNS)}), {duration_s:g} s"

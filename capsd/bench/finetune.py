@@ -88,8 +88,8 @@ def _cnn(weights: Path) -> Any:
 def run(*, out: Path, duration_s: float, eval_duration_s: float) -> int:
     from capsd.services.locator.service import Config as LocatorConfig
     from capsd.services.sonar_detect.cnn import DEFAULT_WEIGHTS
-    from capsd.services.sonar_detect.finetune import FinetuneConfig, finetune
-    from capsd.services.sonar_detect.labelling import label_recording, write_labels
+    from capsd.train.finetune import FinetuneConfig, finetune
+    from capsd.train.labelling import label_recording, write_labels
 
     out.mkdir(parents=True, exist_ok=True)
     started = time.monotonic()

@@ -78,6 +78,7 @@ class RateResult:
     peak_rss_mb: dict[str, float] = field(default_factory=dict)
     frames: dict[str, int] = field(default_factory=dict)
     problems: list[str] = field(default_factory=list)
+    busy_cores: int = 0
 
 
 def _cpu_s(pid: int) -> float:
@@ -205,10 +206,24 @@ def _counter(h: Health | None, key: str) -> int:
     return 0 if h is None else h.counters.get(key, 0)
 
 
+# A process that keeps one core busy: the load a shared vehicle computer has besides us.
+BUSY_LOOP = "while True: pass"
+
+
 def measure_rate(
-    rate_hz: float, *, duration_s: float, warmup_s: float, out: Path, stream: TextIO
+    rate_hz: float,
+    *,
+    duration_s: float,
+    warmup_s: float,
+    out: Path,
+    stream: TextIO,
+    busy_cores: int = 0,
 ) -> RateResult:
-    """One pipeline run at `rate_hz`; the figures of its measurement window."""
+    """One pipeline run at `rate_hz`; the figures of its measurement window.
+
+    `busy_cores` processes spin for the whole run: the simulator must then skip pings it
+    cannot render in time (counted) rather than fall behind, and fixes must still flow.
+    """
     logs = out / f"logs_{rate_hz:g}hz"
     logs.mkdir(parents=True, exist_ok=True)
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
@@ -227,6 +242,8 @@ def measure_rate(
     try:
         procs.start("router", ["-m", "capsd", "router", "--listen", endpoint])
         procs.start("autopilot", ["-m", "capsd.simulator.autopilot", "--port", str(mav_port)])
+        for k in range(busy_cores):
+            procs.start(f"busy{k}", ["-c", BUSY_LOOP])
         time.sleep(1.0)
         for name in ("sim", *SERVICES):
             start_service(procs, name, configs[name])
@@ -306,9 +323,12 @@ def measure_rate(
         - _counter(detect_first, "dropped_older_than_period"),
         "vpe_sent": _counter(last.health.get("mav_bridge"), "gate_sent")
         - _counter(first.health.get("mav_bridge"), "gate_sent"),
+        "sim_skipped_late_pings": _counter(det_h, "skipped_late_pings")
+        - _counter(sim_h, "skipped_late_pings"),
     }
+    result.busy_cores = busy_cores
     for name, code in codes.items():
-        if name != "autopilot" and code != 0:
+        if name != "autopilot" and not name.startswith("busy") and code != 0:
             result.problems.append(f"{name} exited {code} (log: {logs}/{name}.log)")
     return result
 
@@ -357,6 +377,10 @@ def _report(
             f"({f['received_in_shared_memory']} in shared memory), detected "
             f"{f['detected']}, replaced by a newer one {f['dropped_stale']}, older than a period "
             f"when the detector was free {f['dropped_older_than_period']}; VPE sent {f['vpe_sent']}"
+        )
+        lines.append(
+            f"  simulator: {f.get('sim_skipped_late_pings', 0)} pings skipped as too late to "
+            f"render (the world holds real time), {r.busy_cores} other busy process(es)"
         )
         cpu = "  ".join(f"{n} {c:.2f}" for n, c in sorted(r.cpu_cores.items()))
         services_cpu = sum(r.cpu_cores.get(n, 0.0) for n in SERVICES)
@@ -407,12 +431,17 @@ def run(
     warmup_s: float = 5.0,
     out: Path = Path("reports/latency"),
     floor_count: int = 200,
+    busy_cores: int = 0,
     stream: TextIO = sys.stdout,
 ) -> int:
     """The bench; 0 when every service ran to the end (targets are printed, not asserted)."""
     out.mkdir(parents=True, exist_ok=True)
     sizes = payload_sizes()
-    print(f"capsd bench latency: rates {list(rates_hz)} Hz, {duration_s:g} s each", file=stream)
+    print(
+        f"capsd bench latency: rates {list(rates_hz)} Hz, {duration_s:g} s each"
+        + (f", {busy_cores} other process(es) keeping a core busy" if busy_cores else ""),
+        file=stream,
+    )
     procs = Processes(out)
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
     try:
@@ -422,7 +451,14 @@ def run(
     finally:
         procs.stop()
     results = [
-        measure_rate(r, duration_s=duration_s, warmup_s=warmup_s, out=out, stream=stream)
+        measure_rate(
+            r,
+            duration_s=duration_s,
+            warmup_s=warmup_s,
+            out=out,
+            stream=stream,
+            busy_cores=busy_cores,
+        )
         for r in rates_hz
     ]
     lines = _report(results, floor, stream)

@@ -1,1 +1,1 @@
-"""ASV pose service: LiDAR scan matching and IMU tilt filter (issue 9; not implemented yet)."""
+"""ASV pose: LiDAR scan matching against the walls and the IMU tilt filter."""

@@ -25,14 +25,14 @@ import msgspec
 from capsd import topics
 from capsd.config import ServiceConfig
 from capsd.payloads import LidarScan
-from capsd.runner import Publisher, ServiceRunner
-from capsd.services.asv_pose.cola import (
+from capsd.protocols.cola import (
     START_STREAM,
     ColaError,
     ColaStream,
     ScanTelegram,
     parse_scan,
 )
+from capsd.runner import Publisher, ServiceRunner
 
 logger = logging.getLogger(__name__)
 COLA_PORT = 2112

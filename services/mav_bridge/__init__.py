@@ -1,1 +1,1 @@
-"""MAVLink bridge to ArduSub (issue 6; not implemented yet)."""
+"""MAVLink bridge: CAP-SD fixes to ArduSub as vision-position estimates, through a safety gate."""

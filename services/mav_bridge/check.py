@@ -13,7 +13,7 @@ import time
 from dataclasses import dataclass
 from typing import Literal, TextIO
 
-from capsd.services.mav_bridge.mavlink import (
+from capsd.protocols.mavlink import (
     MAV_CMD_PREFLIGHT_CALIBRATION,
     MAV_RESULT_ACCEPTED,
     CommandAck,

@@ -33,10 +33,7 @@ from capsd.geometry import matrix_to_quat
 from capsd.keys import check_name
 from capsd.mailbox import Mailbox
 from capsd.payloads import RovAttitude, RovDepth, RovFix, RovStatus
-from capsd.runner import Publisher, ServiceRunner, StreamCounter
-from capsd.services.mav_bridge.clock import BootClock
-from capsd.services.mav_bridge.gate import GateSettings, Passed, SafetyGate
-from capsd.services.mav_bridge.mavlink import (
+from capsd.protocols.mavlink import (
     MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY,
     Attitude,
     EkfStatus,
@@ -49,6 +46,9 @@ from capsd.services.mav_bridge.mavlink import (
     message_id,
     mode_name,
 )
+from capsd.runner import Publisher, ServiceRunner, StreamCounter
+from capsd.services.mav_bridge.clock import BootClock
+from capsd.services.mav_bridge.gate import GateSettings, Passed, SafetyGate
 from capsd.services.mav_bridge.ned import TankToNed, upper_triangle
 from capsd.signing import SiteKey
 from capsd.tank import TankBounds

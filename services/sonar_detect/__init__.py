@@ -1,1 +1,1 @@
-"""Sonar detection service: Oculus driver and ROV detector (issue 5; not implemented yet)."""
+"""Sonar detection: the Oculus driver and the ROV detector (CNN, classical, the paper's box)."""

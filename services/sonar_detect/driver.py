@@ -30,8 +30,7 @@ import numpy as np
 from capsd import topics
 from capsd.config import ConfigSection, ServiceConfig
 from capsd.payloads import SonarFrame
-from capsd.runner import Publisher, ServiceRunner
-from capsd.services.sonar_detect.oculus import (
+from capsd.protocols.oculus import (
     DATA_PORT,
     STATUS_PORT,
     FireFlag,
@@ -44,6 +43,7 @@ from capsd.services.sonar_detect.oculus import (
     parse_status,
     simple_fire,
 )
+from capsd.runner import Publisher, ServiceRunner
 
 logger = logging.getLogger(__name__)
 

@@ -291,7 +291,7 @@ def main(config: Config) -> int:
 
 
 def _snapshot(config: Config, frame: SonarFrame, found: list[Detection]) -> None:
-    from capsd.services.sonar_detect.fan import draw_fan
+    from capsd.fan import draw_fan
 
     detections = SonarDetections(
         stamp_ns=frame.stamp_ns,

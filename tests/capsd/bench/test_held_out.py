@@ -5,9 +5,9 @@ from __future__ import annotations
 from capsd.bench.accuracy import RUNS
 from capsd.bench.baseline import TRAINING_RUNS
 from capsd.bench.detect import RUNS as DETECT_RUNS
-from capsd.services.sonar_detect.train import VALIDATION_RUNS
-from capsd.services.sonar_detect.training_data import plan_runs
 from capsd.simulator.world import HELD_OUT_TANK, TUNING_TANKS, make_tank
+from capsd.train.data import plan_runs
+from capsd.train.detector import VALIDATION_RUNS
 
 
 def test_nothing_is_trained_or_tuned_on_the_held_out_tank() -> None:

@@ -19,7 +19,7 @@ from capsd.codec import Codec
 from capsd.health import query_health
 from capsd.keys import is_concrete
 from capsd.payloads import LidarScan
-from capsd.services.asv_pose.cola import ColaError, ColaStream, format_scan, parse_scan, telegram
+from capsd.protocols.cola import ColaError, ColaStream, format_scan, parse_scan, telegram
 from capsd.simulator.tim_fake import SAMPLES, START_ANGLE_DEG, STEP_DEG, FakeTim
 from tests.conftest import Proc, wait_for
 

@@ -422,7 +422,7 @@ def test_gps_input_output_and_requested_rates(
     assert gps.fix_type == 3
     assert gps.horiz_accuracy_m == pytest.approx(math.sqrt(0.020), rel=1e-3)
     # The bridge asked for its message rates (MAV_CMD_SET_MESSAGE_INTERVAL) and got them.
-    from capsd.services.mav_bridge.mavlink import message_id
+    from capsd.protocols.mavlink import message_id
 
     assert autopilot.rates_hz()[message_id("ATTITUDE")] == pytest.approx(20.0)
     assert autopilot.rates_hz()[message_id("SCALED_PRESSURE2")] == pytest.approx(20.0)

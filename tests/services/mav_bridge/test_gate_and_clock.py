@@ -101,7 +101,7 @@ def test_boot_clock_takes_the_minimum_latency_and_detects_reboots() -> None:
 def test_serial_link_writes_mavlink2_to_a_pseudo_terminal() -> None:
     import os
 
-    from capsd.services.mav_bridge.mavlink import MavLink
+    from capsd.protocols.mavlink import MavLink
 
     master, slave = os.openpty()
     try:

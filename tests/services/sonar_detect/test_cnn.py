@@ -15,10 +15,10 @@ from capsd.geometry import Transform, euler_zyx_to_matrix
 from capsd.payloads import SonarFrame
 from capsd.services.sonar_detect.cnn import DEFAULT_WEIGHTS, CnnDetector, CnnSettings
 from capsd.services.sonar_detect.polar_net import PolarNet, load
-from capsd.services.sonar_detect.train import TrainConfig, focal_loss, refine_loss, train
 from capsd.simulator.scene import BLUEROV2_SEMI_AXES, Ellipsoid
 from capsd.simulator.sonar import SonarModel, SonarRenderer
 from capsd.simulator.world import make_tank
+from capsd.train.detector import TrainConfig, focal_loss, refine_loss, train
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ from capsd import topics
 from capsd.codec import Codec
 from capsd.health import query_health
 from capsd.payloads import Health, SonarFrame
-from capsd.services.sonar_detect.oculus import parse_ping
+from capsd.protocols.oculus import parse_ping
 from capsd.simulator.oculus_fake import FakeOculus
 from tests.conftest import OCULUS_FIXTURES, Proc, free_port, wait_for
 
@@ -180,8 +180,8 @@ def test_detection_service_keeps_up_and_never_processes_stale_frames(
 
 
 def test_fire_config_names_each_flag() -> None:
+    from capsd.protocols.oculus import FireFlag
     from capsd.services.sonar_detect.driver import FireConfig
-    from capsd.services.sonar_detect.oculus import FireFlag
 
     # An M3000d as deployed: metres, simple return, 512 beams, fixed gain, 8 bits.
     assert FireConfig().flags() == 0x49

@@ -23,15 +23,15 @@ import torch
 
 from capsd.errors import CapsdError
 from capsd.payloads import SonarLabel
-from capsd.services.sonar_detect.labelling import LabelledPing, frames_of, read_labels
 from capsd.services.sonar_detect.polar_net import PolarNet, load, save
-from capsd.services.sonar_detect.train import (
+from capsd.train.data import Samples, plan_runs, render, samples_of_ping
+from capsd.train.detector import (
     TrainConfig,
     _train_proposal,
     _train_refine,
     operating_offset,
 )
-from capsd.services.sonar_detect.training_data import Samples, plan_runs, render, samples_of_ping
+from capsd.train.labelling import LabelledPing, frames_of, read_labels
 
 # A BlueROV2's echo: about 0.4 m deep in range, 0.5 m across (for the extent targets).
 ECHO_RANGE_EXTENT_M = 0.4

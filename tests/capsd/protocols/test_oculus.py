@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from capsd.services.sonar_detect.oculus import (
+from capsd.protocols.oculus import (
     FIRE_V1,
     HEADER,
     RESULT_V1,

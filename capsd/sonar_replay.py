@@ -26,10 +26,10 @@ from capsd import topics
 from capsd.config import ServiceConfig
 from capsd.errors import CapsdError, ConfigError
 from capsd.payloads import SonarFrame
+from capsd.protocols.oculus import PingStream, ProtocolError
 from capsd.runner import ServiceRunner
 from capsd.services.sonar_detect.driver import Config as DriverConfig
 from capsd.services.sonar_detect.driver import to_frame
-from capsd.services.sonar_detect.oculus import PingStream, ProtocolError
 
 logger = logging.getLogger(__name__)
 CHUNK_BYTES = 1 << 16

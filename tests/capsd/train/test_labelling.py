@@ -11,14 +11,14 @@ from capsd.errors import CapsdError
 from capsd.geometry import matrix_to_quat
 from capsd.payloads import AsvPose, RovFix, SonarFrame, SonarLabel
 from capsd.recording import McapRecorder, Sample
-from capsd.services.sonar_detect.labelling import (
+from capsd.simulator.config import OFFLINE_START_NS, Config, Rates, Streams
+from capsd.simulator.sim import Simulation
+from capsd.train.labelling import (
     REJECTED_FILE,
     label_recording,
     read_labels,
     write_labels,
 )
-from capsd.simulator.config import OFFLINE_START_NS, Config, Rates, Streams
-from capsd.simulator.sim import Simulation
 
 COV = tuple(float(v) for v in (np.eye(3) * 0.01**2).ravel())
 
@@ -120,8 +120,8 @@ def test_finetune_adapts_the_weights_to_the_labels(tmp_path: Path) -> None:
     import torch
 
     from capsd.services.sonar_detect.cnn import DEFAULT_WEIGHTS
-    from capsd.services.sonar_detect.finetune import FinetuneConfig, finetune
     from capsd.services.sonar_detect.polar_net import load
+    from capsd.train.finetune import FinetuneConfig, finetune
 
     recording = tmp_path / "dive.mcap"
     _dive(recording)

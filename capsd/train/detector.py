@@ -2,7 +2,7 @@
 
 Deterministic for a seed (the run plan, the sample draws, torch's initialisation and batch
 order; a fixed number of steps, never a time budget). Stages:
-1. render `runs` simulated runs (training_data) over `workers` processes;
+1. render `runs` simulated runs (capsd.train.data) over `workers` processes;
 2. train the proposal network on the coarse grids with CenterNet's focal loss against a
    Gaussian at the ROV centre (sized by the echo), frames without the ROV all negative;
 3. train the refiner on the crops: binary cross-entropy for ROV / not, a Laplace negative
@@ -38,8 +38,8 @@ from capsd.errors import CapsdError
 from capsd.progress import Progress
 from capsd.services.sonar_detect.polar_input import NORM_HIGH, NORM_LOW, U8_SCALE
 from capsd.services.sonar_detect.polar_net import OFFSET_SCALE_M, PolarNet, save
-from capsd.services.sonar_detect.training_data import Samples, plan_runs, render
 from capsd.simulator.sonar_look import Variety
+from capsd.train.data import Samples, plan_runs, render
 
 
 @dataclass(frozen=True)
