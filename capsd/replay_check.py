@@ -23,8 +23,8 @@ import zenoh
 from capsd.bus import open_session
 from capsd.codec import Codec
 from capsd.config import BusConfig
-from capsd.demo import Processes, _free_port
 from capsd.errors import CapsdError, PayloadError
+from capsd.harness import Processes, free_port
 from capsd.health import query_health
 from capsd.keys import all_health, is_concrete
 from capsd.payloads import RovFix
@@ -178,7 +178,7 @@ def run(
         with lock:
             got[fix.stamp_ns] = fix
 
-    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
     with tempfile.TemporaryDirectory(prefix="capsd-replay-check-") as tmp:
         procs = Processes(Path(tmp))
         try:

@@ -43,8 +43,8 @@ from capsd.bench.lossy_tcp_link import LossyTcpLink
 from capsd.bus import open_session
 from capsd.codec import Codec
 from capsd.config import BusConfig
-from capsd.demo import SERVICES as DEMO_SERVICES
-from capsd.demo import Child, Processes, _free_port, _write_configs, decoder, start_service
+from capsd.harness import SERVICES as DEMO_SERVICES
+from capsd.harness import Child, Processes, decoder, free_port, start_service, write_configs
 from capsd.health import query_health
 from capsd.payloads import RovFix, SimControl, SonarLabel
 
@@ -145,10 +145,10 @@ class Pipeline:
     ):
         self.out = out
         out.mkdir(parents=True, exist_ok=True)
-        self.port = _free_port()
+        self.port = free_port()
         self.endpoint = f"tcp/127.0.0.1:{self.port}"
-        mav_port = _free_port()
-        self.configs = _write_configs(
+        mav_port = free_port()
+        self.configs = write_configs(
             out, self.endpoint, trajectory="square", tank="nfp", seed=0, mav_port=mav_port
         )
         if sim_clock is not None:
@@ -160,11 +160,11 @@ class Pipeline:
         if link is not None:
             # The ASV side (sensors, pose, detector) has its own router, joined to topside's
             # through the UDP relay or the TCP proxy: ASV -> topside is the degraded link.
-            self.asv_endpoint = f"tcp/127.0.0.1:{_free_port()}"
+            self.asv_endpoint = f"tcp/127.0.0.1:{free_port()}"
             if link.transport == "udp":
                 self._link_topside, self._link_relay = _free_udp_port(), _free_udp_port()
             else:
-                self._link_topside, self._link_relay = _free_port(), _free_port()
+                self._link_topside, self._link_relay = free_port(), free_port()
             for name in ("sim", "asv_pose", "sonar_detect"):
                 body = yaml.safe_load(self.configs[name].read_text())
                 body["bus"] = {"connect": [self.asv_endpoint]}

@@ -29,7 +29,7 @@ from capsd.bench.footprint import status_kb
 from capsd.bus import open_session
 from capsd.codec import Codec
 from capsd.config import BusConfig
-from capsd.demo import Processes, Watch, _free_port, _write_configs, start_service
+from capsd.harness import Processes, Watch, free_port, start_service, write_configs
 from capsd.latency import LatencyRecorder, count_above_ms, difference, percentile_ms
 from capsd.payloads import Detection, Health, LatencyStats, RovFix, SonarDetections, SonarFrame
 from capsd.runner import put_time_ns
@@ -226,9 +226,9 @@ def measure_rate(
     """
     logs = out / f"logs_{rate_hz:g}hz"
     logs.mkdir(parents=True, exist_ok=True)
-    endpoint = f"tcp/127.0.0.1:{_free_port()}"
-    mav_port = _free_port()
-    configs = _write_configs(
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    mav_port = free_port()
+    configs = write_configs(
         logs,
         endpoint,
         trajectory="square",
@@ -443,7 +443,7 @@ def run(
         file=stream,
     )
     procs = Processes(out)
-    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
     try:
         procs.start("floor_router", ["-m", "capsd", "router", "--listen", endpoint])
         time.sleep(1.0)

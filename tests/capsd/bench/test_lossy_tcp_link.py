@@ -7,12 +7,7 @@ import threading
 import time
 
 from capsd.bench.lossy_tcp_link import LossyTcpLink
-
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
+from capsd.harness import free_port
 
 
 def test_proxy_delivers_in_order_late_and_stalls_behind_losses() -> None:
@@ -34,7 +29,7 @@ def test_proxy_delivers_in_order_late_and_stalls_behind_losses() -> None:
 
         thread = threading.Thread(target=echo, daemon=True)
         thread.start()
-        port = _free_port()
+        port = free_port()
         with LossyTcpLink(
             listen_port=port,
             target_port=int(server.getsockname()[1]),

@@ -1,0 +1,246 @@
+"""The pipeline harness: the system's processes on 127.0.0.1, their configs, a watching client.
+
+Shared by `capsd demo`, the latency and fault benches and `capsd replay-check`: a router, the
+simulator and the four services each started as `capsd run NAME --config FILE` (as systemd does),
+children stopped with SIGTERM on every path, and a Zenoh client that pairs fixes with truth
+labels and polls each service's Health.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import socket
+import subprocess
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from capsd import topics
+from capsd.accuracy import Accuracy, LivePairing
+from capsd.codec import Codec
+from capsd.errors import PayloadError
+from capsd.health import query_health
+from capsd.keys import is_concrete
+from capsd.payloads import Health, RovFix, SonarLabel
+from capsd.simulator.world import TankName, TrajectoryName
+
+SERVICES = (
+    ("sim", "sim"),
+    ("asv", "asv_pose"),
+    ("asv", "sonar_detect"),
+    ("topside", "locator"),
+    ("rov_ap", "mav_bridge"),
+)
+
+
+SIM_NICENESS = 10
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that was free a moment ago."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+@dataclass
+class Child:
+    name: str
+    popen: subprocess.Popen[bytes]
+    log: Path
+
+
+class Processes:
+    """Children started with their logs in the report folder; stopped in reverse order."""
+
+    def __init__(self, logs: Path):
+        self.logs = logs
+        self.children: list[Child] = []
+
+    def start(self, name: str, args: list[str], *, niceness: int = 0) -> Child:
+        """Start `python ARGS`; `niceness` > 0 lets it have only what the others leave."""
+        log = self.logs / f"{name}.log"
+        command = [sys.executable, *args]
+        if niceness:
+            command = ["nice", "-n", str(niceness), *command]
+        with log.open("wb") as out:
+            # A session of its own: Ctrl-C in the terminal reaches only the demo, which then
+            # stops every child cleanly (SIGTERM, exit 0) in order.
+            popen = subprocess.Popen(
+                command,
+                stdout=out,
+                stderr=subprocess.STDOUT,
+                cwd=os.getcwd(),
+                start_new_session=True,
+            )
+        child = Child(name, popen, log)
+        self.children.append(child)
+        return child
+
+    def stop(self) -> dict[str, int | None]:
+        codes: dict[str, int | None] = {}
+        for child in reversed(self.children):
+            if child.popen.poll() is None:
+                child.popen.send_signal(signal.SIGTERM)
+        for child in reversed(self.children):
+            try:
+                codes[child.name] = child.popen.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                child.popen.kill()
+                codes[child.name] = child.popen.wait()
+        return codes
+
+    def dead(self) -> list[str]:
+        return [c.name for c in self.children if c.popen.poll() is not None]
+
+
+def write_configs(
+    folder: Path,
+    endpoint: str,
+    *,
+    trajectory: TrajectoryName,
+    tank: TankName,
+    seed: int,
+    mav_port: int,
+    sonar_hz: float = 20.0,
+) -> dict[str, Path]:
+    import msgspec
+    import yaml
+
+    from capsd.geometry import matrix_to_euler_zyx
+    from capsd.signing import SiteKey, write_key
+    from capsd.simulator.config import Config as SimConfig
+    from capsd.simulator.sim import Simulation
+    from capsd.simulator.world import tank_bounds
+
+    bus = {"connect": [endpoint]}
+    # The site's fix key: the locator signs, the bridge checks (as deployed).
+    fix_key = folder / "fix.key"
+    if not fix_key.exists():
+        write_key(fix_key, SiteKey.generate())
+    sim = {
+        "bus": bus,
+        "tank": tank,
+        "trajectory": trajectory,
+        "seed": seed,
+        "streams": {"detections_truth_noise": "off", "asv_pose_truth_noise": "off"},
+        "rates": {"sonar_hz": sonar_hz},
+    }
+    run = SimConfig(tank=tank, trajectory=trajectory, seed=seed)
+    start = Simulation(run, horizon_s=10)
+    # The person putting the ASV in the water knows roughly which way it points: 20 deg off.
+    heading = math.degrees(matrix_to_euler_zyx(start.asv_pose(0.0).rotation)[0]) + 20.0
+    t = run.world_tank()
+    tank_box = {"length_m": t.length_m, "width_m": t.width_m}
+    configs = {
+        "sim": sim,
+        "asv_pose": {
+            "bus": bus,
+            "heading_prior_deg": round(heading, 1),
+            "tank_length_m": t.length_m,
+            "tank_width_m": t.width_m,
+        },
+        "sonar_detect": {"bus": bus},
+        "locator": {
+            "bus": bus,
+            # The tank as a site would describe it: its box and fixtures (the view draws them).
+            "tank": msgspec.to_builtins(tank_bounds(t)),
+            "fix_key": str(fix_key),
+        },
+        "mav_bridge": {
+            "vehicle": "rov_ap",
+            "bus": bus,
+            "mavlink": {"connect": f"tcp:127.0.0.1:{mav_port}"},
+            "fix_key": str(fix_key),
+            "tank": {**tank_box, "depth_m": t.depth_m},
+        },
+    }
+    paths = {}
+    for name, body in configs.items():
+        path = folder / f"{name}.yaml"
+        path.write_text(yaml.safe_dump(body, sort_keys=False))
+        paths[name] = path
+    return paths
+
+
+def decoder(
+    codec: Codec[Any],
+    sink: Callable[[Any], None],
+    *,
+    on_error: Callable[[], None] = lambda: None,
+) -> Callable[[zenoh.Sample], None]:
+    """A Zenoh callback that decodes each concrete-keyed sample into `sink` (bad ones: on_error)."""
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        if not is_concrete(key):
+            return
+        try:
+            value = codec.decode(
+                sample.payload.to_bytes(), encoding=str(sample.encoding), key_expr=key
+            )
+        except PayloadError:
+            on_error()
+            return
+        sink(value)
+
+    return on_sample
+
+
+def start_service(procs: Processes, name: str, config: Path) -> Child:
+    """`capsd run NAME --config CONFIG` as a child; the simulator niced.
+
+    It stands in for sensors with processors of their own: it renders ahead and yields the CPU
+    to the system it feeds (its lateness is measured).
+    """
+    return procs.start(
+        name,
+        ["-m", "capsd", "run", name, "--config", str(config)],
+        niceness=SIM_NICENESS if name == "sim" else 0,
+    )
+
+
+class Watch:
+    """The demo's own Zenoh client: fixes and labels paired, health polled."""
+
+    def __init__(self, session: zenoh.Session):
+        self.session = session
+        self.accuracy = Accuracy()
+        self.pairing = LivePairing(self.accuracy)
+        self.decode_errors = 0
+        self._subs = [
+            session.declare_subscriber(
+                topics.ROV_FIX.key("tank", "topside"), self._decoder(Codec(RovFix), self._on_fix)
+            ),
+            session.declare_subscriber(
+                topics.SIM_LABEL.key("tank", "sim"),
+                self._decoder(Codec(SonarLabel), self.pairing.add_label),
+            ),
+        ]
+
+    def _decoder(self, codec: Codec[Any], sink: Any) -> Any:
+        def on_error() -> None:
+            self.decode_errors += 1  # reported in the summary; the services count theirs
+
+        return decoder(codec, sink, on_error=on_error)
+
+    def _on_fix(self, fix: RovFix) -> None:
+        self.pairing.add_fix(fix)
+
+    def health(self) -> dict[str, Health | None]:
+        return {
+            service: query_health(
+                self.session, site="tank", vehicle=vehicle, service=service, timeout_s=0.5
+            )
+            for vehicle, service in SERVICES
+        }
+
+    def close(self) -> None:
+        for sub in self._subs:
+            sub.undeclare()
