@@ -1,0 +1,337 @@
+"""`capsd bench ...`: the benchmarks, each printing its figures."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from capsd.cli.common import Subcommands, fail
+from capsd.launch import (
+    EXIT_CONFIG,
+    EXIT_FAILURE,
+    EXIT_OK,
+    non_negative_int,
+    positive_float,
+    positive_int,
+)
+
+
+def _cmd_bench_sim(args: argparse.Namespace) -> int:
+    from capsd.bench import sim
+
+    return sim.run(
+        tank=args.tank, trajectory=args.trajectory, duration_s=args.duration, warmup_s=args.warmup
+    )
+
+
+def _cmd_bench_finetune(args: argparse.Namespace) -> int:
+    from capsd.bench import finetune
+
+    if not (args.duration > 0 and args.eval_duration > 0):
+        return fail("bench finetune: durations must be positive", EXIT_CONFIG)
+    return finetune.run(out=args.out, duration_s=args.duration, eval_duration_s=args.eval_duration)
+
+
+def _cmd_bench_detect(args: argparse.Namespace) -> int:
+    from capsd.bench import detect
+
+    if args.throughput:
+        return detect.run_throughput(frames=args.frames, which=args.detector)
+    if args.prior_sweep:
+        return detect.sweep_prior(args.prior_sweep, duration_s=args.duration)
+    for weights in args.weights or []:
+        if not weights.is_file():
+            return fail(f"bench detect: --weights {weights}: no such file", EXIT_CONFIG)
+    return detect.run(
+        duration_s=args.duration,
+        which=args.detector,
+        fixtures=args.fixtures,
+        weights=args.weights,
+        json_out=args.json,
+    )
+
+
+def _cmd_bench_calibrate(args: argparse.Namespace) -> int:
+    from capsd.bench import calibrate
+
+    calibrate.bench(
+        seeds=args.seeds,
+        duration_s=args.duration,
+        tank=args.tank,
+        trajectory="square",
+        out=args.out,
+    )
+    return EXIT_OK
+
+
+def _cmd_bench_evaluate(args: argparse.Namespace) -> int:
+    from capsd.bench import evaluate
+
+    result = evaluate.bench(
+        tank=args.tank,
+        trajectory=args.trajectory,
+        seed=args.seed,
+        duration_s=args.duration,
+        out_dir=args.out,
+    )
+    return EXIT_OK if all(result["verdicts"].values()) else EXIT_FAILURE
+
+
+def _cmd_bench_consistency(args: argparse.Namespace) -> int:
+    from capsd.bench import consistency
+
+    consistency.bench(duration_s=args.duration, out=args.out)
+    return EXIT_OK
+
+
+def _cmd_bench_accuracy(args: argparse.Namespace) -> int:
+    from capsd.bench import accuracy
+
+    accuracy.bench(
+        duration_s=args.duration,
+        seed=args.seed,
+        out_dir=args.out,
+        install_errors=args.install_errors,
+    )
+    return 0
+
+
+def _cmd_bench_faults(args: argparse.Namespace) -> int:
+    from capsd.bench import faults
+
+    return faults.bench(out=args.out, baseline_s=args.baseline, skew_s=args.skew_duration)
+
+
+def _cmd_bench_latency(args: argparse.Namespace) -> int:
+    from capsd.bench import latency
+
+    return latency.run(
+        rates_hz=tuple(args.rates),
+        duration_s=args.duration,
+        warmup_s=args.warmup,
+        out=args.out,
+        busy_cores=args.busy_cores,
+    )
+
+
+def _cmd_bench_asv_pose(args: argparse.Namespace) -> int:
+    from capsd.bench import asv_pose
+
+    return asv_pose.run(seconds=args.duration)
+
+
+def _cmd_bench_footprint(args: argparse.Namespace) -> int:
+    from capsd.bench import footprint
+
+    return footprint.bridge(runs=args.runs, settle_s=args.settle)
+
+
+def register(sub: Subcommands) -> None:
+    """Add the bench verbs to the `capsd` parser's subcommands."""
+    bench = sub.add_parser(
+        "bench",
+        help="benchmarks that print measured figures",
+        description="Benchmarks: each prints figures measured in one run.",
+    )
+    bench_sub = bench.add_subparsers(dest="bench_command", required=True, metavar="BENCH")
+    foot = bench_sub.add_parser(
+        "footprint",
+        help="start-up time and resident memory of the MAVLink bridge",
+        description="Start the bridge against a local router and the autopilot stand-in; "
+        "print start-up time to READY=1, resident memory and heavy libraries.",
+    )
+    foot.add_argument("--runs", type=positive_int, default=5, help="repetitions (median reported)")
+    foot.add_argument("--settle", type=float, default=3.0, help="seconds running before RSS")
+    foot.set_defaults(func=_cmd_bench_footprint)
+    bsim = bench_sub.add_parser(
+        "sim",
+        help="achieved rate and CPU per stream of the real-time simulator",
+        description="Run `capsd sim` as its own process; print each stream's achieved rate and "
+        "CPU share next to its target, and the process's total CPU.",
+    )
+    bsim.add_argument("--tank", choices=["nfp", "mockup", "pond"], default="nfp")
+    bsim.add_argument(
+        "--trajectory",
+        default="lawnmower",
+        choices=["square", "lawnmower", "bouncing", "random", "two_floor"],
+    )
+    bsim.add_argument("--duration", type=positive_float, default=20.0, help="seconds measured")
+    bsim.add_argument("--warmup", type=positive_float, default=4.0, help="seconds before measuring")
+    bsim.set_defaults(func=_cmd_bench_sim)
+    bdet = bench_sub.add_parser(
+        "detect",
+        help="detectors on held-out simulated frames against the labels",
+        description="Detection rate, false alarms per frame, range/azimuth errors (median, "
+        "p90) in the simulator's fixed look and in held-out look settings (docs/SONAR-"
+        "VARIETY.md), with and without clutter overlapping the ROV and by range band; the "
+        "paper's box-centre pipeline as the baseline; detections on real Oculus pings (none "
+        "allowed); or time per frame.",
+    )
+    bdet.add_argument("--duration", type=positive_float, default=15.0, help="seconds per run")
+    bdet.add_argument("--json", type=Path, default=None, help="also write the figures as JSON")
+    bdet.add_argument(
+        "--fixtures",
+        type=Path,
+        default=Path("tests/fixtures/oculus"),
+        help="folder of raw Oculus captures without an ROV (skipped if absent)",
+    )
+    bdet.add_argument(
+        "--detector", choices=["all", "classical", "cnn"], default="all", help="which to run"
+    )
+    bdet.add_argument(
+        "--throughput",
+        action="store_true",
+        help="instead: per-frame latency on 512 x 1000 frames on one CPU core",
+    )
+    bdet.add_argument(
+        "--frames", type=positive_int, default=300, help="frames timed (--throughput)"
+    )
+    bdet.add_argument(
+        "--prior-sweep",
+        type=float,
+        nargs="+",
+        metavar="LOGIT",
+        help="instead: the CNN's hysteresis prior on the validation runs (e.g. 0 1 2)",
+    )
+    bdet.add_argument(
+        "--weights",
+        type=Path,
+        nargs="+",
+        metavar="PT",
+        help="CNN weights to compare in one run (default: the shipped ones), each named by "
+        "its folder",
+    )
+    bdet.set_defaults(func=_cmd_bench_detect)
+    bft = bench_sub.add_parser(
+        "finetune",
+        help="the fine-tune path on a sonar look outside the training variety, before/after",
+        description="A simulated first dive in a look never trained on, recorded; `capsd "
+        "label` on it; `capsd train detector --finetune`; both weights on held-out runs.",
+    )
+    bft.add_argument("--out", type=Path, default=Path("reports/finetune"), help="report folder")
+    bft.add_argument(
+        "--duration", type=positive_float, default=60.0, help="first dive, simulated s"
+    )
+    bft.add_argument(
+        "--eval-duration", type=positive_float, default=15.0, help="seconds per held-out run"
+    )
+    bft.set_defaults(func=_cmd_bench_finetune)
+    bcal = bench_sub.add_parser(
+        "calibrate",
+        help="how well `capsd calibrate` recovers the simulator's hidden mount errors",
+        description="Per seed, a simulated run of the calibration manoeuvre (the ASV turning "
+        "on the spot) with realistic installation errors, through the services' own pose "
+        "estimate; the fitted corrections against those the hidden errors call for.",
+    )
+    bcal.add_argument("--seeds", type=positive_int, default=5, help="runs (seeds 500, 501, ...)")
+    bcal.add_argument(
+        "--duration", type=positive_float, default=120.0, help="simulated seconds per run"
+    )
+    bcal.add_argument(
+        "--tank",
+        choices=["nfp", "mockup", "pond"],
+        default="pond",
+        help="pond: the tank held out of training and tuning",
+    )
+    bcal.add_argument(
+        "--out", type=Path, default=Path("reports/calibrate.json"), help="figures as JSON"
+    )
+    bcal.set_defaults(func=_cmd_bench_calibrate)
+    beval = bench_sub.add_parser(
+        "evaluate",
+        help="`capsd evaluate` on a simulated dive with a rotated, shifted, late reference",
+        description="The offline pipeline's fixes and a motion-capture stand-in (the tank "
+        "frame rotated 30 deg and shifted 2 m, stamps 150 ms late, 100 Hz, 0.5 mm noise, "
+        "marker swaps, an occlusion) in one recording; `capsd evaluate`'s recovered transform, "
+        "clock offset and MED against the known answer and the accuracy bench's MED.",
+    )
+    beval.add_argument("--tank", choices=["nfp", "mockup", "pond"], default="nfp")
+    beval.add_argument(
+        "--trajectory",
+        choices=["square", "lawnmower", "bouncing", "random", "two_floor"],
+        default="square",
+    )
+    beval.add_argument("--seed", type=int, default=0, help="simulator seed")
+    beval.add_argument("--duration", type=positive_float, default=300.0, help="simulated seconds")
+    beval.add_argument(
+        "--out", type=Path, default=Path("reports/bench-evaluate"), help="report folder"
+    )
+    beval.set_defaults(func=_cmd_bench_evaluate)
+    bcons = bench_sub.add_parser(
+        "consistency",
+        help="the locator's covariance floor derived on tuning runs, NEES on held-out ones",
+        description="The smallest covariance floor with which 95 %% of fixes' NEES fall under "
+        "the chi-square bound on tuning runs; the NEES on the held-out pond with it, with the "
+        "configured floor and with none.",
+    )
+    bcons.add_argument("--duration", type=positive_float, default=60.0, help="seconds per run")
+    bcons.add_argument(
+        "--out", type=Path, default=Path("reports/consistency.json"), help="figures as JSON"
+    )
+    bcons.set_defaults(func=_cmd_bench_consistency)
+    bacc = bench_sub.add_parser(
+        "accuracy",
+        help="the paper's results table: its method vs ours on the same runs, and an ablation",
+        description="Five trajectories in the nfp tank, one in the mockup and two in the held-out "
+        "pond through the "
+        "offline pipeline; x/y/z RMSE, MED, p95, availability; targets; ablation; PNGs.",
+    )
+    bacc.add_argument(
+        "--duration", type=positive_float, default=60.0, help="simulated seconds per run"
+    )
+    bacc.add_argument("--seed", type=int, default=0, help="simulator seed")
+    bacc.add_argument("--out", type=Path, default=Path("reports/accuracy"), help="report folder")
+    bacc.add_argument(
+        "--install-errors",
+        choices=("off", "realistic"),
+        default="off",
+        help="realistic: mount, sound-speed, depth and attitude errors drawn per run and "
+        "unknown to the services (docs/INSTALL-ERRORS.md); the services stay uncalibrated",
+    )
+    bacc.set_defaults(func=_cmd_bench_accuracy)
+    bpose = bench_sub.add_parser(
+        "asv_pose",
+        help="ASV pose error against the simulator's truth (both tanks, both modes)",
+        description="Run the pose estimator on simulated IMU and LiDAR (waves on), ASV stationary "
+        "and following; print RMS position, yaw, roll and pitch error and the targets.",
+    )
+    bpose.add_argument("--duration", type=positive_float, default=60.0, help="seconds per run")
+    bpose.set_defaults(func=_cmd_bench_asv_pose)
+    blat = bench_sub.add_parser(
+        "latency",
+        help="ping to autopilot latency per stage at 10/20/40 Hz, Zenoh floor, CPU and RSS",
+        description="Run the whole pipeline (as `capsd demo`) once per sonar rate; print the "
+        "latency of each stage and end to end (median, p99), the bare Zenoh floor for the "
+        "same payload sizes, frames dropped, CPU share and resident memory per service, and "
+        "the 40 Hz targets next to the measured values.",
+    )
+    blat.add_argument(
+        "--rates", type=float, nargs="+", default=[10.0, 20.0, 40.0], help="sonar rates, Hz"
+    )
+    blat.add_argument(
+        "--duration", type=positive_float, default=30.0, help="seconds measured per rate"
+    )
+    blat.add_argument(
+        "--warmup", type=positive_float, default=5.0, help="seconds after the first VPE"
+    )
+    blat.add_argument(
+        "--busy-cores",
+        type=non_negative_int,
+        default=0,
+        help="other processes that each keep a core busy during the run (a loaded computer)",
+    )
+    blat.add_argument("--out", type=Path, default=Path("reports/latency"), help="report folder")
+    blat.set_defaults(func=_cmd_bench_latency)
+    bfault = bench_sub.add_parser(
+        "faults",
+        help="inject faults (kill -9, router restart, dropouts, clock skew); judge ArduSub input",
+        description="Run the demo pipeline and inject one fault at a time; print per fault the "
+        "recovery time, good fixes lost, and the estimates the autopilot received that were "
+        "stale, invalid or wrong by more than 3 sigma against the simulator's truth.",
+    )
+    bfault.add_argument("--baseline", type=float, default=10.0, help="seconds without a fault")
+    bfault.add_argument(
+        "--skew-duration", type=float, default=25.0, help="seconds per clock-skew run"
+    )
+    bfault.add_argument("--out", type=Path, default=Path("reports/faults"), help="report folder")
+    bfault.set_defaults(func=_cmd_bench_faults)

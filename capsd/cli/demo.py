@@ -1,0 +1,55 @@
+"""`capsd demo`: the whole system on the simulated tank."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from capsd.cli.common import Subcommands
+from capsd.launch import positive_float
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from datetime import UTC, datetime
+
+    from capsd import demo
+
+    out = args.out or Path("reports") / datetime.now(UTC).strftime("demo-%Y%m%d-%H%M%S")
+    return demo.main(
+        duration_s=args.duration,
+        out=out,
+        trajectory=args.trajectory,
+        tank=args.tank,
+        seed=args.seed,
+        port=args.port,
+        record=args.record,
+    )
+
+
+def register(sub: Subcommands) -> None:
+    """Add the demo verbs to the `capsd` parser's subcommands."""
+    dem = sub.add_parser(
+        "demo",
+        help="the whole system on the simulated tank, live, with a report folder",
+        description="Router, simulator, asv_pose, sonar_detect, locator, mav_bridge and an "
+        "ArduSub stand-in as separate processes on 127.0.0.1; live fix error vs truth, rates "
+        "and health; stops after --duration or Ctrl-C; writes summary.md, figures.json, PNGs.",
+    )
+    dem.add_argument("--duration", type=positive_float, default=60.0, help="seconds to run")
+    dem.add_argument("--out", type=Path, default=None, help="report folder (reports/demo-TIME)")
+    dem.add_argument(
+        "--trajectory",
+        default="square",
+        choices=["square", "lawnmower", "bouncing", "random", "two_floor"],
+    )
+    dem.add_argument("--tank", default="nfp", choices=["nfp", "mockup", "pond"])
+    dem.add_argument("--seed", type=int, default=0)
+    dem.add_argument("--port", type=int, default=None, help="router port (a free one if unset)")
+    dem.add_argument(
+        "--record",
+        type=Path,
+        default=None,
+        help="also record every key but the sonar images into this .mcap, from before the "
+        "services start (`capsd replay-check` replays it into a fresh locator)",
+    )
+    dem.set_defaults(func=_cmd_demo)

@@ -1,0 +1,155 @@
+"""`capsd mav check|zero-depth`: the autopilot's side of the bridge."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable
+from typing import Any
+
+from capsd.cli.common import Subcommands, fail
+from capsd.config import BusConfig
+from capsd.errors import BusError, ConfigError
+from capsd.launch import (
+    EXIT_CONFIG,
+    EXIT_FAILURE,
+    positive_float,
+)
+
+
+def _mav_tool(args: argparse.Namespace, tool: Callable[[Any], int]) -> int:
+    """Run a `capsd mav` tool with the checks they share: the extra, the connection string."""
+    try:
+        from capsd.protocols.mavlink import check_connection
+        from capsd.services.mav_bridge import check
+    except ImportError as exc:  # the base install has no pymavlink: it comes with [rov]
+        return fail(
+            f"`capsd mav` needs the rov extra (pip install 'capsd[rov]'): {exc}", EXIT_FAILURE
+        )
+    try:
+        check_connection(args.connect)
+    except ConfigError as exc:
+        return fail(str(exc), EXIT_CONFIG)
+    try:
+        return tool(check)
+    except OSError as exc:
+        return fail(f"MAVLink link {args.connect}: {exc}", EXIT_FAILURE)
+
+
+def _delay_ms(text: str) -> float | str:
+    return "auto" if text == "auto" else positive_float(text)
+
+
+def _measured_delay_ms(args: argparse.Namespace) -> float | None:
+    """The bridge's measured ping-to-autopilot median (its Health), rounded to 5 ms."""
+    from capsd.bus import open_session
+    from capsd.health import query_health
+    from capsd.latency import percentile_ms
+
+    try:
+        with open_session(BusConfig(connect=(args.bus,), connect_timeout_s=2.0)) as session:
+            health = query_health(
+                session, site=args.site, vehicle=args.vehicle, service="mav_bridge"
+            )
+    except (BusError, ConfigError) as exc:
+        print(f"VISO_DELAY_MS: no bus at {args.bus} ({exc})")
+        return None
+    stats = next((s for s in (health.latencies if health else ()) if s.name == "end to end"), None)
+    median = percentile_ms(stats, 50) if stats is not None else None
+    if median is None:
+        print(f"VISO_DELAY_MS: no measured delay from the bridge on {args.bus}: not checked")
+        return None
+    wanted = max(5.0, 5.0 * round(median / 5.0))
+    print(f"VISO_DELAY_MS: the bridge measures {median:.1f} ms ping to autopilot (median)")
+    return wanted
+
+
+def _cmd_mav_check(args: argparse.Namespace) -> int:
+    delay = _measured_delay_ms(args) if args.delay_ms == "auto" else float(args.delay_ms)
+    return _mav_tool(
+        args,
+        lambda check: check.run_check(
+            args.connect,
+            apply=args.apply,
+            yaw_source=args.yaw_source,
+            position_noise_m=args.position_noise_m,
+            delay_ms=delay,
+            timeout_s=args.timeout,
+        ),
+    )
+
+
+def _cmd_mav_zero_depth(args: argparse.Namespace) -> int:
+    return _mav_tool(
+        args,
+        lambda check: check.run_zero_depth(args.connect, apply=args.apply, timeout_s=args.timeout),
+    )
+
+
+def register(sub: Subcommands) -> None:
+    """Add the mav verbs to the `capsd` parser's subcommands."""
+    mav = sub.add_parser(
+        "mav",
+        help="ArduSub set-up tools",
+        description="Tools that talk to the autopilot over MAVLink.",
+    )
+    mav_sub = mav.add_subparsers(dest="mav_command", required=True, metavar="TOOL")
+    check = mav_sub.add_parser(
+        "check",
+        help="check (and --apply) ArduSub parameters for external position",
+        description="Read the autopilot's parameters, print what is wrong for CAP-SD's "
+        "external position and the values to set; --apply sets them.",
+    )
+    check.add_argument(
+        "--connect",
+        default="tcp:127.0.0.1:5777",
+        help="MAVLink connection (default: BlueOS's tcp:127.0.0.1:5777)",
+    )
+    check.add_argument("--apply", action="store_true", help="set the wrong parameters")
+    check.add_argument(
+        "--yaw-source",
+        choices=["compass", "vision"],
+        default="compass",
+        help="EK3 yaw source: the compass (1) or the yaw CAP-SD sends (6)",
+    )
+    check.add_argument(
+        "--position-noise-m",
+        type=float,
+        default=0.05,
+        help="VISO_POS_M_NSE should be at most this (metres)",
+    )
+    check.add_argument(
+        "--delay-ms",
+        type=_delay_ms,
+        default="auto",
+        help="wanted VISO_DELAY_MS, or 'auto' (default): the bridge's measured ping-to-"
+        "autopilot median from its Health on the bus (--bus), rounded to 5 ms",
+    )
+    check.add_argument(
+        "--bus",
+        default="tcp/127.0.0.1:7447",
+        help="Zenoh endpoint where the bridge's Health is (with --delay-ms auto)",
+    )
+    check.add_argument("--site", default="tank", help="site of the bridge (--delay-ms auto)")
+    check.add_argument("--vehicle", default="rov", help="vehicle of the bridge (--delay-ms auto)")
+    check.add_argument(
+        "--timeout", type=positive_float, default=5.0, help="seconds to wait for answers"
+    )
+    check.set_defaults(func=_cmd_mav_check)
+    zero = mav_sub.add_parser(
+        "zero-depth",
+        help="show the depth the vehicle reads; at the surface, --apply makes it 0",
+        description="Depth is measured from the pressure at the autopilot's boot "
+        "(BARO2_GND_PRESS): a vehicle booted under water reads shallow. At the surface, "
+        "--apply asks the autopilot to take the pressure now as the surface's "
+        "(MAV_CMD_PREFLIGHT_CALIBRATION, barometer); the bridge picks it up within 10 s.",
+    )
+    zero.add_argument(
+        "--connect",
+        default="tcp:127.0.0.1:5777",
+        help="MAVLink connection (default: BlueOS's tcp:127.0.0.1:5777)",
+    )
+    zero.add_argument("--apply", action="store_true", help="take the pressure now as 0 m")
+    zero.add_argument(
+        "--timeout", type=positive_float, default=5.0, help="seconds to wait for answers"
+    )
+    zero.set_defaults(func=_cmd_mav_zero_depth)

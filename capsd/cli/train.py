@@ -1,0 +1,180 @@
+"""`capsd train detector|calibrate` and `capsd label`: the detector's training tools."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from capsd.cli.common import Subcommands, fail
+from capsd.errors import CapsdError
+from capsd.launch import (
+    EXIT_CONFIG,
+    EXIT_FAILURE,
+    EXIT_OK,
+    positive_float,
+    positive_int,
+)
+
+
+def _cmd_train_calibrate(args: argparse.Namespace) -> int:
+    from capsd.train.detector import recalibrate
+
+    try:
+        recalibrate(args.weights, duration_s=args.duration)
+    except CapsdError as exc:
+        return fail(f"calibrate: {exc}", EXIT_CONFIG)
+    return EXIT_OK
+
+
+def _cmd_label(args: argparse.Namespace) -> int:
+    from capsd.config import load_config
+    from capsd.services.locator.service import Config as LocatorConfig
+    from capsd.train.labelling import label_recording, write_labels
+
+    if not 0.0 < args.max_sigma <= 1.0:
+        return fail(f"label: --max-sigma must be in (0, 1] m, not {args.max_sigma}", EXIT_CONFIG)
+    try:
+        locator = load_config(args.locator_config, LocatorConfig)
+        labels, summary = label_recording(
+            args.recording, sonar=locator.sonar, max_sigma_m=args.max_sigma
+        )
+    except CapsdError as exc:
+        return fail(f"label: {exc}", EXIT_CONFIG)
+    print(
+        f"{summary.frames} frames, {summary.fixes} fixes, {summary.confident} confident and "
+        f"tracked with a pose, {summary.labelled} labelled ({summary.outside_fan} outside the "
+        f"fan, {summary.unreadable} unreadable messages)"
+    )
+    if not labels:
+        return fail("label: no frame could be labelled (no confident tracked fix)", EXIT_FAILURE)
+    sheets = write_labels(labels, args.out)
+    print(f"labels in {args.out}: {len(sheets)} contact sheets; reject crops in rejected.txt")
+    return EXIT_OK
+
+
+def _cmd_train_detector(args: argparse.Namespace) -> int:
+    from capsd.train.detector import TrainConfig, train
+
+    if args.finetune is not None:
+        from capsd.train.finetune import FinetuneConfig, finetune
+
+        try:
+            finetune(
+                args.weights,
+                args.finetune,
+                args.out,
+                FinetuneConfig(seed=args.seed, workers=args.workers, threads=args.threads),
+            )
+        except CapsdError as exc:
+            return fail(f"finetune: {exc}", EXIT_CONFIG)
+        return EXIT_OK
+
+    config = TrainConfig(
+        seed=args.seed,
+        runs=args.runs,
+        duration_s=args.run_duration,
+        workers=args.workers,
+        threads=args.threads,
+        proposal_epochs=args.proposal_epochs,
+        refine_epochs=args.refine_epochs,
+        mining_runs=args.mining_runs,
+        hard_runs=args.hard_runs,
+        hard_rounds=args.hard_rounds,
+        hard_epochs=args.hard_epochs,
+        eval_duration_s=args.eval_duration,
+        device=args.device,
+        evaluate=args.evaluate,
+    )
+    try:
+        train(config, args.out)
+    except CapsdError as exc:
+        return fail(str(exc), EXIT_CONFIG)
+    return EXIT_OK
+
+
+def register(sub: Subcommands) -> None:
+    """Add the train verbs to the `capsd` parser's subcommands."""
+    train = sub.add_parser("train", help="train a model").add_subparsers(
+        dest="train_command", required=True
+    )
+    tdet = train.add_parser(
+        "detector",
+        help="train the polar CNN detector on simulated runs",
+        description="Render simulator runs, train the proposal and refinement networks "
+        "(deterministic for a seed), evaluate on held-out runs, write polar_net.pt and "
+        "polar_net.json into --out. Defaults: about 29 minutes on 2 CPU cores.",
+    )
+    tdet.add_argument("--out", type=Path, default=Path("services/sonar_detect/weights"))
+    tdet.add_argument("--seed", type=int, default=0)
+    tdet.add_argument("--runs", type=positive_int, default=64, help="simulated training runs")
+    tdet.add_argument("--run-duration", type=positive_float, default=60.0, help="seconds per run")
+    tdet.add_argument("--workers", type=int, default=2, help="rendering processes")
+    tdet.add_argument("--threads", type=int, default=2, help="torch threads for training")
+    tdet.add_argument("--proposal-epochs", type=int, default=6)
+    tdet.add_argument("--refine-epochs", type=int, default=6)
+    tdet.add_argument("--mining-runs", type=int, default=24, help="runs for hard negatives")
+    tdet.add_argument("--hard-runs", type=int, default=32, help="runs per hard-example round")
+    tdet.add_argument("--hard-rounds", type=int, default=1, help="hard-example rounds")
+    tdet.add_argument("--hard-epochs", type=int, default=2)
+    tdet.add_argument(
+        "--eval-duration", type=positive_float, default=20.0, help="seconds per held-out run"
+    )
+    tdet.add_argument(
+        "--device",
+        choices=("cpu", "cuda"),
+        default="cpu",
+        help="where the networks train (cuda: a GPU; rendering and calibration stay on the CPU)",
+    )
+    tdet.add_argument(
+        "--evaluate",
+        choices=("heldout", "none"),
+        default="heldout",
+        help="none: skip the held-out evaluation (run `capsd bench detect` after)",
+    )
+    tdet.add_argument(
+        "--finetune",
+        type=Path,
+        metavar="LABELS",
+        help="instead: adapt --weights to a `capsd label` folder (minutes on 2 cores)",
+    )
+    tdet.add_argument(
+        "--weights",
+        type=Path,
+        default=Path("services/sonar_detect/weights/polar_net.pt"),
+        help="the weights to fine-tune (--finetune)",
+    )
+    tdet.set_defaults(func=_cmd_train_detector)
+    lab = sub.add_parser(
+        "label",
+        help="labelled sonar frames from a recording's confident tracked fixes",
+        description="Project each good, tracked fix of a recording (sonar frames, ASV poses "
+        "and fixes: `capsd record 'cap/**'`) back into its sonar frame; write labels.msgpack, "
+        "numbered PNG contact sheets to check, and rejected.txt for the crops to leave out. "
+        "`capsd train detector --finetune OUT` then adapts the detector.",
+    )
+    lab.add_argument("recording", type=Path, help="an MCAP recording")
+    lab.add_argument("-o", "--out", type=Path, required=True, help="labels folder")
+    lab.add_argument(
+        "--locator-config",
+        type=Path,
+        default=Path("deploy/config/locator.yaml"),
+        help="the locator's config during the dive (its sonar mount)",
+    )
+    lab.add_argument(
+        "--max-sigma", type=float, default=0.05, help="largest horizontal fix sigma kept (m)"
+    )
+    lab.set_defaults(func=_cmd_label)
+    tcal = train.add_parser(
+        "calibrate",
+        help="set the polar CNN's operating point on validation runs (part of `detector`)",
+        description="Choose the confidence offset that keeps false alarms <= 0.005 per frame "
+        "on validation runs (seeds used neither in training nor in the bench), save it in the "
+        "weights and refresh their evaluation.",
+    )
+    tcal.add_argument(
+        "--weights", type=Path, default=Path("services/sonar_detect/weights/polar_net.pt")
+    )
+    tcal.add_argument(
+        "--duration", type=positive_float, default=10.0, help="seconds per validation run"
+    )
+    tcal.set_defaults(func=_cmd_train_calibrate)
