@@ -26,6 +26,7 @@ class Subject(StrEnum):
     ROV_VELOCITY = "rov/velocity"
     ROV_STATUS = "rov/status"
     ROV_FIX = "locator/fix"
+    ROV_COMMAND = "mission/command"  # a mission's GUIDED targets and holds, for the bridge
     SIM_TRUTH = "sim/truth"
     SIM_LABEL = "sim/label"
     # The simulator's stand-ins made from truth plus noise (an ASV pose, detections): on keys

@@ -366,6 +366,32 @@ class RovFix(Payload, frozen=True, kw_only=True):
             raise ValueError("a 'good' fix must carry a position")
 
 
+# ---------------------------------------------------------------- missions
+
+
+RovCommandKind = Literal["engage", "goto", "hold"]
+
+
+class RovCommand(Payload, frozen=True, kw_only=True):
+    """A mission's command to the ROV, signed like fixes; the bridge turns it into MAVLink.
+
+    engage: switch ArduSub to GUIDED and go to `position_m`; goto: move the GUIDED target (only
+    acted on while the vehicle is in GUIDED); hold: switch to POSHOLD (only from GUIDED: a mode
+    the pilot chose is never overridden). `position_m` is in the tank frame W.
+    """
+
+    mission: Annotated[str, msgspec.Meta(min_length=1, max_length=64)]
+    kind: RovCommandKind
+    waypoint: NonNegInt = 0
+    position_m: Vec3 | None = None
+    reason: Annotated[str, msgspec.Meta(max_length=200)] = ""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.kind in ("engage", "goto") and self.position_m is None:
+            raise ValueError(f"a '{self.kind}' command must carry position_m")
+
+
 # ---------------------------------------------------------------- reference
 
 

@@ -35,6 +35,18 @@ class TankBounds(ConfigSection, frozen=True, kw_only=True):
     margin_m: Annotated[float, msgspec.Meta(ge=0.0, le=100.0)] = 0.3
     fixtures: Annotated[tuple[TankFixture, ...], msgspec.Meta(max_length=1000)] = ()
 
+    def clear_of_walls(self, p: Array | tuple[float, float, float], clearance_m: float) -> bool:
+        """Whether `p` is at least `clearance_m` inside every wall, the floor and the surface.
+
+        A geofence for targets; `contains` is the tolerant test for estimates.
+        """
+        c = clearance_m
+        return bool(
+            c <= p[0] <= self.length_m - c
+            and c <= p[1] <= self.width_m - c
+            and -self.depth_m + c <= p[2] <= -c
+        )
+
     def contains(self, p: Array | tuple[float, float, float]) -> bool:
         m = self.margin_m
         return bool(

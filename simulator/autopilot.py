@@ -21,9 +21,11 @@ from pathlib import Path
 from typing import Self
 
 from capsd.protocols.mavlink import (
+    MAV_CMD_DO_SET_MODE,
     MAV_CMD_PREFLIGHT_CALIBRATION,
     MAV_CMD_SET_MESSAGE_INTERVAL,
     MAV_RESULT_ACCEPTED,
+    MAV_RESULT_DENIED,
     Attitude,
     CommandLong,
     EkfStatus,
@@ -33,9 +35,11 @@ from capsd.protocols.mavlink import (
     MavLink,
     ParamRequest,
     ParamSet,
+    PositionTarget,
     StatusText,
     VisionPositionEstimate,
     message_id,
+    mode_name,
     mode_number,
 )
 
@@ -81,6 +85,9 @@ class Recorded:
     statustexts: list[StatusText] = field(default_factory=list)
     origins: list[GlobalOrigin] = field(default_factory=list)
     heartbeats: int = 0
+    position_targets: list[tuple[float, PositionTarget]] = field(default_factory=list)
+    targets_refused: int = 0  # position targets while not in GUIDED (ArduSub ignores them)
+    modes: list[tuple[float, str, bool]] = field(default_factory=list)  # (when, asked, taken)
 
 
 class AutopilotStandIn:
@@ -95,8 +102,15 @@ class AutopilotStandIn:
         armed: bool = True,
         mode: str = "POSHOLD",
         boot_depth_m: float = 0.0,
+        on_mode: Callable[[str], None] | None = None,
+        on_target: Callable[[PositionTarget], None] | None = None,
+        on_estimate: Callable[[VisionPositionEstimate], None] | None = None,
     ):
         self.port = port
+        # A simulator flying the vehicle hears what the autopilot is told (its own thread).
+        self.on_mode = on_mode
+        self.on_target = on_target
+        self.on_estimate = on_estimate
         self.state = state
         self.params = dict(DEFAULT_PARAMS if params is None else params)
         # The air's pressure; the surface reference is what the autopilot measured at boot
@@ -236,7 +250,19 @@ class AutopilotStandIn:
                 self.recorded.origins.append(message)
             elif isinstance(message, Heartbeat):
                 self.recorded.heartbeats += 1
-        if isinstance(message, CommandLong) and message.command == MAV_CMD_PREFLIGHT_CALIBRATION:
+            elif isinstance(message, PositionTarget):
+                if self.mode == "GUIDED":
+                    self.recorded.position_targets.append((now, message))
+                else:
+                    self.recorded.targets_refused += 1
+                    message = None  # ignored, as ArduSub ignores targets outside GUIDED
+        if isinstance(message, VisionPositionEstimate) and self.on_estimate is not None:
+            self.on_estimate(message)
+        elif isinstance(message, PositionTarget) and self.on_target is not None:
+            self.on_target(message)
+        if isinstance(message, CommandLong) and message.command == MAV_CMD_DO_SET_MODE:
+            link.send_command_ack(command=message.command, result=self._set_mode(message, now))
+        elif isinstance(message, CommandLong) and message.command == MAV_CMD_PREFLIGHT_CALIBRATION:
             if message.params[2] == 1:  # barometer: the pressure now becomes the surface's
                 self.params["BARO2_GND_PRESS"] = self.pressure_pa(self.state(time.time()))
             link.send_command_ack(command=message.command, result=MAV_RESULT_ACCEPTED)
@@ -265,6 +291,24 @@ class AutopilotStandIn:
                 index=sorted(self.params).index(message.name),
                 count=len(self.params),
             )
+
+    def _set_mode(self, command: CommandLong, now: float) -> int:
+        """MAV_CMD_DO_SET_MODE: position modes only with external positions arriving."""
+        try:
+            asked = mode_name(int(command.params[1]))
+        except (ValueError, OverflowError):
+            return MAV_RESULT_DENIED
+        if asked.startswith("MODE"):  # a number ArduSub has no mode for
+            return MAV_RESULT_DENIED
+        with self.lock:
+            fresh = bool(self.recorded.estimates) and now - self.recorded.estimates[-1][0] < 1.0
+            taken = asked not in ("GUIDED", "POSHOLD") or fresh
+            if taken:
+                self.mode = asked
+            self.recorded.modes.append((now, asked, taken))
+        if taken and self.on_mode is not None:
+            self.on_mode(asked)
+        return MAV_RESULT_ACCEPTED if taken else MAV_RESULT_DENIED
 
 
 def main(argv: list[str] | None = None) -> int:

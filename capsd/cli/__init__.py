@@ -9,7 +9,7 @@ import signal
 import sys
 from collections.abc import Sequence
 
-from capsd.cli import bench, bus, calibrate, demo, docs, mav, recording, sim, train
+from capsd.cli import bench, bus, calibrate, demo, docs, mav, mission, recording, sim, train
 from capsd.cli.bus import RouterConfig
 from capsd.cli.common import fail
 from capsd.launch import EXIT_CONFIG, EXIT_OK
@@ -24,7 +24,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="CAP-SD: ROV positioning from an ASV's sonar and the ROV's depth, over Zenoh.",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for group in (bus, mav, sim, bench, recording, demo, train, calibrate, docs):
+    for group in (bus, mav, mission, sim, bench, recording, demo, train, calibrate, docs):
         group.register(sub)
     return parser
 

@@ -26,7 +26,14 @@ from capsd.errors import ConfigError
 MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY = 197
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
 MAV_CMD_PREFLIGHT_CALIBRATION = 241
+MAV_CMD_DO_SET_MODE = 176
+MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
+MAV_FRAME_LOCAL_NED = 1
+# SET_POSITION_TARGET_LOCAL_NED type_mask: position only (velocity, acceleration, yaw and yaw
+# rate ignored), the form ArduSub's GUIDED mode takes for a position target.
+POSITION_ONLY_MASK = 0b0000_1101_1111_1000
 MAV_RESULT_ACCEPTED = 0
+MAV_RESULT_DENIED = 2
 MAV_SEVERITY = {"emergency": 0, "alert": 1, "critical": 2, "error": 3, "warning": 4,
                 "notice": 5, "info": 6, "debug": 7}  # fmt: skip
 _ARMED_FLAG = 128  # MAV_MODE_FLAG_SAFETY_ARMED
@@ -172,10 +179,22 @@ class ParamRequest:
     name: str | None
 
 
+@dataclass(frozen=True)
+class PositionTarget:
+    """SET_POSITION_TARGET_LOCAL_NED: where GUIDED should go (NED, metres)."""
+
+    time_boot_ms: int
+    frame: int
+    type_mask: int
+    north_m: float
+    east_m: float
+    down_m: float
+
+
 Message = (
     Heartbeat | Attitude | ScaledPressure | SystemTime | EkfStatus | ParamValue | CommandAck
     | CommandLong | StatusText | VisionPositionEstimate | GpsInput | GlobalOrigin | ParamSet
-    | ParamRequest
+    | ParamRequest | PositionTarget
 )  # fmt: skip
 
 
@@ -263,6 +282,10 @@ def _convert(msg: Any) -> Message | None:
         return ParamRequest(_text(msg.param_id).rstrip("\0"))
     if kind == "PARAM_REQUEST_LIST":
         return ParamRequest(None)
+    if kind == "SET_POSITION_TARGET_LOCAL_NED":
+        return PositionTarget(
+            msg.time_boot_ms, msg.coordinate_frame, msg.type_mask, msg.x, msg.y, msg.z
+        )
     return None
 
 
@@ -451,6 +474,45 @@ class MavLink:
         """MAV_CMD_PREFLIGHT_CALIBRATION, barometer: the pressure now becomes the surface's."""
         self._mav.command_long_send(
             target_system, 1, MAV_CMD_PREFLIGHT_CALIBRATION, 0, 0, 0, 1, 0, 0, 0, 0
+        )
+
+    def send_set_mode(self, *, target_system: int, mode: str) -> None:
+        """MAV_CMD_DO_SET_MODE with ArduSub's custom mode `mode` (GUIDED, POSHOLD...)."""
+        self._mav.command_long_send(
+            target_system,
+            1,
+            MAV_CMD_DO_SET_MODE,
+            0,
+            MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+            mode_number(mode),
+            0,
+            0,
+            0,
+            0,
+            0,
+        )
+
+    def send_position_target(
+        self, *, target_system: int, time_boot_ms: int, ned_m: tuple[float, float, float]
+    ) -> None:
+        """SET_POSITION_TARGET_LOCAL_NED, position only, in the EKF's local NED frame."""
+        self._mav.set_position_target_local_ned_send(
+            time_boot_ms & 0xFFFFFFFF,
+            target_system,
+            1,
+            MAV_FRAME_LOCAL_NED,
+            POSITION_ONLY_MASK,
+            float(ned_m[0]),
+            float(ned_m[1]),
+            float(ned_m[2]),
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
         )
 
     def send_set_gps_global_origin(

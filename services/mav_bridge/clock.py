@@ -34,6 +34,10 @@ class BootClock:
         self._window.append(arrival_unix_ns - time_boot_ms * 1_000_000)
         return rebooted
 
+    def last_boot_ms(self) -> int:
+        """The newest `time_boot_ms` seen (0 before any): a stamp for what we send back."""
+        return self._last_boot_ms or 0
+
     @property
     def ready(self) -> bool:
         return bool(self._window)

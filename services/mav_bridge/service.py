@@ -10,6 +10,9 @@ Vehicle to bus (stamps from the autopilot's boot clock mapped to Unix time):
 - armed state and mode from HEARTBEAT, EKF flags from EKF_STATUS_REPORT.
 Bus to vehicle: RovFix estimates through the safety gate (capsd.services.mav_bridge.gate), converted
 to NED, as VISION_POSITION_ESTIMATE (or GPS_INPUT), usec = the estimate's measurement time.
+Mission commands (RovCommand, signed like fixes; only with `mission_commands: accept`): fresh,
+inside the tank's geofence, then MAV_CMD_DO_SET_MODE (GUIDED to engage, POSHOLD to hold, the
+latter only from GUIDED) and SET_POSITION_TARGET_LOCAL_NED, each logged and counted.
 """
 
 from __future__ import annotations
@@ -32,7 +35,7 @@ from capsd.errors import ConfigError
 from capsd.geometry import matrix_to_quat
 from capsd.keys import check_name
 from capsd.mailbox import Mailbox
-from capsd.payloads import RovAttitude, RovDepth, RovFix, RovStatus
+from capsd.payloads import RovAttitude, RovCommand, RovDepth, RovFix, RovStatus
 from capsd.protocols.mavlink import (
     MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY,
     Attitude,
@@ -160,6 +163,13 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     # After this long without a sendable estimate, the pilot is told (STATUSTEXT).
     outage_warning_s: Annotated[float, msgspec.Meta(gt=0.0, le=60.0)] = 1.0
     statustext_interval_s: Annotated[float, msgspec.Meta(ge=1.0, le=600.0)] = 5.0
+    # accept: signed mission commands (capsd mission run) may switch ArduSub to GUIDED, move
+    # its target and hold; refuse (the default): they are counted and dropped.
+    mission_commands: Literal["accept", "refuse"] = "refuse"
+    # Targets closer than this to a wall, the floor or the surface are refused (the geofence).
+    geofence_clearance_m: Annotated[float, msgspec.Meta(ge=0.0, le=100.0)] = 0.5
+    # A command older than this on arrival is refused (a stalled link replays nothing).
+    max_command_age_s: Annotated[float, msgspec.Meta(gt=0.0, le=10.0)] = 1.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -169,6 +179,8 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
             raise ValueError(f"`locator_vehicle`: {exc}") from None
         if self.output == "gps_input" and self.ekf_origin is None:
             raise ValueError("`ekf_origin`: GPS_INPUT output needs the EKF origin (lat/lon)")
+        if self.mission_commands == "accept" and self.tank is None:
+            raise ValueError("`mission_commands: accept` needs `tank`: the geofence for targets")
 
 
 class Bridge:
@@ -184,6 +196,10 @@ class Bridge:
         )
         # Fixes wait here for the sender: the newest only, so a flood cannot age good ones.
         self.fixes: Mailbox[tuple[RovFix, int]] = Mailbox()
+        # Mission commands: the newest only (a hold replaces a pending target and vice versa).
+        self.commands: Mailbox[RovCommand] = Mailbox()
+        self.command_stream: StreamCounter | None = None
+        self.mode: str | None = None
         self.fix_stream: StreamCounter | None = None
         self._unauthenticated_seen = 0
         self.link = MavLink(
@@ -279,6 +295,11 @@ class Bridge:
                 return
             self._configure_vehicle(now)
             self._check_inputs(now)
+            try:
+                self._act_on_commands()
+            except OSError as exc:
+                self._drop_link(f"MAVLink I/O error: {exc}")
+                return
         self._announce(now)
 
     def _observe_ekf(self, ratio: float, now: float) -> None:
@@ -460,6 +481,7 @@ class Bridge:
                     ekf_flags=self.ekf_flags,
                 )
             )
+            self.mode = mode_name(message.custom_mode)
         elif isinstance(message, Attitude):
             if not self._observe(message.time_boot_ms, arrival_ns):
                 return
@@ -545,6 +567,76 @@ class Bridge:
                 self._outage_reasons["from_future"] += 1
                 return
         self.fixes.put((fix, received_ns))
+
+    def on_command(self, command: RovCommand) -> None:
+        """Take a mission command off the bus (Zenoh's thread), refused or kept for `step`.
+
+        Refusals are counted at arrival; an acceptable command waits (the newest only).
+        """
+        if self.config.mission_commands == "refuse":
+            refused: str | None = "disabled"
+        else:
+            refused = self._refusal(command, self.runner.received_ns())
+        if refused is None:
+            self.commands.put(command)
+            return
+        with self.lock:
+            self.counts[f"commands_refused_{refused}"] += 1
+        logger.warning(
+            "mission command refused",
+            extra={"fields": {"kind": command.kind, "mission": command.mission, "why": refused}},
+        )
+
+    def _act_on_commands(self) -> None:
+        """The newest mission command to MAVLink (the caller holds the lock, the link is open)."""
+        command = self.commands.take(0.0)
+        if command is None:
+            return
+        fields = {"kind": command.kind, "waypoint": command.waypoint, "mission": command.mission}
+        target = self.config.mavlink.target_system
+        if command.kind == "hold":
+            if self.mode != "GUIDED":
+                # The pilot's mode (or one already holding) is never overridden.
+                self.counts["commands_hold_not_guided"] += 1
+                return
+            self.link.send_set_mode(target_system=target, mode="POSHOLD")
+            self.counts["commands_sent_poshold"] += 1
+            logger.info("mission: POSHOLD", extra={"fields": {**fields, "why": command.reason}})
+            return
+        if command.kind == "goto" and self.mode != "GUIDED":
+            self.counts["commands_goto_not_guided"] += 1
+            return
+        if command.kind == "engage" and self.mode != "GUIDED":
+            self.link.send_set_mode(target_system=target, mode="GUIDED")
+            self.counts["commands_sent_guided"] += 1
+            logger.info("mission: GUIDED", extra={"fields": {**fields, "why": command.reason}})
+        assert command.position_m is not None  # the payload refuses engage/goto without one
+        ned = self.ned.position(np.array(command.position_m))
+        self.link.send_position_target(
+            target_system=target,
+            time_boot_ms=self.clock.last_boot_ms(),
+            ned_m=(float(ned[0]), float(ned[1]), float(ned[2])),
+        )
+        self.counts["commands_sent_target"] += 1
+        # Every command is logged; the mission's twice-a-second repeats at debug level.
+        logger.log(
+            logging.DEBUG if command.reason == "repeat" else logging.INFO,
+            "mission: target",
+            extra={"fields": {**fields, "tank_m": list(command.position_m)}},
+        )
+
+    def _refusal(self, command: RovCommand, received_ns: int) -> str | None:
+        """Why a command must not reach the autopilot (None: it may)."""
+        if received_ns - command.stamp_ns > self.config.max_command_age_s * 1e9:
+            return "stale"
+        if command.stamp_ns - received_ns > self.config.max_command_age_s * 1e9:
+            return "from_future"
+        if command.position_m is not None:
+            tank = self.config.tank
+            assert tank is not None  # Config requires it with mission_commands: accept
+            if not tank.clear_of_walls(command.position_m, self.config.geofence_clearance_m):
+                return "outside_geofence"
+        return None
 
     def send_loop(self) -> None:
         """The sender thread: the newest estimate through the gate (again) to the autopilot."""
@@ -693,6 +785,8 @@ class Bridge:
         merged["fixes_dropped_for_newer"] = self.fixes.dropped
         if self.fix_stream is not None:
             merged["fixes_unauthenticated"] = self.fix_stream.unauthenticated
+        if self.command_stream is not None:
+            merged["commands_unauthenticated"] = self.command_stream.unauthenticated
         return merged
 
 
@@ -719,6 +813,12 @@ def main(config: Config) -> int:
         runner.add_counters(bridge.counters)
         bridge.fix_stream = runner.subscribe(
             topics.ROV_FIX, bridge.on_fix, vehicle=config.locator_vehicle, verifier=verifier
+        )
+        bridge.command_stream = runner.subscribe(
+            topics.ROV_COMMAND,
+            bridge.on_command,
+            vehicle=config.locator_vehicle,
+            verifier=verifier,
         )
         sender = threading.Thread(target=bridge.send_loop, name="mav-bridge-send", daemon=True)
         sender.start()

@@ -205,10 +205,18 @@ def test_bad_input_is_counted_and_dropped_while_serving(
         ("cap/tank/*/sonar/detections", good),  # wildcard key: refused even if well formed
         ("cap/**", good),
     ]
-    # A good input first: its fix proves the route to the locator's input stands (a put
-    # before the route is up is lost, and then a bad one would go uncounted).
-    client.put(key, good, encoding=json_enc)
-    wait_for(lambda: len(fixes) == 1, timeout_s=5, what="a fix for the good input")
+
+    # A good input first, again until it is answered: its fix proves the route to the
+    # locator's input stands (a put before the route is up is lost, and then a bad one would
+    # go uncounted; health answering does not prove that route: this failed twice so).
+    def good_answered() -> bool:
+        client.put(key, good, encoding=json_enc)
+        time.sleep(0.5)
+        return len(fixes) >= 1
+
+    wait_for(good_answered, timeout_s=15, what="a fix for the good input")
+    time.sleep(0.5)
+    answered = len(fixes)
     # No pose or depth yet: the locator answers honestly that it cannot fix.
     assert fixes[0].quality == "invalid"
     assert fixes[0].no_fix_reason is not None
@@ -216,7 +224,7 @@ def test_bad_input_is_counted_and_dropped_while_serving(
     for bad_key, data in bad_inputs:
         client.put(bad_key, data, encoding=json_enc)
     time.sleep(0.5)
-    assert len(fixes) == 1, "no bad input may produce an output"
+    assert len(fixes) == answered, "no bad input may produce an output"
 
     def detection_errors() -> int:
         health = _health(client, "topside", "locator")

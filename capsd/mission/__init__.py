@@ -1,0 +1,1 @@
+"""ROV missions on CAP-SD fixes: plans in tank coordinates, the mission logic, its report."""

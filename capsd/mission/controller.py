@@ -1,0 +1,197 @@
+"""The mission's logic, without a bus: fixes and the vehicle's mode in, commands out.
+
+States: `waiting` (no good fix yet) -> `running` (a GUIDED target per waypoint; a waypoint is
+reached when the fix is within the plan's radius, then hovered `dwell_s`) -> `done`. No good
+fix for the plan's `fix_timeout_s` (lost, or only unsure ones) pauses the mission: one `hold`
+(the bridge puts ArduSub in POSHOLD) and nothing else until fixes have been good for
+`resume_after_s`, then `engage` again at the same waypoint. One unsure fix among good ones
+does not pause: the autopilot rides through a short gap on its own estimate. The pilot always
+wins: if the vehicle leaves the mode the mission asked for (after a grace for the switch
+itself), the mission is `aborted` and sends nothing more. `stop()` (Ctrl-C) sends a last `hold`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from capsd.mission.plan import Plan, Waypoint, cross_track_m
+
+State = Literal["waiting", "running", "paused", "done", "aborted", "stopped"]
+CommandKind = Literal["engage", "goto", "hold"]
+# ArduSub's mode names as the bridge reports them (RovStatus.mode).
+GUIDED = "GUIDED"
+POSHOLD = "POSHOLD"
+# The vehicle gets this long to take a mode the mission asked for before a different one is
+# read as the pilot's choice.
+MODE_GRACE_S = 3.0
+# A target is repeated at this interval (a lost command is replaced; the bridge also limits).
+REPEAT_S = 0.5
+
+
+@dataclass(frozen=True)
+class Command:
+    """What the mission asks of the ROV: engage GUIDED at a target, move the target, or hold."""
+
+    kind: CommandKind
+    waypoint: int
+    position_m: tuple[float, float, float] | None
+    reason: str
+
+
+@dataclass
+class Progress:
+    """What a person watches, and the report's figures."""
+
+    state: State = "waiting"
+    waypoint: int = 0
+    pauses: int = 0
+    paused_s: float = 0.0
+    cross_track_m: list[float] = field(default_factory=list)
+    flown_m: list[tuple[float, float, float]] = field(default_factory=list)
+    pause_latency_s: list[float] = field(default_factory=list)  # last good fix -> hold sent
+    why: str = ""
+
+
+class MissionController:
+    """Feed it fixes and the vehicle's mode; call `step(now)`; send the commands it returns."""
+
+    def __init__(self, plan: Plan, points: list[Waypoint]):
+        if not points:
+            raise ValueError("a mission needs at least one waypoint")
+        self.plan = plan
+        self.points = points
+        self.progress = Progress()
+        self._last_good_s: float | None = None  # when the newest good fix arrived
+        self._good_since_s: float | None = None
+        self._position: np.ndarray | None = None
+        self._mode: str | None = None
+        self._asked: str | None = None  # the mode we last asked for
+        self._asked_at = -math.inf
+        self._last_sent = -math.inf
+        self._arrived_at: float | None = None
+        self._paused_at: float | None = None
+
+    # -------------------------------------------------------------------- inputs
+
+    def on_fix(
+        self, *, good: bool, position_m: tuple[float, float, float] | None, now: float
+    ) -> None:
+        """A fix arrived (`now` on the controller's clock)."""
+        if not good or position_m is None:
+            self._good_since_s = None
+            return
+        gap = now - self._last_good_s if self._last_good_s is not None else math.inf
+        if self._good_since_s is None or gap > self.plan.fix_timeout_s:
+            self._good_since_s = now  # a new run of good fixes
+        self._last_good_s = now
+        self._position = np.array(position_m, dtype=np.float64)
+        if self.progress.state in ("running", "paused"):
+            self.progress.flown_m.append(position_m)
+            k = self.progress.waypoint
+            if k >= 1:  # along a leg of the plan (the transit to the first point is not)
+                start = np.array(self.points[k - 1].position_m)
+                end = np.array(self.points[k].position_m)
+                self.progress.cross_track_m.append(cross_track_m(self._position, start, end))
+
+    def on_mode(self, mode: str, *, now: float) -> None:
+        """The vehicle's mode as the bridge reports it."""
+        self._mode = mode
+        state = self.progress.state
+        if self._asked is None or state not in ("running", "paused"):
+            return
+        if mode != self._asked and now - self._asked_at > MODE_GRACE_S:
+            self._finish(
+                "aborted",
+                f"the vehicle is in {mode}, not the {self._asked} the mission asked for: the "
+                "pilot's choice wins (or the autopilot refused the mode)",
+            )
+
+    # -------------------------------------------------------------------- decisions
+
+    def fix_ok(self, now: float) -> bool:
+        """A good fix no older than the plan's timeout."""
+        return self._last_good_s is not None and now - self._last_good_s <= self.plan.fix_timeout_s
+
+    def step(self, now: float) -> list[Command]:
+        """The commands to send now (often none)."""
+        p = self.progress
+        if p.state in ("done", "aborted", "stopped"):
+            return []
+        if p.state == "waiting":
+            if self.fix_ok(now):
+                p.state = "running"
+                return [self._engage(now, "start")]
+            return []
+        if p.state == "running":
+            if not self.fix_ok(now):
+                return [self._pause(now)]
+            return self._advance(now)
+        # paused
+        assert self._paused_at is not None
+        good_for = now - self._good_since_s if self._good_since_s is not None else 0.0
+        if self.fix_ok(now) and good_for >= self.plan.resume_after_s:
+            p.paused_s += now - self._paused_at
+            self._paused_at = None
+            p.state = "running"
+            return [self._engage(now, f"fix good for {good_for:.1f} s: resume")]
+        return []
+
+    def stop(self, now: float) -> list[Command]:
+        """Ctrl-C: leave the ROV holding position (unless the pilot already took it)."""
+        if self.progress.state in ("aborted", "done", "stopped"):
+            return []
+        self._finish("stopped", "stopped by user")
+        return [Command("hold", self.progress.waypoint, None, "stopped by user")]
+
+    # -------------------------------------------------------------------- helpers
+
+    def _target(self) -> tuple[float, float, float]:
+        return self.points[self.progress.waypoint].position_m
+
+    def _engage(self, now: float, reason: str) -> Command:
+        self._ask(GUIDED, now)
+        self._last_sent = now
+        return Command("engage", self.progress.waypoint, self._target(), reason)
+
+    def _pause(self, now: float) -> Command:
+        p = self.progress
+        p.state = "paused"
+        p.pauses += 1
+        self._paused_at = now
+        self._arrived_at = None
+        self._good_since_s = None
+        if self._last_good_s is not None:
+            p.pause_latency_s.append(now - self._last_good_s)
+        self._ask(POSHOLD, now)
+        return Command("hold", p.waypoint, None, "fix lost or unsure: hold position")
+
+    def _advance(self, now: float) -> list[Command]:
+        p = self.progress
+        assert self._position is not None
+        target = np.array(self._target())
+        if float(np.linalg.norm(self._position - target)) <= self.plan.accept_radius_m:
+            self._arrived_at = self._arrived_at if self._arrived_at is not None else now
+            if now - self._arrived_at >= self.points[p.waypoint].dwell_s:
+                self._arrived_at = None
+                if p.waypoint + 1 >= len(self.points):
+                    self._finish("done", "every waypoint reached")
+                    self._ask(POSHOLD, now)
+                    return [Command("hold", p.waypoint, None, "mission complete: hold")]
+                p.waypoint += 1
+                self._last_sent = now
+                return [Command("goto", p.waypoint, self._target(), f"waypoint {p.waypoint}")]
+        if now - self._last_sent >= REPEAT_S:
+            self._last_sent = now
+            return [Command("goto", p.waypoint, self._target(), "repeat")]
+        return []
+
+    def _ask(self, mode: str, now: float) -> None:
+        self._asked, self._asked_at = mode, now
+
+    def _finish(self, state: State, why: str) -> None:
+        self.progress.state = state
+        self.progress.why = why

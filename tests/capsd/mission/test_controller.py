@@ -1,0 +1,126 @@
+"""The mission logic: engage, advance, dwell, pause on a lost fix, resume, the pilot wins."""
+
+from __future__ import annotations
+
+import msgspec
+
+from capsd.mission.controller import GUIDED, POSHOLD, MissionController
+from capsd.mission.plan import Plan, Waypoint
+
+POINTS = [Waypoint((5.0, 4.0, -3.0)), Waypoint((9.0, 4.0, -3.0), dwell_s=2.0)]
+
+
+def _plan(**overrides: float) -> Plan:
+    return msgspec.convert(
+        {"points": [{"position_m": [5.0, 4.0], "depth_m": 3.0}], **overrides}, Plan
+    )
+
+
+def _fly(
+    ctl: MissionController,
+    path: list[tuple[float, float, float] | None],
+    *,
+    dt: float = 0.05,
+    mode: str = GUIDED,
+    t0: float = 0.0,
+) -> list[tuple[float, str, int]]:
+    """Feed a fix per step (None: no fix that step) and the mode; what was commanded when."""
+    out: list[tuple[float, str, int]] = []
+    t = t0
+    for position in path:
+        if position is not None:
+            ctl.on_fix(good=True, position_m=position, now=t)
+        ctl.on_mode(mode, now=t)
+        out += [(t, c.kind, c.waypoint) for c in ctl.step(t)]
+        t += dt
+    return out
+
+
+def test_waits_for_a_good_fix_then_engages_and_flies_every_waypoint() -> None:
+    ctl = MissionController(_plan(), POINTS)
+    assert ctl.step(0.0) == []
+    ctl.on_fix(good=False, position_m=None, now=0.0)
+    assert ctl.step(0.0) == []
+    path: list[tuple[float, float, float] | None] = [(4.0, 4.0, -3.0)] * 5
+    path += [(5.05, 4.0, -3.0)] * 5  # at the first point
+    path += [(7.0, 4.1, -3.0)] * 5
+    path += [(9.0, 4.0, -3.0)] * 60  # at the last: 2 s dwell, then done
+    commands = _fly(ctl, path)
+    kinds = [(k, w) for _, k, w in commands if k != "goto" or w != 0]
+    assert kinds[0] == ("engage", 0)
+    assert ("goto", 1) in kinds
+    assert kinds[-1] == ("hold", 1)
+    assert ctl.progress.state == "done"
+    done_at = next(t for t, k, _ in commands if k == "hold")
+    arrived_at = 15 * 0.05
+    assert done_at - arrived_at >= 2.0 - 1e-9
+    # Cross-track measured on the leg between the two points: 0.1 m off at x = 7.
+    assert abs(max(ctl.progress.cross_track_m) - 0.1) < 1e-9
+
+
+def test_a_lost_fix_pauses_within_the_timeout_and_resumes_after_good_fixes() -> None:
+    plan = _plan(fix_timeout_s=0.5, resume_after_s=1.0)
+    ctl = MissionController(plan, POINTS)
+    path: list[tuple[float, float, float] | None] = [(4.0, 4.0, -3.0)] * 10
+    path += [None] * 40  # 2 s without fixes
+    path += [(4.2, 4.0, -3.0)] * 40
+    commands = _fly(ctl, path)
+    holds = [t for t, k, _ in commands if k == "hold"]
+    engages = [t for t, k, _ in commands if k == "engage"]
+    last_fix_at = 9 * 0.05
+    assert len(holds) == 1
+    assert holds[0] - last_fix_at <= 0.5 + 0.05 + 1e-9  # within the timeout and one step
+    assert len(engages) == 2
+    fixes_back_at = 50 * 0.05
+    assert engages[1] - fixes_back_at >= 1.0 - 1e-9
+    # Nothing but the hold while paused.
+    assert not [c for c in commands if holds[0] < c[0] < engages[1]]
+    assert ctl.progress.pauses == 1
+    assert ctl.progress.pause_latency_s[0] <= 0.55 + 1e-9
+
+
+def test_unsure_fixes_pause_within_the_timeout() -> None:
+    ctl = MissionController(_plan(fix_timeout_s=0.5), POINTS)
+    ctl.on_fix(good=True, position_m=(4.0, 4.0, -3.0), now=0.0)
+    assert [c.kind for c in ctl.step(0.0)] == ["engage"]
+    kinds = []
+    for k in range(1, 30):
+        ctl.on_fix(good=False, position_m=None, now=k * 0.05)
+        ctl.on_mode(GUIDED, now=k * 0.05)
+        kinds += [(k * 0.05, c.kind) for c in ctl.step(k * 0.05)]
+    holds = [t for t, kind in kinds if kind == "hold"]
+    assert len(holds) == 1
+    assert holds[0] <= 0.55 + 1e-9
+    assert {kind for t, kind in kinds if t < holds[0]} <= {"goto"}
+    assert ctl.progress.state == "paused"
+
+
+def test_the_pilot_changing_mode_aborts_and_nothing_more_is_sent() -> None:
+    ctl = MissionController(_plan(), POINTS)
+    commands = _fly(ctl, [(4.0, 4.0, -3.0)] * 20)
+    assert commands[0][1] == "engage"
+    # The pilot takes over in MANUAL: within the grace it is read as the switch in progress.
+    commands = _fly(ctl, [(4.0, 4.0, -3.0)] * 100, mode="MANUAL", t0=1.0)
+    assert ctl.progress.state == "aborted"
+    assert "MANUAL" in ctl.progress.why
+    assert not [c for c in commands if c[0] > 3.1]
+    assert ctl.stop(10.0) == []
+
+
+def test_stop_leaves_the_rov_holding() -> None:
+    ctl = MissionController(_plan(), POINTS)
+    _fly(ctl, [(4.0, 4.0, -3.0)] * 5)
+    (last,) = ctl.stop(1.0)
+    assert last.kind == "hold"
+    assert ctl.progress.state == "stopped"
+    assert ctl.step(2.0) == []
+
+
+def test_hold_after_pause_expects_poshold_not_guided() -> None:
+    ctl = MissionController(_plan(), POINTS)
+    _fly(ctl, [(4.0, 4.0, -3.0)] * 5)
+    _fly(ctl, [None] * 20, t0=0.25)
+    assert ctl.progress.state == "paused"
+    # The vehicle in POSHOLD while paused is what was asked: no abort.
+    _fly(ctl, [None] * 100, mode=POSHOLD, t0=1.25)
+    assert ctl.progress.state == "paused"
