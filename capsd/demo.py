@@ -13,10 +13,13 @@ summary.md (the accuracy table, services, what reached the autopilot), figures.j
 from __future__ import annotations
 
 import json
+import math
 import sys
 import time
 from pathlib import Path
 from typing import TextIO
+
+import numpy as np
 
 from capsd.accuracy import HEADER, Accuracy, row
 from capsd.bus import open_session
@@ -56,9 +59,15 @@ def main(
     seed: int,
     port: int | None,
     record: Path | None = None,
+    mission: Path | None = None,
     stream: TextIO = sys.stdout,
 ) -> int:
-    """Run the demo; returns 0 when every service ran to the end and fixes were good."""
+    """Run the demo; returns 0 when every service ran to the end and fixes were good.
+
+    With `mission` (a plan file) the loop is closed: the ROV starts at the plan's first
+    waypoint and is flown by the ArduSub stand-in the simulator hosts, `capsd mission run`
+    commands it through the bridge, and the demo ends when the mission does.
+    """
     from capsd import plots
 
     out.mkdir(parents=True, exist_ok=True)
@@ -67,8 +76,16 @@ def main(
     router_port = port or free_port()
     mav_port = free_port()
     endpoint = f"tcp/127.0.0.1:{router_port}"
+    rov_start, station = (None, None) if mission is None else _mission_start(mission, tank)
     configs = write_configs(
-        logs, endpoint, trajectory=trajectory, tank=tank, seed=seed, mav_port=mav_port
+        logs,
+        endpoint,
+        trajectory=trajectory,
+        tank=tank,
+        seed=seed,
+        mav_port=mav_port,
+        rov_start_m=rov_start,
+        asv_station_xy=station,
     )
     procs = Processes(logs)
     started = time.monotonic()
@@ -82,7 +99,8 @@ def main(
     )
     try:
         procs.start("router", ["-m", "capsd", "router", "--listen", endpoint])
-        procs.start("autopilot", ["-m", "capsd.simulator.autopilot", "--port", str(mav_port)])
+        if mission is None:  # with a mission the simulator hosts the stand-in (it flies it)
+            procs.start("autopilot", ["-m", "capsd.simulator.autopilot", "--port", str(mav_port)])
         if record is not None:
             # Started first and stopped last: the recording holds each service's whole life.
             args = ["cap/**", "-o", str(record), "--exclude", "cap/*/*/sonar/frame",
@@ -91,6 +109,13 @@ def main(
         time.sleep(1.0)
         for _, name in SERVICES:
             start_service(procs, name, configs[name])
+        if mission is not None:
+            procs.start(
+                "mission",
+                ["-m", "capsd", "mission", "run", str(mission), "--config",
+                 str(configs["mission"]), "--locator-config", str(configs["locator"]),
+                 "--out", str(out / "mission")],
+            )  # fmt: skip
         with open_session(BusConfig(connect=(endpoint,))) as session:
             watch = Watch(session)
             t0 = time.monotonic()
@@ -99,7 +124,11 @@ def main(
                     time.sleep(2.0)
                     health = watch.health()
                     print(_line(time.monotonic() - t0, watch, health), file=stream, flush=True)
-                    if dead := [d for d in procs.dead() if d not in ("autopilot", "recorder")]:
+                    dead = [d for d in procs.dead() if d not in ("autopilot", "recorder")]
+                    if dead == ["mission"]:
+                        print("capsd demo: the mission ended", file=stream)
+                        break
+                    if dead:
                         print(f"capsd demo: stopped early, exited: {dead}", file=stream)
                         break
             except KeyboardInterrupt:
@@ -109,7 +138,14 @@ def main(
     finally:
         codes = procs.stop()
     elapsed = time.monotonic() - started
-    autopilot = (logs / "autopilot.log").read_text(errors="replace").strip()
+    autopilot_log = logs / "autopilot.log"
+    autopilot = (
+        autopilot_log.read_text(errors="replace").strip()
+        if autopilot_log.exists()
+        else "(hosted by the simulator: it flies the ROV)"
+    )
+    mission_json = out / "mission" / "mission.json"
+    mission_figures = json.loads(mission_json.read_text()) if mission_json.exists() else None
     accuracy = watch.accuracy if watch is not None else Accuracy()
     summary = accuracy.summary()
     figures = {
@@ -127,6 +163,7 @@ def main(
         },
         "autopilot": autopilot,
         "watch_decode_errors": watch.decode_errors if watch is not None else 0,
+        "mission": mission_figures,
     }
     (out / "figures.json").write_text(json.dumps(figures, indent=1, sort_keys=True) + "\n")
     runs = {"CAP-SD (live)": accuracy}
@@ -151,6 +188,9 @@ def main(
     for name, h in health.items():
         lines.append(f"| {name} | {h.state if h else '-'} | {codes.get(name)} | {_last_error(h)} |")
     lines += ["", "## Autopilot stand-in", "", "```", autopilot, "```", ""]
+    if mission_figures is not None:
+        lines += ["## Mission", "", "```", json.dumps(mission_figures, indent=1), "```", ""]
+        lines += ["![mission](mission/mission.png)", ""]
     lines += [
         "![trajectory](trajectory_3d.png)",
         "",
@@ -164,6 +204,13 @@ def main(
     print(HEADER, file=stream)
     print(row(f"{tank}/{trajectory} live", summary), file=stream)
     print(autopilot, file=stream)
+    if mission_figures is not None:
+        print(
+            f"mission {mission_figures['mission']}: {mission_figures['state']}, cross-track "
+            f"rms {mission_figures['cross_track_rms_m']} m, p95 "
+            f"{mission_figures['cross_track_p95_m']} m, pauses {mission_figures['pauses']}",
+            file=stream,
+        )
     print(f"report: {out}/summary.md (figures.json, 3 PNGs, logs/)", file=stream, flush=True)
     services_ok = all(
         codes.get(name) == 0
@@ -174,10 +221,34 @@ def main(
         print(f"capsd demo: the recorder exited {codes.get('recorder')}: see "
               f"{logs}/recorder.log", file=stream, flush=True)  # fmt: skip
         services_ok = False
+    if mission is not None and codes.get("mission") != 0:
+        print(f"capsd demo: the mission exited {codes.get('mission')}: see {logs}/mission.log",
+              file=stream, flush=True)  # fmt: skip
+        services_ok = False
     if interrupted:
         print("capsd demo: stopped by user", file=stream, flush=True)
         return 0 if services_ok else 1
     return 0 if services_ok and summary.get("good", 0) > 0 else 1
+
+
+def _mission_start(
+    plan_path: Path, tank: TankName
+) -> tuple[tuple[float, float, float], tuple[float, float]]:
+    """Where the ROV starts (the plan's first waypoint) and where the ASV keeps station.
+
+    The ASV does not follow yet: it stands on the -x side of the plan, as close as lets the
+    sonar (pitched 30 deg down, 20 deg aperture) still see the plan's nearest point, so the
+    farthest is in view too when the plan is short enough along x.
+    """
+    from capsd.mission.plan import load_plan
+    from capsd.simulator.world import make_tank, tank_bounds
+
+    _, points = load_plan(plan_path, tank=tank_bounds(make_tank(tank)))
+    xyz = np.array([p.position_m for p in points])
+    height = float(-xyz[:, 2].max()) - 0.2  # the shallowest point, below the sonar
+    nearest = height / math.tan(math.radians(40.0)) + 1.0
+    station = (max(1.0, float(xyz[:, 0].min()) - nearest), float(xyz[:, 1].mean()))
+    return points[0].position_m, station
 
 
 def _last_error(health: Health | None) -> str:

@@ -109,7 +109,15 @@ def write_configs(
     seed: int,
     mav_port: int,
     sonar_hz: float = 20.0,
+    rov_start_m: tuple[float, float, float] | None = None,
+    asv_station_xy: tuple[float, float] | None = None,
 ) -> dict[str, Path]:
+    """Every process's config in `folder`, by name.
+
+    With `rov_start_m` the ROV is flown live from there by the ArduSub stand-in the simulator
+    hosts on `mav_port` (missions); the ASV then keeps station where the sonar sees that point
+    best, and the bridge accepts mission commands.
+    """
     import msgspec
     import yaml
 
@@ -124,7 +132,7 @@ def write_configs(
     fix_key = folder / "fix.key"
     if not fix_key.exists():
         write_key(fix_key, SiteKey.generate())
-    sim = {
+    sim: dict[str, Any] = {
         "bus": bus,
         "tank": tank,
         "trajectory": trajectory,
@@ -132,7 +140,16 @@ def write_configs(
         "streams": {"detections_truth_noise": "off", "asv_pose_truth_noise": "off"},
         "rates": {"sonar_hz": sonar_hz},
     }
-    run = SimConfig(tank=tank, trajectory=trajectory, seed=seed)
+    if rov_start_m is not None:
+        # The ASV keeps station (given, or on the near side of the ROV's start, where the
+        # sonar's boresight, pitched 30 deg down, meets it), facing the start.
+        if asv_station_xy is None:
+            standoff = (-rov_start_m[2] - 0.2) / math.tan(math.radians(30.0))
+            asv_station_xy = (max(1.0, rov_start_m[0] - standoff), rov_start_m[1])
+        sim["guided"] = {"port": mav_port, "start_m": list(rov_start_m)}
+        sim["asv_mode"] = "stationary"
+        sim["asv_start_xy"] = list(asv_station_xy)
+    run = msgspec.convert({k: v for k, v in sim.items() if k != "bus"}, SimConfig)
     start = Simulation(run, horizon_s=10)
     # The person putting the ASV in the water knows roughly which way it points: 20 deg off.
     heading = math.degrees(matrix_to_euler_zyx(start.asv_pose(0.0).rotation)[0]) + 20.0
@@ -159,7 +176,10 @@ def write_configs(
             "mavlink": {"connect": f"tcp:127.0.0.1:{mav_port}"},
             "fix_key": str(fix_key),
             "tank": {**tank_box, "depth_m": t.depth_m},
+            "mission_commands": "accept" if rov_start_m is not None else "refuse",
         },
+        # `capsd mission run --config`: the demo's bridge reports as rov_ap.
+        "mission": {"bus": bus, "rov_vehicle": "rov_ap"},
     }
     paths = {}
     for name, body in configs.items():

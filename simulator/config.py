@@ -129,6 +129,20 @@ class Streams(ConfigSection, frozen=True, kw_only=True):
     detections_truth_noise: OnOff = "off"
 
 
+class GuidedConfig(ConfigSection, frozen=True, kw_only=True):
+    """The ROV flown by an ArduSub stand-in the simulator hosts (closed-loop missions).
+
+    The stand-in listens for the bridge on tcpin:127.0.0.1:`port`; `ned_*` must be the bridge's
+    `ned` settings (they turn its NED targets and estimates back into the tank frame).
+    """
+
+    port: Annotated[int, msgspec.Meta(ge=1, le=65535)]
+    ned_heading_deg: Annotated[float, msgspec.Meta(ge=-360.0, le=360.0)] = 0.0
+    ned_origin_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    start_m: tuple[float, float, float] | None = None  # None: the trajectory's first point
+    max_speed_m_s: Annotated[float, msgspec.Meta(gt=0.0, le=2.0)] = 0.3
+
+
 class Config(ServiceConfig, frozen=True, kw_only=True):
     """Simulator configuration."""
 
@@ -166,9 +180,16 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     sonar_dropouts_s: tuple[tuple[float, float], ...] = ()
     # Real-time runs precompute this much motion, then repeat it.
     motion_horizon_s: Annotated[float, msgspec.Meta(ge=10.0, le=86_400.0)] = 1800.0
+    # Set: the ROV is not on `trajectory` but flown by an ArduSub stand-in that the simulator
+    # hosts (GUIDED targets from the bridge, on its own estimates); the ASV must not follow.
+    guided: GuidedConfig | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        if self.guided is not None and self.asv_mode == "follow":
+            raise ValueError(
+                "`guided`: the ASV cannot follow a ROV flown live; use asv_mode: stationary"
+            )
         for i, (start, end) in enumerate(self.sonar_dropouts_s):
             if not 0.0 <= start < end:
                 raise ValueError(

@@ -3,12 +3,16 @@
 Paced by the wall clock: an event is generated ahead on its own thread and published when its
 sim time comes. Each stream's count, CPU time (generation on the look-ahead thread and
 publishing) and worst lateness are reported in the service's Health counters, which
-`capsd bench sim` reads.
+`capsd bench sim` reads. With `guided` set, the simulator also hosts the ArduSub stand-in the
+bridge connects to: the stand-in reports the simulated ROV's attitude and depth, and its GUIDED
+targets, modes and the estimates it receives fly the ROV (capsd.simulator.guided).
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import math
 import queue
 import threading
 import time
@@ -16,11 +20,17 @@ from collections import defaultdict
 from collections.abc import Iterator
 from typing import Any
 
+import numpy as np
+
 from capsd import topics
 from capsd.logs import log_fields
+from capsd.ned import TankToNed
 from capsd.payloads import Payload, SimControl, SonarFrame
+from capsd.protocols.mavlink import PositionTarget, VisionPositionEstimate
 from capsd.runner import Publisher, ServiceRunner
+from capsd.simulator.autopilot import AutopilotStandIn, VehicleState
 from capsd.simulator.config import Config
+from capsd.simulator.guided import GuidedRov
 from capsd.simulator.sim import Event, Simulation
 
 __all__ = ["Config", "main"]
@@ -94,6 +104,43 @@ class _Lookahead(threading.Thread):
         return item
 
 
+def hosted_autopilot(config: Config, rov: GuidedRov, start_ns: int) -> AutopilotStandIn:
+    """The ArduSub stand-in that flies `rov` (sim time 0 is wall time `start_ns`)."""
+    assert config.guided is not None
+    g = config.guided
+    ned = TankToNed(math.radians(g.ned_heading_deg), np.array(g.ned_origin_m))
+
+    def sim_time(unix_s: float) -> float:
+        return max(0.0, unix_s - start_ns / 1e9)
+
+    def vehicle(unix_s: float) -> VehicleState:
+        state = rov.state(sim_time(unix_s))
+        roll, pitch, yaw = ned.attitude_to_ned(state.rotation)
+        north, east, _ = ned.position(state.position_m)
+        depth = -float(state.position_m[2])
+        return VehicleState(roll, pitch, yaw, depth, float(north), float(east))
+
+    def on_target(target: PositionTarget) -> None:
+        rov.set_target(
+            ned.position_to_tank(np.array([target.north_m, target.east_m, target.down_m]))
+        )
+
+    def on_estimate(estimate: VisionPositionEstimate) -> None:
+        measured_s = sim_time(estimate.usec / 1e6)
+        rov.on_estimate(
+            measured_s, ned.position_to_tank(np.array([estimate.x, estimate.y, estimate.z]))
+        )
+
+    return AutopilotStandIn(
+        g.port,
+        state=vehicle,
+        mode="MANUAL",
+        on_mode=rov.set_mode,
+        on_target=on_target,
+        on_estimate=on_estimate,
+    )
+
+
 def main(config: Config) -> int:
     """Run the simulator in real time until stopped."""
     simulation = Simulation(config)
@@ -123,6 +170,11 @@ def main(config: Config) -> int:
 
         ahead = _Lookahead(simulation.events(start_ns=start_ns), runner.stop_event)
         ahead.start()
+        autopilot = contextlib.ExitStack()
+        guided = simulation.guided
+        if guided is not None:
+            autopilot.enter_context(hosted_autopilot(config, guided, start_ns))
+            runner.add_counters(lambda: {"rov_in_guided": int(guided.mode == "GUIDED")})
         muted_until: dict[str, float] = {}  # stream -> monotonic time its dropout ends
 
         def on_control(control: SimControl) -> None:
@@ -160,7 +212,8 @@ def main(config: Config) -> int:
                 accounting.add(stream, event_cpu_ns + time.thread_time_ns() - cpu0, late)
 
         try:
-            runner.run(step, period_s=0.002)
+            with autopilot:
+                runner.run(step, period_s=0.002)
         finally:
             runner.stop_event.set()
             ahead.join(timeout=2.0)

@@ -40,6 +40,7 @@ from capsd.payloads import (
 )
 from capsd.simulator.clock import VehicleClock
 from capsd.simulator.config import Config
+from capsd.simulator.guided import GuidedLimits, GuidedRov
 from capsd.simulator.imu import Imu
 from capsd.simulator.install_errors import InstallErrors
 from capsd.simulator.lidar import scan
@@ -50,6 +51,7 @@ from capsd.simulator.world import (
     RovMotion,
     RovState,
     asv_motion,
+    hovering,
     rov_motion,
     with_look,
 )
@@ -100,13 +102,24 @@ class Simulation:
             look_seed = config.sonar_image.look_seed
             seed = config.seed if look_seed is None else look_seed
             self.tank = with_look(self.tank, look, np.random.default_rng([seed, 0xC1]))
-        self.rov: RovMotion = rov_motion(
+        planned = rov_motion(
             self.tank,
             config.trajectory,
             speed_m_s=config.rov_speed_m_s,
             duration_s=self.horizon_s,
             seed=config.seed,
         )
+        self.rov: RovMotion | GuidedRov = planned
+        self.guided: GuidedRov | None = None
+        if config.guided is not None:
+            start = config.guided.start_m
+            start_m = np.array(start) if start is not None else planned.track.p[0]
+            self.guided = GuidedRov(
+                start_m, limits=GuidedLimits(max_speed_m_s=config.guided.max_speed_m_s)
+            )
+            self.rov = self.guided
+            # What the ASV faces and the boresight's depth: the ROV where it starts.
+            planned = hovering(start_m)
         # The world's mounts are the nominal ones (what the services are told) plus this run's
         # installation errors; the errors' own generator leaves every other stream as it was.
         install_seed = config.install_errors.seed
@@ -118,12 +131,12 @@ class Simulation:
         standoff = config.asv_standoff_m
         if standoff is None:
             # Put the ROV on the boresight at its trajectory's mean depth.
-            height = -float(np.mean(self.rov.track.p[:, 2])) + float(-self.mount.translation[2])
+            height = -float(np.mean(planned.track.p[:, 2])) + float(-self.mount.translation[2])
             pitch = max(math.radians(config.sonar.pitch_deg), math.radians(5.0))
             standoff = height / math.tan(pitch) + float(self.mount.translation[0])
         self.asv: AsvMotion = asv_motion(
             self.tank,
-            self.rov,
+            planned,
             mode=config.asv_mode,
             standoff_m=standoff,
             waves=config.waves.waves(),
@@ -154,6 +167,8 @@ class Simulation:
         return t_s % self.horizon_s
 
     def rov_state(self, t_s: float) -> RovState:
+        if self.guided is not None:
+            return self.guided.state(t_s)  # flown live: no repeat
         return self.rov.state(self._wrap(t_s))
 
     def asv_pose(self, t_s: float) -> Transform:

@@ -449,6 +449,13 @@ def rov_motion(
     return RovMotion(track)
 
 
+def hovering(position_m: Array, *, duration_s: float = 10.0) -> RovMotion:
+    """A ROV that stays at `position_m` (what a stationary ASV faces when the ROV flies live)."""
+    n = int(duration_s / _DT) + 2
+    p = np.tile(np.asarray(position_m, dtype=np.float64), (n, 1))
+    return RovMotion(Track(_DT, p, np.zeros((n, 3)), np.zeros((n, 3))))
+
+
 # ------------------------------------------------------------------------ the ASV
 
 

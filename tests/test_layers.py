@@ -26,6 +26,7 @@ CORE = frozenset(
         "capsd.logs",
         "capsd.mailbox",
         "capsd.mounts",
+        "capsd.ned",
         "capsd.payloads",
         "capsd.pose_lookup",
         "capsd.progress",

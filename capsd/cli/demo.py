@@ -23,6 +23,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         seed=args.seed,
         port=args.port,
         record=args.record,
+        mission=args.mission,
     )
 
 
@@ -51,5 +52,12 @@ def register(sub: Subcommands) -> None:
         default=None,
         help="also record every key but the sonar images into this .mcap, from before the "
         "services start (`capsd replay-check` replays it into a fresh locator)",
+    )
+    dem.add_argument(
+        "--mission",
+        type=Path,
+        default=None,
+        help="close the loop: fly this plan (capsd mission run) with the simulated ROV flown "
+        "by the ArduSub stand-in, the ASV on station; the demo ends with the mission",
     )
     dem.set_defaults(func=_cmd_demo)

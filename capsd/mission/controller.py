@@ -4,10 +4,11 @@ States: `waiting` (no good fix yet) -> `running` (a GUIDED target per waypoint; 
 reached when the fix is within the plan's radius, then hovered `dwell_s`) -> `done`. No good
 fix for the plan's `fix_timeout_s` (lost, or only unsure ones) pauses the mission: one `hold`
 (the bridge puts ArduSub in POSHOLD) and nothing else until fixes have been good for
-`resume_after_s`, then `engage` again at the same waypoint. One unsure fix among good ones
-does not pause: the autopilot rides through a short gap on its own estimate. The pilot always
-wins: if the vehicle leaves the mode the mission asked for (after a grace for the switch
-itself), the mission is `aborted` and sends nothing more. `stop()` (Ctrl-C) sends a last `hold`.
+`resume_after_s` (no gap longer than `fix_timeout_s` between them), then `engage` again at
+the same waypoint. One unsure fix among good ones does not pause: the autopilot rides through
+a short gap on its own estimate. The pilot always wins: if the vehicle leaves the mode the
+mission asked for (after a grace for the switch itself), the mission is `aborted` and sends
+nothing more. `stop()` (Ctrl-C) sends a last `hold`.
 """
 
 from __future__ import annotations
@@ -82,7 +83,9 @@ class MissionController:
     ) -> None:
         """A fix arrived (`now` on the controller's clock)."""
         if not good or position_m is None:
-            self._good_since_s = None
+            # Not a reset: "good for resume_after_s" means no gap longer than fix_timeout_s
+            # between good fixes (the same measure that pauses), so a locator that is unsure
+            # now and then still lets a paused mission resume.
             return
         gap = now - self._last_good_s if self._last_good_s is not None else math.inf
         if self._good_since_s is None or gap > self.plan.fix_timeout_s:

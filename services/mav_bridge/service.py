@@ -35,6 +35,7 @@ from capsd.errors import ConfigError
 from capsd.geometry import matrix_to_quat
 from capsd.keys import check_name
 from capsd.mailbox import Mailbox
+from capsd.ned import TankToNed, upper_triangle
 from capsd.payloads import RovAttitude, RovCommand, RovDepth, RovFix, RovStatus
 from capsd.protocols.mavlink import (
     MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY,
@@ -52,7 +53,6 @@ from capsd.protocols.mavlink import (
 from capsd.runner import Publisher, ServiceRunner, StreamCounter
 from capsd.services.mav_bridge.clock import BootClock
 from capsd.services.mav_bridge.gate import GateSettings, Passed, SafetyGate
-from capsd.services.mav_bridge.ned import TankToNed, upper_triangle
 from capsd.signing import SiteKey
 from capsd.tank import TankBounds
 
@@ -600,6 +600,7 @@ class Bridge:
                 self.counts["commands_hold_not_guided"] += 1
                 return
             self.link.send_set_mode(target_system=target, mode="POSHOLD")
+            self.mode = "POSHOLD"  # ours until a HEARTBEAT says otherwise (1 Hz)
             self.counts["commands_sent_poshold"] += 1
             logger.info("mission: POSHOLD", extra={"fields": {**fields, "why": command.reason}})
             return
@@ -608,6 +609,9 @@ class Bridge:
             return
         if command.kind == "engage" and self.mode != "GUIDED":
             self.link.send_set_mode(target_system=target, mode="GUIDED")
+            # Ours until a HEARTBEAT says otherwise: a hold right after an engage must not be
+            # taken for a pilot's mode (the HEARTBEAT comes at 1 Hz).
+            self.mode = "GUIDED"
             self.counts["commands_sent_guided"] += 1
             logger.info("mission: GUIDED", extra={"fields": {**fields, "why": command.reason}})
         assert command.position_m is not None  # the payload refuses engage/goto without one

@@ -124,3 +124,17 @@ def test_hold_after_pause_expects_poshold_not_guided() -> None:
     # The vehicle in POSHOLD while paused is what was asked: no abort.
     _fly(ctl, [None] * 100, mode=POSHOLD, t0=1.25)
     assert ctl.progress.state == "paused"
+
+
+def test_a_paused_mission_resumes_through_occasional_unsure_fixes() -> None:
+    ctl = MissionController(_plan(fix_timeout_s=0.5, resume_after_s=1.0), POINTS)
+    _fly(ctl, [(4.0, 4.0, -3.0)] * 5)
+    _fly(ctl, [None] * 20, t0=0.25)
+    assert ctl.progress.state == "paused"
+    engaged = []
+    for k in range(60):  # good fixes at 20 Hz, every fourth one unsure
+        t = 1.25 + k * 0.05
+        ctl.on_fix(good=k % 4 != 3, position_m=(4.0, 4.0, -3.0), now=t)
+        engaged += [t for c in ctl.step(t) if c.kind == "engage"]
+    assert engaged
+    assert 1.0 - 1e-9 <= engaged[0] - 1.25 <= 1.1

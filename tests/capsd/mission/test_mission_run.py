@@ -20,8 +20,8 @@ import zenoh
 
 from capsd import topics
 from capsd.codec import Codec
+from capsd.ned import TankToNed
 from capsd.payloads import RovCommand
-from capsd.services.mav_bridge.ned import TankToNed
 from capsd.signing import SiteKey
 from capsd.simulator.autopilot import AutopilotStandIn, VehicleState
 from tests.conftest import Proc, free_port, wait_for

@@ -20,8 +20,8 @@ from capsd.codec import Codec
 from capsd.config import BusConfig
 from capsd.health import query_health
 from capsd.keys import is_concrete
+from capsd.ned import TankToNed
 from capsd.payloads import Health, RovAttitude, RovDepth, RovFix, RovStatus
-from capsd.services.mav_bridge.ned import TankToNed
 from capsd.signing import SiteKey, write_key
 from capsd.simulator.autopilot import AutopilotStandIn, VehicleState
 from tests.conftest import REPO, Proc, free_port, wait_for

@@ -10,7 +10,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from capsd.geometry import euler_zyx_to_matrix
-from capsd.services.mav_bridge.ned import TankToNed, upper_triangle
+from capsd.ned import TankToNed, upper_triangle
 
 
 @pytest.mark.parametrize(

@@ -1,0 +1,56 @@
+"""The ROV under the stand-in autopilot: holds, flies GUIDED targets, steers on its estimates."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from capsd.simulator.guided import GuidedLimits, GuidedRov
+
+START = np.array([10.0, 8.0, -4.0])
+
+
+def _speeds(rov: GuidedRov, t0: float, t1: float) -> np.ndarray:
+    return np.array([np.linalg.norm(rov.state(t).velocity_m_s) for t in np.arange(t0, t1, 0.1)])
+
+
+def test_holds_until_guided_then_flies_to_the_target_within_its_limits() -> None:
+    rov = GuidedRov(START, limits=GuidedLimits(max_speed_m_s=0.3))
+    assert np.allclose(rov.state(5.0).position_m, START)
+    rov.set_target(START + np.array([2.0, 0.0, 0.0]))  # not in GUIDED: ignored, as ArduSub does
+    assert np.allclose(rov.state(6.0).position_m, START)
+    rov.set_mode("GUIDED")
+    rov.set_target(START + np.array([3.0, 1.0, 0.5]))
+    end = rov.state(40.0)
+    assert end.position_m == pytest.approx(START + np.array([3.0, 1.0, 0.5]), abs=0.01)
+    assert _speeds(rov, 6.0, 40.0).max() <= 0.3 + 1e-9
+    # It faces where it went.
+    heading = np.arctan2(1.0, 3.0)
+    forward = rov.state(12.0).rotation[:, 0]
+    assert np.arctan2(forward[1], forward[0]) == pytest.approx(heading, abs=0.05)
+
+
+def test_poshold_stops_where_it_is() -> None:
+    rov = GuidedRov(START)
+    rov.set_mode("GUIDED")
+    rov.set_target(START + np.array([5.0, 0.0, 0.0]))
+    moving = rov.state(8.0).position_m.copy()
+    rov.set_mode("POSHOLD")
+    held = rov.state(30.0).position_m
+    assert 0.5 < held[0] - START[0] < 5.0
+    assert float(np.linalg.norm(held - moving)) < 0.5  # it brakes, then stays
+    assert float(np.linalg.norm(rov.state(30.0).velocity_m_s)) < 1e-3
+
+
+@pytest.mark.parametrize("error", [(0.1, 0.0, 0.0), (0.0, -0.05, 0.02)])
+def test_it_steers_on_its_estimates_so_their_error_becomes_its_error(
+    error: tuple[float, float, float],
+) -> None:
+    rov = GuidedRov(START)
+    rov.set_mode("GUIDED")
+    target = START + np.array([2.0, 0.0, 0.0])
+    rov.set_target(target)
+    for k in range(1, 600):  # estimates at 20 Hz that are `error` off the truth
+        t = k * 0.05
+        rov.on_estimate(t, rov.state(t).position_m + np.array(error))
+    assert rov.state(30.0).position_m == pytest.approx(target - np.array(error), abs=0.005)
