@@ -110,7 +110,8 @@ class MissionController:
             self._finish(
                 "aborted",
                 f"the vehicle is in {mode}, not the {self._asked} the mission asked for: the "
-                "pilot's choice wins (or the autopilot refused the mode)",
+                "pilot's choice wins (or the autopilot refused the mode, or the bridge refuses "
+                "mission commands: its `mission_commands` and Health counters say)",
             )
 
     # -------------------------------------------------------------------- decisions

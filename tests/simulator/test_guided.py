@@ -54,3 +54,17 @@ def test_it_steers_on_its_estimates_so_their_error_becomes_its_error(
         t = k * 0.05
         rov.on_estimate(t, rov.state(t).position_m + np.array(error))
     assert rov.state(30.0).position_m == pytest.approx(target - np.array(error), abs=0.005)
+
+
+def test_without_estimates_its_belief_drifts_and_so_does_the_vehicle() -> None:
+    limits = GuidedLimits(dead_reckoning_s=1.0, drift_m_s=0.01)
+    rov = GuidedRov(START, limits=limits)
+    rov.set_mode("POSHOLD")
+    for k in range(1, 40):  # good estimates for 2 s, then none
+        rov.on_estimate(k * 0.05, rov.state(k * 0.05).position_m)
+    still = rov.state(3.0).position_m.copy()
+    assert still == pytest.approx(START, abs=0.005)
+    # 30 s later its belief has drifted about 0.3 m along +x: it holds 0.3 m short along -x.
+    moved = rov.state(33.0).position_m - still
+    assert moved[0] == pytest.approx(-0.30, abs=0.05)
+    assert abs(moved[1]) < 1e-6
