@@ -17,7 +17,7 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import TextIO
+from typing import Any, TextIO
 
 import numpy as np
 
@@ -146,6 +146,8 @@ def main(
     )
     mission_json = out / "mission" / "mission.json"
     mission_figures = json.loads(mission_json.read_text()) if mission_json.exists() else None
+    if mission is not None and watch is not None and mission_figures is not None:
+        mission_figures["truth"] = _flown_against_plan(mission, tank, watch.accuracy)
     accuracy = watch.accuracy if watch is not None else Accuracy()
     summary = accuracy.summary()
     figures = {
@@ -205,10 +207,13 @@ def main(
     print(row(f"{tank}/{trajectory} live", summary), file=stream)
     print(autopilot, file=stream)
     if mission_figures is not None:
+        truth = mission_figures["truth"]
         print(
-            f"mission {mission_figures['mission']}: {mission_figures['state']}, cross-track "
-            f"rms {mission_figures['cross_track_rms_m']} m, p95 "
-            f"{mission_figures['cross_track_p95_m']} m, pauses {mission_figures['pauses']}",
+            f"mission {mission_figures['mission']}: {mission_figures['state']}, "
+            f"{mission_figures['waypoint_reached']} of {mission_figures['waypoints']} "
+            f"waypoints, pauses {mission_figures['pauses']}; the true path against the plan: "
+            f"cross-track rms {truth['cross_track_rms_m']} m, p95 {truth['cross_track_p95_m']} "
+            f"m, good fixes {truth['availability']} of pings while flying",
             file=stream,
         )
     print(f"report: {out}/summary.md (figures.json, 3 PNGs, logs/)", file=stream, flush=True)
@@ -249,6 +254,44 @@ def _mission_start(
     nearest = height / math.tan(math.radians(40.0)) + 1.0
     station = (max(1.0, float(xyz[:, 0].min()) - nearest), float(xyz[:, 1].mean()))
     return points[0].position_m, station
+
+
+def _flown_against_plan(plan_path: Path, tank: TankName, accuracy: Accuracy) -> dict[str, Any]:
+    """The simulator's truth against the plan, from when the ROV first left its start.
+
+    Cross-track is the distance to the nearest leg of the plan (the truth does not know which
+    leg the mission was on); availability is the share of pings with a good fix meanwhile.
+    """
+    from capsd.mission.plan import cross_track_m, load_plan
+    from capsd.simulator.world import make_tank, tank_bounds
+
+    _, points = load_plan(plan_path, tank=tank_bounds(make_tank(tank)))
+    legs = np.array([w.position_m for w in points])
+    pings = sorted(accuracy.pings, key=lambda p: p.stamp_ns)
+    start = legs[0]
+    moving = [
+        i
+        for i, p in enumerate(pings)
+        if float(np.linalg.norm(np.subtract(p.truth_m, start))) > 0.05
+    ]
+    flying = pings[moving[0] :] if moving else []
+
+    def to_plan(position: np.ndarray) -> float:
+        if len(legs) == 1:
+            return float(np.linalg.norm(position - start))
+        return min(cross_track_m(position, legs[k], legs[k + 1]) for k in range(len(legs) - 1))
+
+    distances = np.array([to_plan(np.array(p.truth_m)) for p in flying])
+    good = sum(1 for p in flying if p.estimate_m is not None)
+    return {
+        "pings": len(flying),
+        "availability": round(good / len(flying), 4) if flying else None,
+        "cross_track_rms_m": round(float(np.sqrt(np.mean(distances**2))), 4)
+        if len(flying)
+        else None,
+        "cross_track_p95_m": round(float(np.percentile(distances, 95)), 4) if len(flying) else None,
+        "cross_track_max_m": round(float(distances.max()), 4) if len(flying) else None,
+    }
 
 
 def _last_error(health: Health | None) -> str:

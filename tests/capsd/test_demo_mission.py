@@ -48,3 +48,8 @@ def test_demo_flies_a_short_mission_closed_loop(tmp_path: Path) -> None:
     assert mission["commands"]["engage"] >= 1
     assert mission["commands"]["hold"] >= 1
     assert (out / "mission" / "mission.png").exists()
+    # The simulator's truth against the plan, while flying.
+    truth = mission["truth"]
+    assert truth["pings"] > 50
+    assert truth["cross_track_rms_m"] < 0.15, truth
+    assert truth["availability"] > 0.5, truth
