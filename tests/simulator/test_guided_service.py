@@ -49,7 +49,16 @@ def test_a_guided_target_flies_the_simulated_rov(
         key = str(sample.key_expr)
         truths.append(codec.decode(sample.payload.to_bytes(), encoding=None, key_expr=key))
 
-    client.declare_subscriber(topics.SIM_TRUTH.key("tank", "sim"), on_truth)
+    truth_sub = client.declare_subscriber(topics.SIM_TRUTH.key("tank", "sim"), on_truth)
+    try:
+        _fly(port, truths)
+    finally:
+        truth_sub.undeclare()
+    assert sim.popen.poll() is None
+
+
+def _fly(port: int, truths: list[GroundTruth]) -> None:
+    """Play the bridge over MAVLink: estimates, GUIDED and a target, then POSHOLD."""
     wait_for(lambda: truths, timeout_s=30, what="the simulator's truth")
     assert truths[-1].rov_position_m == pytest.approx(START, abs=0.01)
 
@@ -91,4 +100,3 @@ def test_a_guided_target_flies_the_simulated_rov(
         time.sleep(2.0)
         held = np.array(truths[-1].rov_position_m)
         assert held == pytest.approx(TARGET, abs=0.08)
-    assert sim.popen.poll() is None

@@ -77,6 +77,7 @@ class Vehicle:
     def close(self) -> None:
         self._stop.set()
         self._thread.join(timeout=2)
+        self.sender.publisher.undeclare()
 
 
 def _targets_tank(autopilot: AutopilotStandIn) -> list[tuple[float, float, float]]:
@@ -173,11 +174,13 @@ def test_the_bridge_refuses_unsigned_stale_and_fenced_out_commands(
     spawn("run", "mav_bridge", "--config", str(bridge_config))
     key = SiteKey.load(_key_path(tmp_path), config_key="fix_key")
     vehicle = Vehicle(FixSender(client, key))
+    publishers: list[zenoh.Publisher] = []
     try:
         wait_for(lambda: autopilot.recorded.estimates, timeout_s=20, what="estimates flowing")
         key_expr = topics.ROV_COMMAND.key("tank", "topside")
         codec = Codec(RovCommand)
         publisher = client.declare_publisher(key_expr, encoding=zenoh.Encoding(codec.encoding))
+        publishers.append(publisher)
 
         def put(command: RovCommand, *, signed: bool) -> None:
             data = codec.encode(command)
@@ -219,6 +222,8 @@ def test_the_bridge_refuses_unsigned_stale_and_fenced_out_commands(
         assert _targets_tank(autopilot)[0] == pytest.approx((5.0, 4.0, -3.0), abs=1e-4)
     finally:
         vehicle.close()
+        for publisher in publishers:
+            publisher.undeclare()
 
 
 def test_bad_invocations_exit_2_naming_what(
