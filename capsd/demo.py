@@ -33,6 +33,7 @@ from capsd.harness import (
     start_service,
     write_configs,
 )
+from capsd.mission.plan import Waypoint
 from capsd.payloads import Health
 from capsd.simulator.world import TankName, TrajectoryName
 
@@ -76,7 +77,8 @@ def main(
     router_port = port or free_port()
     mav_port = free_port()
     endpoint = f"tcp/127.0.0.1:{router_port}"
-    rov_start, station = (None, None) if mission is None else _mission_start(mission, tank)
+    points = None if mission is None else _plan_points(mission, tank)
+    rov_start, station = (None, None) if points is None else _mission_start(points)
     configs = write_configs(
         logs,
         endpoint,
@@ -146,8 +148,8 @@ def main(
     )
     mission_json = out / "mission" / "mission.json"
     mission_figures = json.loads(mission_json.read_text()) if mission_json.exists() else None
-    if mission is not None and watch is not None and mission_figures is not None:
-        mission_figures["truth"] = _flown_against_plan(mission, tank, watch.accuracy)
+    if points is not None and watch is not None and mission_figures is not None:
+        mission_figures["truth"] = _flown_against_plan(points, watch.accuracy)
     accuracy = watch.accuracy if watch is not None else Accuracy()
     summary = accuracy.summary()
     figures = {
@@ -236,8 +238,16 @@ def main(
     return 0 if services_ok and summary.get("good", 0) > 0 else 1
 
 
+def _plan_points(plan_path: Path, tank: TankName) -> list[Waypoint]:
+    """The plan's waypoints, checked against the simulated tank's walls."""
+    from capsd.mission.plan import load_plan
+    from capsd.simulator.world import make_tank, tank_bounds
+
+    return load_plan(plan_path, tank=tank_bounds(make_tank(tank)))[1]
+
+
 def _mission_start(
-    plan_path: Path, tank: TankName
+    points: list[Waypoint],
 ) -> tuple[tuple[float, float, float], tuple[float, float]]:
     """Where the ROV starts (the plan's first waypoint) and where the ASV keeps station.
 
@@ -245,10 +255,6 @@ def _mission_start(
     sonar (pitched 30 deg down, 20 deg aperture) still see the plan's nearest point, so the
     farthest is in view too when the plan is short enough along x.
     """
-    from capsd.mission.plan import load_plan
-    from capsd.simulator.world import make_tank, tank_bounds
-
-    _, points = load_plan(plan_path, tank=tank_bounds(make_tank(tank)))
     xyz = np.array([p.position_m for p in points])
     height = float(-xyz[:, 2].max()) - 0.2  # the shallowest point, below the sonar
     nearest = height / math.tan(math.radians(40.0)) + 1.0
@@ -256,25 +262,22 @@ def _mission_start(
     return points[0].position_m, station
 
 
-def _flown_against_plan(plan_path: Path, tank: TankName, accuracy: Accuracy) -> dict[str, Any]:
+def _flown_against_plan(points: list[Waypoint], accuracy: Accuracy) -> dict[str, Any]:
     """The simulator's truth against the plan, from when the ROV first left its start.
 
     Cross-track is the distance to the nearest leg of the plan (the truth does not know which
     leg the mission was on); availability is the share of pings with a good fix meanwhile.
     """
-    from capsd.mission.plan import cross_track_m, load_plan
-    from capsd.simulator.world import make_tank, tank_bounds
+    from capsd.mission.plan import cross_track_m
 
-    _, points = load_plan(plan_path, tank=tank_bounds(make_tank(tank)))
     legs = np.array([w.position_m for w in points])
     pings = sorted(accuracy.pings, key=lambda p: p.stamp_ns)
     start = legs[0]
-    moving = [
-        i
-        for i, p in enumerate(pings)
-        if float(np.linalg.norm(np.subtract(p.truth_m, start))) > 0.05
-    ]
-    flying = pings[moving[0] :] if moving else []
+    left = next(
+        (i for i, p in enumerate(pings) if np.linalg.norm(np.subtract(p.truth_m, start)) > 0.05),
+        len(pings),
+    )
+    flying = pings[left:]
 
     def to_plan(position: np.ndarray) -> float:
         if len(legs) == 1:

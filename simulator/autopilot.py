@@ -234,6 +234,7 @@ class AutopilotStandIn:
 
     def _handle(self, link: MavLink, message: object) -> None:
         now = time.time()
+        taken: PositionTarget | None = None  # ArduSub ignores targets outside GUIDED
         with self.lock:
             if isinstance(message, VisionPositionEstimate):
                 self.recorded.estimates.append((now, message))
@@ -253,13 +254,13 @@ class AutopilotStandIn:
             elif isinstance(message, PositionTarget):
                 if self.mode == "GUIDED":
                     self.recorded.position_targets.append((now, message))
+                    taken = message
                 else:
                     self.recorded.targets_refused += 1
-                    message = None  # ignored, as ArduSub ignores targets outside GUIDED
         if isinstance(message, VisionPositionEstimate) and self.on_estimate is not None:
             self.on_estimate(message)
-        elif isinstance(message, PositionTarget) and self.on_target is not None:
-            self.on_target(message)
+        if taken is not None and self.on_target is not None:
+            self.on_target(taken)
         if isinstance(message, CommandLong) and message.command == MAV_CMD_DO_SET_MODE:
             link.send_command_ack(command=message.command, result=self._set_mode(message, now))
         elif isinstance(message, CommandLong) and message.command == MAV_CMD_PREFLIGHT_CALIBRATION:

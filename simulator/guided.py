@@ -21,8 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from capsd.geometry import euler_zyx_to_matrix
-from capsd.simulator.world import GRAVITY, RovState
+from capsd.simulator.world import RovState, rov_attitude
 
 Array = np.ndarray
 DT_S = 0.02
@@ -127,12 +126,7 @@ class GuidedRov:
         k = round((t_s - first_t) / DT_S)
         k = min(max(k, 0), len(self._history) - 1)
         _, p, v, a, yaw = self._history[k]
-        c, s = math.cos(yaw), math.sin(yaw)
-        a_forward = c * float(a[0]) + s * float(a[1])
-        a_left = -s * float(a[0]) + c * float(a[1])
-        pitch = self.tilt * math.atan2(a_forward, GRAVITY) + math.radians(25.0) * -float(v[2])
-        roll = -self.tilt * math.atan2(a_left, GRAVITY)
-        return RovState(p.copy(), v.copy(), a.copy(), euler_zyx_to_matrix(yaw, pitch, roll))
+        return RovState(p.copy(), v.copy(), a.copy(), rov_attitude(v, a, yaw, self.tilt))
 
 
 def _clip(v: Array, limit: float) -> Array:

@@ -102,23 +102,23 @@ class Simulation:
             look_seed = config.sonar_image.look_seed
             seed = config.seed if look_seed is None else look_seed
             self.tank = with_look(self.tank, look, np.random.default_rng([seed, 0xC1]))
-        planned = rov_motion(
+        self.rov: RovMotion = rov_motion(
             self.tank,
             config.trajectory,
             speed_m_s=config.rov_speed_m_s,
             duration_s=self.horizon_s,
             seed=config.seed,
         )
-        self.rov: RovMotion | GuidedRov = planned
+        # What the ASV faces (and the boresight's depth): the trajectory, or, for a ROV flown
+        # live, the ROV where it starts.
+        planned = self.rov
         self.guided: GuidedRov | None = None
         if config.guided is not None:
             start = config.guided.start_m
-            start_m = np.array(start) if start is not None else planned.track.p[0]
+            start_m = np.array(start) if start is not None else self.rov.track.p[0]
             self.guided = GuidedRov(
                 start_m, limits=GuidedLimits(max_speed_m_s=config.guided.max_speed_m_s)
             )
-            self.rov = self.guided
-            # What the ASV faces and the boresight's depth: the ROV where it starts.
             planned = hovering(start_m)
         # The world's mounts are the nominal ones (what the services are told) plus this run's
         # installation errors; the errors' own generator leaves every other stream as it was.

@@ -397,6 +397,20 @@ def _carrot(points: Array, speed: float, duration_s: float, *, closed: bool, dt:
     return np.asarray(pts[idx] + seg[idx] * frac[:, None], dtype=np.float64)
 
 
+def rov_attitude(v: Array, a: Array, yaw: float, tilt_gain: float) -> Array:
+    """R_W_R of a ROV heading `yaw` with velocity `v` and acceleration `a`.
+
+    Positive pitch is nose down (z up, Z-Y-X): it noses down accelerating forward and while
+    descending; it rolls into lateral acceleration.
+    """
+    c, s = math.cos(yaw), math.sin(yaw)
+    a_forward = c * float(a[0]) + s * float(a[1])
+    a_left = -s * float(a[0]) + c * float(a[1])
+    pitch = tilt_gain * math.atan2(a_forward, GRAVITY) + math.radians(25.0) * -float(v[2])
+    roll = -tilt_gain * math.atan2(a_left, GRAVITY)
+    return euler_zyx_to_matrix(yaw, pitch, roll)
+
+
 @dataclass
 class RovMotion:
     """The ROV's trajectory: position, velocity, attitude at any time (deterministic)."""
@@ -408,14 +422,7 @@ class RovMotion:
         p, v, a = self.track.at(t_s)
         speed_xy = math.hypot(float(v[0]), float(v[1]))
         yaw = math.atan2(float(v[1]), float(v[0])) if speed_xy > 0.02 else self._yaw_before(t_s)
-        c, s = math.cos(yaw), math.sin(yaw)
-        a_forward = c * float(a[0]) + s * float(a[1])
-        a_left = -s * float(a[0]) + c * float(a[1])
-        # Positive pitch is nose down (z up, Z-Y-X): it noses down accelerating forward and
-        # while descending; it rolls into lateral acceleration.
-        pitch = self.tilt_gain * math.atan2(a_forward, GRAVITY) + math.radians(25.0) * -float(v[2])
-        roll = -self.tilt_gain * math.atan2(a_left, GRAVITY)
-        return RovState(p, v, a, euler_zyx_to_matrix(yaw, pitch, roll))
+        return RovState(p, v, a, rov_attitude(v, a, yaw, self.tilt_gain))
 
     def _yaw_before(self, t_s: float) -> float:
         # Hovering: keep the last heading it had while moving.

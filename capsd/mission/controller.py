@@ -29,7 +29,7 @@ POSHOLD = "POSHOLD"
 # The vehicle gets this long to take a mode the mission asked for before a different one is
 # read as the pilot's choice.
 MODE_GRACE_S = 3.0
-# A target is repeated at this interval (a lost command is replaced; the bridge also limits).
+# A target is repeated at this interval (a lost command is replaced).
 REPEAT_S = 0.5
 
 
@@ -69,7 +69,6 @@ class MissionController:
         self._last_good_s: float | None = None  # when the newest good fix arrived
         self._good_since_s: float | None = None
         self._position: np.ndarray | None = None
-        self._mode: str | None = None
         self._asked: str | None = None  # the mode we last asked for
         self._asked_at = -math.inf
         self._last_sent = -math.inf
@@ -88,7 +87,7 @@ class MissionController:
             # now and then still lets a paused mission resume.
             return
         gap = now - self._last_good_s if self._last_good_s is not None else math.inf
-        if self._good_since_s is None or gap > self.plan.fix_timeout_s:
+        if gap > self.plan.fix_timeout_s:
             self._good_since_s = now  # a new run of good fixes
         self._last_good_s = now
         self._position = np.array(position_m, dtype=np.float64)
@@ -102,7 +101,6 @@ class MissionController:
 
     def on_mode(self, mode: str, *, now: float) -> None:
         """The vehicle's mode as the bridge reports it."""
-        self._mode = mode
         state = self.progress.state
         if self._asked is None or state not in ("running", "paused"):
             return
@@ -167,7 +165,6 @@ class MissionController:
         p.pauses += 1
         self._paused_at = now
         self._arrived_at = None
-        self._good_since_s = None
         if self._last_good_s is not None:
             p.pause_latency_s.append(now - self._last_good_s)
         self._ask(POSHOLD, now)
@@ -183,7 +180,6 @@ class MissionController:
                 self._arrived_at = None
                 if p.waypoint + 1 >= len(self.points):
                     self._finish("done", "every waypoint reached")
-                    self._ask(POSHOLD, now)
                     return [Command("hold", p.waypoint, None, "mission complete: hold")]
                 p.waypoint += 1
                 self._last_sent = now

@@ -16,6 +16,7 @@ import logging
 import math
 import threading
 import time
+from collections import Counter
 from pathlib import Path
 from typing import Annotated, Literal, TextIO
 
@@ -104,7 +105,7 @@ class MissionNode:
         self.commands = commands
         self.stream = stream
         self.lock = threading.Lock()
-        self.sent: list[tuple[float, Command]] = []
+        self.sent: Counter[str] = Counter()  # commands put, by kind
         self.mode = "unknown"
         self.started = time.monotonic()
         self._last_line = -math.inf
@@ -128,7 +129,7 @@ class MissionNode:
             commands = self.controller.step(now)
             state = self.controller.progress.state
         for command in commands:
-            self.put(command, now)
+            self.put(command)
         if now - self._last_line >= self.progress_period_s:
             self._last_line = now
             self.print_line(now)
@@ -141,9 +142,9 @@ class MissionNode:
         with self.lock:
             commands = self.controller.stop(now)
         for command in commands:
-            self.put(command, now)
+            self.put(command)
 
-    def put(self, command: Command, now: float) -> None:
+    def put(self, command: Command) -> None:
         self.commands.put(
             RovCommand(
                 stamp_ns=time.time_ns(),
@@ -155,7 +156,7 @@ class MissionNode:
                 reason=command.reason,
             )
         )
-        self.sent.append((now, command))
+        self.sent[command.kind] += 1
         if command.kind != "goto" or command.reason != "repeat":
             logger.info(
                 "mission command",
@@ -202,10 +203,7 @@ def report(node: MissionNode, out: Path) -> dict[str, object]:
         "pause_after_last_good_fix_max_s": (
             round(max(p.pause_latency_s), 3) if p.pause_latency_s else None
         ),
-        "commands": {
-            kind: sum(1 for _, c in node.sent if c.kind == kind)
-            for kind in ("engage", "goto", "hold")
-        },
+        "commands": {kind: node.sent[kind] for kind in ("engage", "goto", "hold")},
         "elapsed_s": round(time.monotonic() - node.started, 1),
     }
     (out / "mission.json").write_text(json.dumps(figures, indent=1) + "\n")

@@ -36,6 +36,15 @@ class Lawnmower(ConfigSection, frozen=True, kw_only=True):
     spacing_m: Annotated[float, msgspec.Meta(gt=0.05, le=100.0)] = 1.0
     along: Literal["x", "y"] = "x"  # the lanes' direction
 
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        # Refused before any waypoint is made: a huge area at a fine spacing is a typo.
+        if 2 * lane_count(self) > MAX_WAYPOINTS:
+            raise ValueError(
+                f"{lane_count(self)} lanes at {self.spacing_m:g} m spacing "
+                f"(at most {MAX_WAYPOINTS // 2})"
+            )
+
 
 class Point(ConfigSection, frozen=True, kw_only=True):
     """An inspection point: go there, hover `dwell_s`."""
@@ -77,6 +86,13 @@ class Waypoint:
     dwell_s: float = 0.0
 
 
+def lane_count(pattern: Lawnmower) -> int:
+    """Lanes no more than `spacing_m` apart, the first and last on the rectangle's edges."""
+    across = 1 if pattern.along == "x" else 0
+    width = abs(pattern.corner_b_m[across] - pattern.corner_a_m[across])
+    return max(1, math.ceil(width / pattern.spacing_m - 1e-9)) + 1 if width > 0 else 1
+
+
 def lawnmower_waypoints(pattern: Lawnmower) -> list[Waypoint]:
     """Lane ends, back and forth; lanes spread evenly so the last one is on the far edge."""
     (ax, ay), (bx, by) = pattern.corner_a_m, pattern.corner_b_m
@@ -85,8 +101,7 @@ def lawnmower_waypoints(pattern: Lawnmower) -> list[Waypoint]:
         lane_lo, lane_hi, across_lo, across_hi = ax, bx, ay, by
     else:
         lane_lo, lane_hi, across_lo, across_hi = ay, by, ax, bx
-    width = abs(across_hi - across_lo)
-    lanes = max(1, math.ceil(width / pattern.spacing_m - 1e-9)) + 1 if width > 0 else 1
+    lanes = lane_count(pattern)
     out: list[Waypoint] = []
     for k in range(lanes):
         across = across_lo + (across_hi - across_lo) * (k / (lanes - 1) if lanes > 1 else 0.0)
@@ -107,17 +122,12 @@ def waypoints(plan: Plan) -> list[Waypoint]:
     ]
 
 
-def inside_fence(p: tuple[float, float, float], tank: TankBounds, clearance_m: float) -> bool:
-    """Whether `p` is at least `clearance_m` inside every wall, the floor and the surface."""
-    return tank.clear_of_walls(p, clearance_m)
-
-
 def check_geofence(
     points: list[Waypoint], tank: TankBounds, *, clearance_m: float, source: str
 ) -> None:
     """Every waypoint inside the geofence, else a ConfigError naming the first one outside."""
     for i, w in enumerate(points):
-        if not inside_fence(w.position_m, tank, clearance_m):
+        if not tank.clear_of_walls(w.position_m, clearance_m):
             x, y, z = w.position_m
             raise ConfigError(
                 source,
@@ -131,11 +141,7 @@ def check_geofence(
 def load_plan(path: Path, *, tank: TankBounds) -> tuple[Plan, list[Waypoint]]:
     """Read, validate and geofence a plan file."""
     plan = load_config(path, Plan)
-    points = waypoints(plan)
-    if len(points) > MAX_WAYPOINTS:
-        raise ConfigError(
-            str(path), "lawnmower", f"{len(points)} waypoints (at most {MAX_WAYPOINTS})"
-        )
+    points = waypoints(plan)  # bounded: points by the schema, lanes by Lawnmower
     check_geofence(points, tank, clearance_m=plan.clearance_m, source=str(path))
     return plan, points
 

@@ -405,6 +405,7 @@ class Bridge:
         # An old attitude must not go out with a new position; the surface pressure and
         # density may change with a reboot: read again.
         self.attitude = None
+        self.mode = None  # a mission's hold must never act on a mode from before the loss
         self.ekf_flags = 0
         self.surface_pressure_pa = self.config.depth.surface_pressure_pa
         self.density = self.config.depth.water_density_kg_m3

@@ -14,7 +14,6 @@ from capsd.errors import ConfigError
 from capsd.mission.plan import (
     Lawnmower,
     cross_track_m,
-    inside_fence,
     lawnmower_waypoints,
     load_plan,
 )
@@ -99,11 +98,11 @@ def test_a_bad_plan_fails_naming_where_and_why(
 
 
 def test_fence_keeps_clear_of_walls_floor_and_surface() -> None:
-    assert inside_fence((1.0, 1.0, -1.0), TANK, 0.5)
-    assert not inside_fence((0.4, 1.0, -1.0), TANK, 0.5)
-    assert not inside_fence((1.0, 15.6, -1.0), TANK, 0.5)
-    assert not inside_fence((1.0, 1.0, -0.2), TANK, 0.5)
-    assert not inside_fence((1.0, 1.0, -7.7), TANK, 0.5)
+    assert TANK.clear_of_walls((1.0, 1.0, -1.0), 0.5)
+    assert not TANK.clear_of_walls((0.4, 1.0, -1.0), 0.5)
+    assert not TANK.clear_of_walls((1.0, 15.6, -1.0), 0.5)
+    assert not TANK.clear_of_walls((1.0, 1.0, -0.2), 0.5)
+    assert not TANK.clear_of_walls((1.0, 1.0, -7.7), 0.5)
 
 
 @settings(max_examples=100, deadline=None)
