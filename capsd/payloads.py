@@ -329,7 +329,7 @@ class RovStatus(Payload, frozen=True, kw_only=True):
 
 
 FixQuality = Literal["good", "unsure", "invalid"]
-TrackState = Literal["none", "tracking", "coasting", "lost"]
+TrackState = Literal["none", "tentative", "tracking", "coasting", "lost"]
 LocatorMethod = Literal["capsd", "paper", "ablation"]
 
 

@@ -35,6 +35,7 @@ from capsd.payloads import (
     SonarDetections,
 )
 from capsd.runner import Publisher, ServiceRunner
+from capsd.services.locator.clutter import ClutterMap, ClutterSettings
 from capsd.services.locator.fix import FixUncertainty, rov_centre_z, solve_fix
 from capsd.services.locator.paper import paper_fix
 from capsd.services.locator.timeline import Lookup, Timeline
@@ -103,6 +104,7 @@ class TrackingConfig(ConfigSection, frozen=True, kw_only=True):
     gate_chi2: Positive = 16.27
     lost_after_s: Positive = 2.0
     reinit_after: Annotated[int, msgspec.Meta(ge=1)] = 5
+    confirm_after: Annotated[int, msgspec.Meta(ge=1, le=100)] = 3
 
     def settings(self) -> TrackerSettings:
         return TrackerSettings(
@@ -111,6 +113,27 @@ class TrackingConfig(ConfigSection, frozen=True, kw_only=True):
             gate_chi2=self.gate_chi2,
             lost_after_s=self.lost_after_s,
             reinit_after=self.reinit_after,
+            confirm_after=self.confirm_after,
+        )
+
+
+class ClutterConfig(ConfigSection, frozen=True, kw_only=True):
+    """Static clutter learned while tracking (capsd.services.locator.clutter)."""
+
+    mode: Literal["learn", "off"] = "learn"
+    cell_m: Annotated[float, msgspec.Meta(ge=0.1, le=5.0)] = 0.5
+    static_after_s: Annotated[float, msgspec.Meta(gt=0.0, le=600.0)] = 5.0
+    min_sightings: Annotated[int, msgspec.Meta(ge=1)] = 10
+    forget_after_s: Annotated[float, msgspec.Meta(gt=0.0, le=3600.0)] = 60.0
+    # Candidates nearer the tracked ROV than this are not learned (its own echo's spread).
+    clear_of_track_m: Annotated[float, msgspec.Meta(gt=0.0, le=10.0)] = 1.0
+
+    def settings(self) -> ClutterSettings:
+        return ClutterSettings(
+            cell_m=self.cell_m,
+            static_after_s=self.static_after_s,
+            min_sightings=self.min_sightings,
+            forget_after_s=self.forget_after_s,
         )
 
 
@@ -124,6 +147,7 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     method: MethodConfig = MethodConfig()
     tank: TankBounds | None = TankBounds()
     tracking: TrackingConfig = TrackingConfig()
+    clutter: ClutterConfig = ClutterConfig()
     max_conditioning: Positive = 10.0
     min_confidence: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.5
     # Added (per axis, in quadrature) to the covariances a fix reports, not to the filter's:
@@ -191,6 +215,8 @@ class Locator:
             quat_slerp, capacity=int(buffer_s * 100), max_extrapolation_ns=extrap
         )
         self.tracker = Tracker(config.tracking.settings())
+        self.clutter = ClutterMap(config.clutter.settings())
+        self.static_refusals = 0  # candidates kept from starting a track by the clutter map
         # Velocities wait here until the ping they precede, so the tracker sees time in order.
         self._velocities: list[tuple[int, Array, Array]] = []
         # Zenoh may run different subscribers' callbacks on different threads at once.
@@ -291,6 +317,21 @@ class Locator:
             return result.reason or "no_fix"
         return result.position_m, result.covariance_m2
 
+    def _learn_clutter(
+        self,
+        stamp: int,
+        usable: list[tuple[Array, Array]],
+        taken: int | None,
+        track_m: Array | None,
+    ) -> None:
+        """Candidates away from a confirmed, fresh track are not the ROV: remember where."""
+        if track_m is None or self.tracker.state != "tracking" or not self.tracker.confirmed:
+            return
+        clear = self.config.clutter.clear_of_track_m
+        for i, (position, _) in enumerate(usable):
+            if i != taken and float(np.linalg.norm(position[:2] - track_m[:2])) > clear:
+                self.clutter.observe(stamp, position)
+
     def locate(self, detections: SonarDetections, *, seq: int) -> RovFix:
         """The fix for one ping, tracked; an invalid RovFix says why there is none."""
         with self._lock:
@@ -356,11 +397,19 @@ class Locator:
             )
         usable = [(p, c) for p, c, _ in fixes if c is not None]
         self._fuse_velocities_until(stamp)
-        association = self.tracker.update(stamp, usable)
+        learning = self.config.clutter.mode == "learn"
+        may_start = [not (learning and self.clutter.is_static(stamp, p)) for p, _ in usable]
+        association = self.tracker.update(stamp, usable, may_start=may_start)
         estimate = self.tracker.estimate()
+        if learning:
+            self._learn_clutter(stamp, usable, association.index, estimate.position_m)
         raw = usable[association.index] if association.index is not None else None
         if raw is None and usable:
-            reason = "outside_gate"
+            if estimate.state in ("none", "lost") and not any(may_start):
+                self.static_refusals += len(usable)
+                reason = "static_clutter"
+            else:
+                reason = "outside_gate"
         floor = np.eye(3) * self.config.unmodelled_sigma_m**2
         if raw is not None:
             out = msgspec.structs.replace(
@@ -375,7 +424,8 @@ class Locator:
         if estimate.position_m is None or estimate.covariance_m2 is None:
             return out
         assert estimate.velocity_m_s is not None
-        # Only a measured, gated update is "good"; a coasted prediction is honest but "unsure".
+        # Only a measured, gated update of a confirmed track is "good"; a coasted prediction or
+        # a tentative track is honest but "unsure".
         quality: Literal["good", "unsure"] = (
             "good" if estimate.state == "tracking" and raw is not None else "unsure"
         )
@@ -397,7 +447,12 @@ def main(config: Config) -> int:
     with ServiceRunner("locator", config) as runner:
         fixes: Publisher[RovFix] = runner.publisher(topics.ROV_FIX, signer=signer)
         stage = runner.latency("fix")  # detections arrival to fix put
-        runner.add_counters(lambda: {"late_inputs": locator.late_inputs})
+        runner.add_counters(
+            lambda: {
+                "late_inputs": locator.late_inputs,
+                "static_clutter_refusals": locator.static_refusals,
+            }
+        )
 
         def on_detections(detections: SonarDetections) -> None:
             received_ns = runner.received_ns()

@@ -7,6 +7,11 @@ velocity. A fix is accepted only inside a Mahalanobis gate (chi-square, 3 dof); 
 candidates the one with the smallest distance wins. Without accepted fixes the track coasts with
 growing covariance and is declared lost after `lost_after_s`. A run of consistent fixes outside
 the gate re-initialises the track (a relocalisation, counted in `resets`).
+
+A new track (first start, after a loss, after a relocalisation) is "tentative" until
+`confirm_after` fixes fell inside its gate: one stray echo is never called the ROV. The caller
+may mark candidates that must not start a track (static clutter, capsd.services.locator.clutter);
+they are still associated with an existing track.
 """
 
 from __future__ import annotations
@@ -18,7 +23,7 @@ import numpy as np
 
 from capsd.geometry import Array
 
-TrackState = Literal["none", "tracking", "coasting", "lost"]
+TrackState = Literal["none", "tentative", "tracking", "coasting", "lost"]
 
 
 @dataclass(frozen=True)
@@ -31,6 +36,7 @@ class TrackerSettings:
     gate_chi2: float = 16.27  # chi-square 3 dof, p = 0.999
     lost_after_s: float = 2.0
     reinit_after: int = 5  # consecutive out-of-gate fixes that start a new track
+    confirm_after: int = 3  # gated fixes before a new track is more than tentative
 
 
 @dataclass(frozen=True)
@@ -67,6 +73,11 @@ class Tracker:
         self.resets = 0
         self._outside = 0
         self._outside_last: Array | None = None
+        self._hits = 0  # fixes fused since the track started
+
+    @property
+    def confirmed(self) -> bool:
+        return self._hits >= self.settings.confirm_after
 
     # ------------------------------------------------------------------ model
 
@@ -96,18 +107,32 @@ class Tracker:
         self.state = "tracking"
         self._outside = 0
         self._outside_last = None
+        self._hits = 1
 
     # ------------------------------------------------------------------ inputs
 
-    def update(self, stamp_ns: int, fixes: list[tuple[Array, Array]]) -> Association:
-        """Fuse the best gated fix among `fixes` (position, covariance) taken at `stamp_ns`."""
+    def update(
+        self,
+        stamp_ns: int,
+        fixes: list[tuple[Array, Array]],
+        *,
+        may_start: list[bool] | None = None,
+    ) -> Association:
+        """Fuse the best gated fix among `fixes` (position, covariance) taken at `stamp_ns`.
+
+        `may_start[i]` False: candidate i may update the track but never start a new one.
+        """
         self._expire(stamp_ns)
+        starters = [True] * len(fixes) if may_start is None else may_start
         if not fixes:
             self.coast(stamp_ns)
             return Association(None, None, reinitialised=False)
         if self.state in ("none", "lost") or self.stamp_ns is None:
-            # No track: start on the most certain candidate.
-            best = min(range(len(fixes)), key=lambda i: float(np.trace(fixes[i][1])))
+            # No track: start on the most certain candidate that may start one.
+            allowed = [i for i in range(len(fixes)) if starters[i]]
+            if not allowed:
+                return Association(None, None, reinitialised=False)
+            best = min(allowed, key=lambda i: float(np.trace(fixes[i][1])))
             self._start(stamp_ns, *fixes[best])
             return Association(best, None, reinitialised=True)
         if stamp_ns < self.stamp_ns:
@@ -123,6 +148,10 @@ class Tracker:
         if distance2 > self.settings.gate_chi2:
             self.x, self.P, self.stamp_ns = x_pred, p_pred, stamp_ns
             self.state = "coasting"
+            outside = [(d, i) for d, i in scored if starters[i]]
+            if not outside:
+                return Association(None, distance2, reinitialised=False)
+            index = min(outside)[1]
             if self._consistent_outside(fixes[index][0]):
                 self.resets += 1
                 self._start(stamp_ns, *fixes[index])
@@ -137,6 +166,7 @@ class Tracker:
         self.stamp_ns = self.last_update_ns = stamp_ns
         self.state = "tracking"
         self._outside = 0
+        self._hits += 1
         return Association(index, distance2, reinitialised=False)
 
     def update_velocity(self, stamp_ns: int, velocity: Array, covariance: Array) -> None:
@@ -184,6 +214,7 @@ class Tracker:
         if self.state in ("none", "lost") or self.stamp_ns is None:
             return Estimate(self.state, self.stamp_ns or 0, None, None, None, self.resets)
         cov = 0.5 * (self.P[0:3, 0:3] + self.P[0:3, 0:3].T)
+        state: TrackState = self.state if self.confirmed else "tentative"
         return Estimate(
-            self.state, self.stamp_ns, self.x[0:3].copy(), self.x[3:6].copy(), cov, self.resets
+            state, self.stamp_ns, self.x[0:3].copy(), self.x[3:6].copy(), cov, self.resets
         )

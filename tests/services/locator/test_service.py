@@ -8,7 +8,7 @@ import numpy as np
 
 from capsd.geometry import Transform
 from capsd.payloads import AsvPose, Detection, RovAttitude, RovDepth, SonarDetections
-from capsd.services.locator.service import Config, Locator, MethodConfig
+from capsd.services.locator.service import ClutterConfig, Config, Locator, MethodConfig
 from capsd.sonar_geometry import to_polar
 from capsd.tank import TankBounds
 
@@ -19,10 +19,12 @@ ROV = np.array([8.0, 5.0, -2.0])
 ASV = np.array([4.0, 5.0, 0.0])
 
 
-def _feed_inputs(locator: Locator, *, until_s: float, depth_until_s: float | None = None) -> None:
+def _feed_inputs(
+    locator: Locator, *, until_s: float, depth_until_s: float | None = None, from_s: float = 0.0
+) -> None:
     steps = int(until_s * 50)
     depth_steps = steps if depth_until_s is None else int(depth_until_s * 50)
-    for k in range(steps + 1):
+    for k in range(int(from_s * 50), steps + 1):
         stamp = k * SECOND // 50
         locator.on_pose(
             AsvPose(
@@ -61,17 +63,21 @@ def _locator(**changes: object) -> Locator:
     return Locator(config)
 
 
-def test_fix_at_the_true_position() -> None:
+def test_fix_at_the_true_position_good_once_the_track_is_confirmed() -> None:
     locator = _locator()
     _feed_inputs(locator, until_s=1.0)
     fix = locator.locate(_ping(SECOND // 2, _detection_of(locator, ROV)), seq=0)
-    assert fix.quality == "good"
+    # One echo is not yet the ROV: a new track is tentative, its fixes unsure.
+    assert (fix.quality, fix.track_state) == ("unsure", "tentative")
     assert fix.raw_position_m is not None
     assert np.allclose(fix.raw_position_m, ROV, atol=1e-6)
     assert fix.asv_pose_stamp_ns == SECOND // 2  # causal matching: the sample at the ping
+    fix = locator.locate(_ping(SECOND // 2 + SECOND // 200, _detection_of(locator, ROV)), seq=1)
+    assert fix.quality == "unsure"
     # Between samples, causal matching extrapolates from the two before the ping.
-    fix = locator.locate(_ping(SECOND // 2 + SECOND // 100, _detection_of(locator, ROV)), seq=1)
+    fix = locator.locate(_ping(SECOND // 2 + SECOND // 100, _detection_of(locator, ROV)), seq=2)
     assert fix.asv_pose_stamp_ns == SECOND // 2
+    assert (fix.quality, fix.track_state) == ("good", "tracking")
     interpolating = _locator(method=MethodConfig(preset="custom", matching="interpolate"))
     _feed_inputs(interpolating, until_s=1.0)
     ping = _ping(SECOND // 2 + SECOND // 100, _detection_of(interpolating, ROV))
@@ -134,3 +140,30 @@ def test_association_prefers_the_track_over_a_more_confident_ghost() -> None:
     assert fix.quality == "good"
     assert fix.raw_position_m is not None
     assert np.allclose(fix.raw_position_m, ROV, atol=1e-6)
+
+
+def _ghost_then_loss(locator: Locator) -> list[str]:
+    """8 s tracking the ROV with a static echo 1.6 m off in every ping, then only the echo."""
+    ghost = ROV + np.array([0.5, 1.5, 0.0])
+    qualities = []
+    for k in range(140):  # 10 Hz
+        stamp = k * SECOND // 10
+        _feed_inputs(locator, from_s=k / 10, until_s=(k + 1) / 10)
+        seen = [_detection_of(locator, ghost, confidence=0.8)]
+        if k < 80:
+            seen.append(_detection_of(locator, ROV))
+        fix = locator.locate(_ping(stamp, *seen), seq=k)
+        if k >= 80:
+            qualities.append(f"{fix.quality}:{fix.no_fix_reason}")
+    return qualities
+
+
+def test_a_static_echo_learned_while_tracking_never_restarts_the_track() -> None:
+    locator = _locator()
+    after_loss = _ghost_then_loss(locator)
+    assert not any(q.startswith("good") for q in after_loss)
+    assert after_loss[-1] == "invalid:static_clutter"
+    assert locator.static_refusals > 0
+    # Without the clutter map the lost track restarts on the echo, called good.
+    blind = _locator(clutter=ClutterConfig(mode="off"))
+    assert any(q.startswith("good") for q in _ghost_then_loss(blind))

@@ -111,8 +111,37 @@ def test_lost_after_the_configured_time_then_restarts() -> None:
     lost = tracker.estimate()
     assert lost.state == "lost"
     assert lost.position_m is None
-    tracker.update(last + 3 * SECOND, [(np.array([1.0, 1.0, -1.0]), np.eye(3) * 1e-4)])
-    assert tracker.estimate().state == "tracking"
+    restart = np.array([1.0, 1.0, -1.0])
+    for k in range(3):
+        tracker.update(last + 3 * SECOND + k * SECOND // 20, [(restart, np.eye(3) * 1e-4)])
+        assert tracker.estimate().state == ("tracking" if k == 2 else "tentative")
+
+
+def test_a_new_track_is_tentative_until_confirmed_and_a_lone_echo_never_confirms() -> None:
+    tracker = Tracker(TrackerSettings(confirm_after=3))
+    echo = (np.array([3.0, 2.0, -1.0]), np.eye(3) * 1e-4)
+    tracker.update(0, [echo])
+    assert tracker.estimate().state == "tentative"
+    for k in range(1, 45):  # 2.2 s of nothing: the tentative track coasts, then is lost
+        tracker.update(k * SECOND // 20, [])
+        assert tracker.estimate().state in ("tentative", "lost")
+    assert tracker.estimate().state == "lost"
+
+
+def test_candidates_that_may_not_start_are_still_associated() -> None:
+    clutter = (np.array([7.0, 5.0, -2.0]), np.eye(3) * 1e-4)
+    tracker = Tracker(TrackerSettings())
+    association = tracker.update(0, [clutter], may_start=[False])
+    assert association.index is None
+    assert tracker.estimate().state == "none"
+    # Out of the gate of a confirmed track, repeatedly: no relocalisation onto it either.
+    tracker = _tracking(np.array([5.0, 5.0, -2.0]))
+    for k in range(10):
+        tracker.update(SECOND + k * SECOND // 10, [clutter], may_start=[False])
+    assert tracker.estimate().resets == 0
+    # Inside the gate it updates the track like any fix.
+    near = (np.array([5.02, 5.0, -2.0]), np.eye(3) * 1e-4)
+    assert tracker.update(2 * SECOND, [near], may_start=[False]).index == 0
 
 
 def test_consistent_jump_reinitialises_and_counts_a_reset() -> None:
