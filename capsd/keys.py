@@ -27,6 +27,8 @@ class Subject(StrEnum):
     ROV_STATUS = "rov/status"
     ROV_FIX = "locator/fix"
     ROV_COMMAND = "mission/command"  # a mission's GUIDED targets and holds, for the bridge
+    ASV_COMMAND = "follow/command"  # the follower's GUIDED targets for the ASV's bridge
+    ASV_AUTOPILOT = "asv/autopilot"  # the ASV autopilot's state, from its bridge
     SIM_TRUTH = "sim/truth"
     SIM_LABEL = "sim/label"
     # The simulator's stand-ins made from truth plus noise (an ASV pose, detections): on keys

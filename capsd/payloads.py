@@ -314,7 +314,7 @@ class RovVelocity(Payload, frozen=True, kw_only=True):
         _check_covariance("covariance_m2_s2", self.covariance_m2_s2)
 
 
-class RovStatus(Payload, frozen=True, kw_only=True):
+class AutopilotStatus(Payload, frozen=True, kw_only=True):
     """The autopilot's state as the bridge sees it."""
 
     armed: bool
@@ -369,21 +369,25 @@ class RovFix(Payload, frozen=True, kw_only=True):
 # ---------------------------------------------------------------- missions
 
 
-RovCommandKind = Literal["engage", "goto", "hold"]
+CommandKind = Literal["engage", "goto", "hold"]
 
 
-class RovCommand(Payload, frozen=True, kw_only=True):
-    """A mission's command to the ROV, signed like fixes; the bridge turns it into MAVLink.
+class VehicleCommand(Payload, frozen=True, kw_only=True):
+    """A command to a vehicle's autopilot, signed like fixes; its bridge turns it into MAVLink.
 
-    engage: switch ArduSub to GUIDED and go to `position_m`; goto: move the GUIDED target (only
-    acted on while the vehicle is in GUIDED); hold: switch to POSHOLD (only from GUIDED: a mode
-    the pilot chose is never overridden). `position_m` is in the tank frame W.
+    From a ROV mission (`mission/command`) or the ASV's follower (`follow/command`). engage:
+    switch to GUIDED and go to `position_m` (ROV missions only: the ASV's pilot engages);
+    goto: move the GUIDED target (only acted on while the vehicle is in GUIDED); hold: switch
+    to the autopilot's position hold (only from GUIDED: a mode the pilot chose is never
+    overridden). `position_m` is in the tank frame W, `heading_rad` the body x axis's heading
+    in W (counter-clockwise from W's x; None: the autopilot keeps its own).
     """
 
     mission: Annotated[str, msgspec.Meta(min_length=1, max_length=64)]
-    kind: RovCommandKind
+    kind: CommandKind
     waypoint: NonNegInt = 0
     position_m: Vec3 | None = None
+    heading_rad: Annotated[float, msgspec.Meta(ge=-7.0, le=7.0)] | None = None
     reason: Annotated[str, msgspec.Meta(max_length=200)] = ""
 
     def __post_init__(self) -> None:
@@ -480,7 +484,7 @@ ALL_PAYLOADS: tuple[type[Payload], ...] = (
     RovDepth,
     RovAttitude,
     RovVelocity,
-    RovStatus,
+    AutopilotStatus,
     RovFix,
     ReferencePose,
     GroundTruth,

@@ -52,6 +52,11 @@ SERVICES: dict[str, ServiceEntry] = {
             "ArduSub telemetry onto the bus, gated estimates into ArduSub",
         ),
         ServiceEntry(
+            "asv_follow",
+            "capsd.services.asv_follow.service",
+            "ASV follower: GUIDED targets that keep the ROV in the sonar's view",
+        ),
+        ServiceEntry(
             "oculus",
             "capsd.services.sonar_detect.driver",
             "Oculus multibeam driver: sonar frames onto the bus",

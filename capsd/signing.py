@@ -15,11 +15,15 @@ from __future__ import annotations
 
 import hashlib
 import hmac
+import logging
 import os
 import stat
 from pathlib import Path
+from typing import Literal
 
 from capsd.errors import ConfigError
+
+logger = logging.getLogger(__name__)
 
 TAG_BYTES = 32
 KEY_BYTES = 32
@@ -79,3 +83,23 @@ def write_key(path: Path, key: SiteKey) -> None:
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o400)
     with os.fdopen(fd, "w", encoding="ascii") as out:
         out.write(key.hex() + "\n")
+
+
+def site_key(
+    *, auth: Literal["required", "off"], path: str | None, needed_for: str
+) -> SiteKey | None:
+    """The site's fix key a service's config names, or None with `auth: off` (a bench).
+
+    Required and not named: a ConfigError at the `fix_key` field saying what it is needed for.
+    """
+    if auth == "off":
+        logger.warning("fix_auth is off: %s without the site's key", needed_for)
+        return None
+    if path is None:
+        raise ConfigError(
+            "config",
+            "fix_key",
+            f"{needed_for} needs the site's fix key: give its path "
+            "(deploy/security/make-site-certs.sh writes fix.key), or `fix_auth: off` on a bench",
+        )
+    return SiteKey.load(Path(path), config_key="fix_key")

@@ -42,9 +42,11 @@ SONAR_DETECTIONS = Topic(Subject.SONAR_DETECTIONS, pl.SonarDetections)
 ROV_DEPTH = Topic(Subject.ROV_DEPTH, pl.RovDepth)
 ROV_ATTITUDE = Topic(Subject.ROV_ATTITUDE, pl.RovAttitude)
 ROV_VELOCITY = Topic(Subject.ROV_VELOCITY, pl.RovVelocity)
-ROV_STATUS = Topic(Subject.ROV_STATUS, pl.RovStatus)
+ROV_STATUS = Topic(Subject.ROV_STATUS, pl.AutopilotStatus)
 ROV_FIX = Topic(Subject.ROV_FIX, pl.RovFix)
-ROV_COMMAND = Topic(Subject.ROV_COMMAND, pl.RovCommand)
+ROV_COMMAND = Topic(Subject.ROV_COMMAND, pl.VehicleCommand)
+ASV_COMMAND = Topic(Subject.ASV_COMMAND, pl.VehicleCommand)
+ASV_AUTOPILOT = Topic(Subject.ASV_AUTOPILOT, pl.AutopilotStatus)
 REFERENCE_POSE = Topic(Subject.REFERENCE_POSE, pl.ReferencePose)
 SIM_TRUTH = Topic(Subject.SIM_TRUTH, pl.GroundTruth)
 SIM_LABEL = Topic(Subject.SIM_LABEL, pl.SonarLabel)
@@ -54,6 +56,7 @@ SIM_CONTROL = Topic(Subject.SIM_CONTROL, pl.SimControl)
 
 ALL_TOPICS: tuple[Topic[Any], ...] = (
     ASV_POSE, ASV_POSE_EXTERNAL, ASV_IMU, ASV_SCAN, SONAR_FRAME, SONAR_DETECTIONS,
-    ROV_DEPTH, ROV_ATTITUDE, ROV_VELOCITY, ROV_STATUS, ROV_FIX, ROV_COMMAND, REFERENCE_POSE,
+    ROV_DEPTH, ROV_ATTITUDE, ROV_VELOCITY, ROV_STATUS, ROV_FIX, ROV_COMMAND, ASV_COMMAND,
+    ASV_AUTOPILOT, REFERENCE_POSE,
     SIM_TRUTH, SIM_LABEL, SIM_ASV_POSE, SIM_DETECTIONS, SIM_CONTROL,
 )  # fmt: skip

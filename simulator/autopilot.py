@@ -1,4 +1,4 @@
-"""An ArduSub stand-in on a loopback MAVLink link: telemetry out, parameters, and a recorder.
+"""An ArduSub (or ArduRover) stand-in on a loopback link: telemetry, parameters, a recorder.
 
 It listens (`tcpin:`), sends HEARTBEAT (1 Hz), ATTITUDE, SCALED_PRESSURE2, SYSTEM_TIME and
 EKF_STATUS_REPORT (a model of EKF3's position test ratio, see `pos_horiz_ratio`) at the rates
@@ -27,6 +27,7 @@ from capsd.protocols.mavlink import (
     MAV_RESULT_ACCEPTED,
     MAV_RESULT_DENIED,
     Attitude,
+    Autopilot,
     CommandLong,
     EkfStatus,
     GlobalOrigin,
@@ -61,6 +62,11 @@ RHO_G = 1000.0 * 9.80665
 EKF_WINDOW_S = 3.0
 EKF_GATE_M = 0.3
 EKF_HEALTHY_FLAGS = 0x1FF  # attitude, velocities, positions, const-pos: what a good EKF says
+# Modes the autopilot refuses without an EKF position (external positions arriving).
+POSITION_MODES: dict[Autopilot, tuple[str, ...]] = {
+    "ardusub": ("GUIDED", "POSHOLD"),
+    "ardurover": ("GUIDED", "LOITER"),
+}
 
 
 @dataclass(frozen=True)
@@ -101,6 +107,7 @@ class AutopilotStandIn:
         params: dict[str, float] | None = None,
         armed: bool = True,
         mode: str = "POSHOLD",
+        autopilot: Autopilot = "ardusub",
         boot_depth_m: float = 0.0,
         on_mode: Callable[[str], None] | None = None,
         on_target: Callable[[PositionTarget], None] | None = None,
@@ -118,6 +125,8 @@ class AutopilotStandIn:
         self.air_pressure_pa = self.params["BARO2_GND_PRESS"]
         self.params["BARO2_GND_PRESS"] += boot_depth_m * RHO_G * self.params["BARO_SPEC_GRAV"]
         self.armed = armed
+        self.autopilot: Autopilot = autopilot
+        mode_number(mode, autopilot)  # a mode this autopilot has, or KeyError now
         self.mode = mode
         self.recorded = Recorded()
         self.lock = threading.Lock()
@@ -176,7 +185,9 @@ class AutopilotStandIn:
                 if now >= next_due["heartbeat"]:
                     next_due["heartbeat"] = now + 1.0
                     link.send_heartbeat_vehicle(
-                        armed=self.armed, custom_mode=mode_number(self.mode)
+                        armed=self.armed,
+                        custom_mode=mode_number(self.mode, self.autopilot),
+                        autopilot=self.autopilot,
                     )
                 for msg, hz in list(self._rates_hz.items()):
                     if hz > 0 and now >= next_due.get(msg, 0.0):
@@ -296,14 +307,14 @@ class AutopilotStandIn:
     def _set_mode(self, command: CommandLong, now: float) -> int:
         """MAV_CMD_DO_SET_MODE: position modes only with external positions arriving."""
         try:
-            asked = mode_name(int(command.params[1]))
+            asked = mode_name(int(command.params[1]), self.autopilot)
         except (ValueError, OverflowError):
             return MAV_RESULT_DENIED
-        if asked.startswith("MODE"):  # a number ArduSub has no mode for
+        if asked.startswith("MODE"):  # a number the autopilot has no mode for
             return MAV_RESULT_DENIED
         with self.lock:
             fresh = bool(self.recorded.estimates) and now - self.recorded.estimates[-1][0] < 1.0
-            taken = asked not in ("GUIDED", "POSHOLD") or fresh
+            taken = asked not in POSITION_MODES[self.autopilot] or fresh
             if taken:
                 self.mode = asked
             self.recorded.modes.append((now, asked, taken))

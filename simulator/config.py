@@ -143,6 +143,22 @@ class GuidedConfig(ConfigSection, frozen=True, kw_only=True):
     max_speed_m_s: Annotated[float, msgspec.Meta(gt=0.0, le=2.0)] = 0.3
 
 
+class AsvGuidedConfig(ConfigSection, frozen=True, kw_only=True):
+    """The ASV driven by an ArduRover stand-in the simulator hosts (`asv_mode: guided`).
+
+    It listens for the ASV's bridge (`role: asv`) on tcpin:127.0.0.1:`port`; `ned_*` must be
+    that bridge's `ned` settings. `mode` is what the pilot left it in: GUIDED lets a follower
+    drive it (nothing in CAP-SD ever switches the ASV to GUIDED), MANUAL keeps it still.
+    """
+
+    port: Annotated[int, msgspec.Meta(ge=1, le=65535)]
+    ned_heading_deg: Annotated[float, msgspec.Meta(ge=-360.0, le=360.0)] = 0.0
+    ned_origin_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    start_heading_deg: Annotated[float, msgspec.Meta(ge=-360.0, le=360.0)] | None = None
+    mode: Literal["GUIDED", "MANUAL"] = "GUIDED"
+    max_speed_m_s: Annotated[float, msgspec.Meta(gt=0.0, le=2.0)] = 0.3
+
+
 class Config(ServiceConfig, frozen=True, kw_only=True):
     """Simulator configuration."""
 
@@ -159,7 +175,8 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     trajectory: TrajectoryName = "square"
     rov_speed_m_s: Annotated[float, msgspec.Meta(gt=0.0, le=0.5)] = 0.3
     seed: int = 0
-    asv_mode: Literal["follow", "stationary", "spin"] = "follow"  # spin: turns on the spot
+    # spin: turns on the spot; guided: driven live by an ArduRover stand-in (`asv_guided`).
+    asv_mode: Literal["follow", "stationary", "spin", "guided"] = "follow"
     # How far behind the ROV (along W's x) the following ASV keeps; None puts the ROV on the
     # sonar's boresight at the upper flight level.
     asv_standoff_m: Annotated[float, msgspec.Meta(ge=0.0, le=50.0)] | None = None
@@ -183,13 +200,17 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     # Set: the ROV is not on `trajectory` but flown by an ArduSub stand-in that the simulator
     # hosts (GUIDED targets from the bridge, on its own estimates); the ASV must not follow.
     guided: GuidedConfig | None = None
+    asv_guided: AsvGuidedConfig | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.guided is not None and self.asv_mode == "follow":
             raise ValueError(
                 "`guided`: the ASV cannot follow a ROV flown live; use asv_mode: stationary"
+                " or guided"
             )
+        if (self.asv_mode == "guided") != (self.asv_guided is not None):
+            raise ValueError("`asv_guided`: needed with `asv_mode: guided`, and only then")
         for i, (start, end) in enumerate(self.sonar_dropouts_s):
             if not 0.0 <= start < end:
                 raise ValueError(

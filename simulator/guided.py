@@ -1,4 +1,6 @@
-"""The ROV under its autopilot: it holds, or flies to a GUIDED target, on its own estimate.
+"""The vehicles under their autopilots: hold, or go to a GUIDED target, on their own estimate.
+
+The ROV (GuidedRov, ArduSub) and the ASV (GuidedAsv, ArduRover on an omni frame).
 
 What ArduSub does with a position target, reduced to what the closed loop needs: in GUIDED
 with a target the vehicle flies a straight line to it (speed and acceleration limited, slowing
@@ -21,7 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from capsd.simulator.world import RovState, rov_attitude
+from capsd.geometry import euler_zyx_to_matrix
+from capsd.simulator.world import RovState, Waves, rov_attitude, wave_motion
 
 Array = np.ndarray
 DT_S = 0.02
@@ -132,3 +135,137 @@ class GuidedRov:
 def _clip(v: Array, limit: float) -> Array:
     norm = float(np.linalg.norm(v))
     return v if norm <= limit else v * (limit / norm)
+
+
+@dataclass(frozen=True)
+class AsvLimits:
+    """How the ArduRover stand-in drives the ASV (an omnidirectional MallARD-like frame)."""
+
+    max_speed_m_s: float = 0.3
+    max_accel_m_s2: float = 0.15
+    approach_gain_1_s: float = 0.6
+    velocity_tau_s: float = 0.8
+    max_yaw_rate_rad_s: float = math.radians(20.0)
+    yaw_gain_1_s: float = 1.0
+    dead_reckoning_s: float = 1.0
+    drift_m_s: float = 0.01
+
+
+class GuidedAsv:
+    """The ASV under ArduRover: drive with `set_mode`, `set_target`, `on_estimate`.
+
+    In GUIDED with a target it translates straight to it (omni frame: any direction, speed and
+    acceleration limited) while turning to the target's heading (rate limited); in GUIDED
+    without a target, LOITER and HOLD it keeps where it believed it was when the mode began;
+    otherwise (no pilot in the simulation) it drifts to a stop. Like the ROV it steers on what
+    its EKF believes: the truth plus the error of the newest estimate (our pose of it). Waves
+    are added on top (`pose`). The interface is AsvMotion's: `pose(t)`, `acceleration(t)`.
+    """
+
+    def __init__(
+        self,
+        start_xy: tuple[float, float],
+        start_yaw_rad: float,
+        *,
+        waves: Waves,
+        mode: str = "MANUAL",
+        limits: AsvLimits = AsvLimits(),
+    ):
+        self.limits = limits
+        self.waves = waves
+        self._lock = threading.Lock()
+        self._mode = mode
+        self._target: tuple[Array, float | None] | None = None
+        self._p = np.array([start_xy[0], start_xy[1]], dtype=np.float64)
+        self._v = np.zeros(2)
+        self._a = np.zeros(2)
+        self._yaw = float(start_yaw_rad)
+        self._hold = (self._p.copy(), self._yaw)
+        self._error = np.zeros(2)
+        self._last_estimate_t = -math.inf
+        self._t = 0.0
+        self._history: deque[tuple[float, Array, Array, float]] = deque(
+            maxlen=int(HISTORY_S / DT_S)
+        )
+        self._history.append((0.0, self._p.copy(), self._a.copy(), self._yaw))
+
+    # ------------------------------------------------------------------ the autopilot's side
+
+    @property
+    def mode(self) -> str:
+        return self._mode
+
+    def set_mode(self, mode: str) -> None:
+        with self._lock:
+            if mode != self._mode:
+                self._hold = (self._p + self._error, self._yaw)
+                self._target = None
+            self._mode = mode
+
+    def set_target(self, target_xy: Array, heading_rad: float | None) -> None:
+        """A GUIDED target in W (and heading, counter-clockwise from W's x); else ignored."""
+        with self._lock:
+            if self._mode == "GUIDED":
+                self._target = (np.array(target_xy[:2], dtype=np.float64), heading_rad)
+
+    def on_estimate(self, t_s: float, estimate_xy: Array) -> None:
+        """An external position estimate of the ASV measured at sim time `t_s`."""
+        self.pose(t_s)  # integrate up to it
+        with self._lock:
+            first_t = self._history[0][0]
+            k = min(max(round((t_s - first_t) / DT_S), 0), len(self._history) - 1)
+            self._error = np.asarray(estimate_xy[:2], dtype=np.float64) - self._history[k][1]
+            self._last_estimate_t = max(self._last_estimate_t, self._t)
+
+    # ------------------------------------------------------------------ the world's side
+
+    def pose(self, t_s: float) -> tuple[Array, Array]:
+        """(R_W_B, t_W_B) at `t_s`, waves included."""
+        p, _, yaw = self._at(t_s)
+        roll, pitch, heave = wave_motion(self.waves, t_s)
+        return euler_zyx_to_matrix(yaw, pitch, roll), np.array([p[0], p[1], heave])
+
+    def acceleration(self, t_s: float) -> Array:
+        _, a, _ = self._at(t_s)
+        w = self.waves
+        omega = 2 * math.pi / w.heave_period_s
+        heave_acc = -w.heave_m * omega * omega * math.sin(omega * t_s + 2.0)
+        return np.array([a[0], a[1], heave_acc])
+
+    def _at(self, t_s: float) -> tuple[Array, Array, float]:
+        with self._lock:
+            while self._t < t_s:
+                self._step()
+            # Interpolated: the IMU differentiates the attitude over a millisecond.
+            first_t = self._history[0][0]
+            x = min(max((t_s - first_t) / DT_S, 0.0), len(self._history) - 1.000001)
+            k = int(x)
+            f = x - k
+            _, p0, a0, yaw0 = self._history[k]
+            _, p1, a1, yaw1 = self._history[min(k + 1, len(self._history) - 1)]
+            return p0 + f * (p1 - p0), a0 + f * (a1 - a0), yaw0 + f * (yaw1 - yaw0)
+
+    def _step(self) -> None:
+        lim = self.limits
+        stale = self._t - self._last_estimate_t > lim.dead_reckoning_s
+        if stale and math.isfinite(self._last_estimate_t):
+            self._error = self._error + np.array([lim.drift_m_s, 0.0]) * DT_S
+        yaw_goal: float | None = None
+        if self._mode in ("GUIDED", "LOITER", "HOLD"):
+            goal, yaw_goal = self._target if self._target is not None else self._hold
+            to_go = goal - (self._p + self._error)
+            wanted = _clip(lim.approach_gain_1_s * to_go, lim.max_speed_m_s)
+        else:
+            wanted = np.zeros(2)
+        accel = _clip((wanted - self._v) / lim.velocity_tau_s, lim.max_accel_m_s2)
+        self._v = self._v + accel * DT_S
+        self._p = self._p + self._v * DT_S
+        self._a = accel
+        if yaw_goal is not None:
+            turn = math.atan2(math.sin(yaw_goal - self._yaw), math.cos(yaw_goal - self._yaw))
+            rate = max(
+                -lim.max_yaw_rate_rad_s, min(lim.max_yaw_rate_rad_s, lim.yaw_gain_1_s * turn)
+            )
+            self._yaw += rate * DT_S
+        self._t += DT_S
+        self._history.append((self._t, self._p.copy(), self._a.copy(), self._yaw))

@@ -5,7 +5,8 @@ sim time comes. Each stream's count, CPU time (generation on the look-ahead thre
 publishing) and worst lateness are reported in the service's Health counters, which
 `capsd bench sim` reads. With `guided` set, the simulator also hosts the ArduSub stand-in the
 bridge connects to: the stand-in reports the simulated ROV's attitude and depth, and its GUIDED
-targets, modes and the estimates it receives fly the ROV (capsd.simulator.guided).
+targets, modes and the estimates it receives fly the ROV (capsd.simulator.guided). With
+`asv_mode: guided`, likewise an ArduRover stand-in for the ASV's bridge drives the ASV.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ from capsd.protocols.mavlink import PositionTarget, VisionPositionEstimate
 from capsd.runner import Publisher, ServiceRunner
 from capsd.simulator.autopilot import AutopilotStandIn, VehicleState
 from capsd.simulator.config import Config
-from capsd.simulator.guided import GuidedRov
+from capsd.simulator.guided import GuidedAsv, GuidedRov
 from capsd.simulator.sim import Event, Simulation
 
 __all__ = ["Config", "main"]
@@ -141,6 +142,46 @@ def hosted_autopilot(config: Config, rov: GuidedRov, start_ns: int) -> Autopilot
     )
 
 
+def hosted_asv_autopilot(config: Config, asv: GuidedAsv, start_ns: int) -> AutopilotStandIn:
+    """The ArduRover stand-in that drives `asv` (sim time 0 is wall time `start_ns`)."""
+    assert config.asv_guided is not None
+    g = config.asv_guided
+    ned = TankToNed(math.radians(g.ned_heading_deg), np.array(g.ned_origin_m))
+
+    def sim_time(unix_s: float) -> float:
+        return max(0.0, unix_s - start_ns / 1e9)
+
+    def vehicle(unix_s: float) -> VehicleState:
+        rotation, position = asv.pose(sim_time(unix_s))
+        roll, pitch, yaw = ned.attitude_to_ned(rotation)
+        north, east, _ = ned.position(position)
+        return VehicleState(roll, pitch, yaw, 0.0, float(north), float(east))
+
+    def on_target(target: PositionTarget) -> None:
+        xyz = ned.position_to_tank(np.array([target.north_m, target.east_m, target.down_m]))
+        heading = None
+        if target.yaw_rad is not None:
+            r_w_b = ned.attitude_to_tank(0.0, 0.0, target.yaw_rad)
+            heading = math.atan2(float(r_w_b[1, 0]), float(r_w_b[0, 0]))
+        asv.set_target(xyz, heading)
+
+    def on_estimate(estimate: VisionPositionEstimate) -> None:
+        asv.on_estimate(
+            sim_time(estimate.usec / 1e6),
+            ned.position_to_tank(np.array([estimate.x, estimate.y, estimate.z])),
+        )
+
+    return AutopilotStandIn(
+        g.port,
+        state=vehicle,
+        mode=g.mode,
+        autopilot="ardurover",
+        on_mode=asv.set_mode,
+        on_target=on_target,
+        on_estimate=on_estimate,
+    )
+
+
 def main(config: Config) -> int:
     """Run the simulator in real time until stopped."""
     simulation = Simulation(config)
@@ -175,6 +216,10 @@ def main(config: Config) -> int:
         if guided is not None:
             autopilot.enter_context(hosted_autopilot(config, guided, start_ns))
             runner.add_counters(lambda: {"rov_in_guided": int(guided.mode == "GUIDED")})
+        guided_asv = simulation.guided_asv
+        if guided_asv is not None:
+            autopilot.enter_context(hosted_asv_autopilot(config, guided_asv, start_ns))
+            runner.add_counters(lambda: {"asv_in_guided": int(guided_asv.mode == "GUIDED")})
         muted_until: dict[str, float] = {}  # stream -> monotonic time its dropout ends
 
         def on_control(control: SimControl) -> None:

@@ -40,7 +40,7 @@ from capsd.payloads import (
 )
 from capsd.simulator.clock import VehicleClock
 from capsd.simulator.config import Config
-from capsd.simulator.guided import GuidedLimits, GuidedRov
+from capsd.simulator.guided import AsvLimits, GuidedAsv, GuidedLimits, GuidedRov
 from capsd.simulator.imu import Imu
 from capsd.simulator.install_errors import InstallErrors
 from capsd.simulator.lidar import scan
@@ -134,14 +134,41 @@ class Simulation:
             height = -float(np.mean(planned.track.p[:, 2])) + float(-self.mount.translation[2])
             pitch = max(math.radians(config.sonar.pitch_deg), math.radians(5.0))
             standoff = height / math.tan(pitch) + float(self.mount.translation[0])
-        self.asv: AsvMotion = asv_motion(
-            self.tank,
-            planned,
-            mode=config.asv_mode,
-            standoff_m=standoff,
-            waves=config.waves.waves(),
-            start_xy=config.asv_start_xy,
-        )
+        self.asv: AsvMotion | GuidedAsv
+        self.guided_asv: GuidedAsv | None = None
+        if config.asv_guided is not None:
+            # Driven live: it starts where a stationary one would stand, facing the same way.
+            still = asv_motion(
+                self.tank,
+                planned,
+                mode="stationary",
+                standoff_m=standoff,
+                waves=config.waves.waves(),
+                start_xy=config.asv_start_xy,
+            )
+            g = config.asv_guided
+            start = still.track.p[0]
+            yaw = (
+                still.yaw_at(0.0)
+                if g.start_heading_deg is None
+                else math.radians(g.start_heading_deg)
+            )
+            self.asv = self.guided_asv = GuidedAsv(
+                (float(start[0]), float(start[1])),
+                yaw,
+                waves=config.waves.waves(),
+                mode=g.mode,
+                limits=AsvLimits(max_speed_m_s=g.max_speed_m_s),
+            )
+        else:
+            self.asv = asv_motion(
+                self.tank,
+                planned,
+                mode="stationary" if config.asv_mode == "guided" else config.asv_mode,
+                standoff_m=standoff,
+                waves=config.waves.waves(),
+                start_xy=config.asv_start_xy,
+            )
         self.sonar_model = config.sonar_model()
         self.renderer = (
             SonarRenderer(self.sonar_model, self.tank)
@@ -171,8 +198,11 @@ class Simulation:
             return self.guided.state(t_s)  # flown live: no repeat
         return self.rov.state(self._wrap(t_s))
 
+    def _asv_time(self, t_s: float) -> float:
+        return t_s if self.guided_asv is not None else self._wrap(t_s)  # live: no repeat
+
     def asv_pose(self, t_s: float) -> Transform:
-        rotation, translation = self.asv.pose(self._wrap(t_s))
+        rotation, translation = self.asv.pose(self._asv_time(t_s))
         return Transform(rotation, translation)
 
     def _rov_ellipsoid(self, rov: RovState) -> Ellipsoid:
@@ -232,9 +262,9 @@ class Simulation:
 
     def _emit_imu(self, t: float, true_ns: int, clocks: dict[str, VehicleClock]) -> Iterator[Event]:
         gyro, accel = self.imu.sample(
-            self._wrap(t),
+            self._asv_time(t),
             lambda s: self.asv.pose(s)[0],
-            self.asv.acceleration(self._wrap(t)),
+            self.asv.acceleration(self._asv_time(t)),
             self.rng["imu"],
         )
         yield Event(

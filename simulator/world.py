@@ -478,6 +478,15 @@ class Waves:
     heave_period_s: float = 5.1
 
 
+def wave_motion(w: Waves, t_s: float) -> tuple[float, float, float]:
+    """(roll, pitch, heave) the waves give the ASV at `t_s` (rad, rad, m)."""
+    return (
+        math.radians(w.roll_deg) * math.sin(2 * math.pi * t_s / w.roll_period_s),
+        math.radians(w.pitch_deg) * math.sin(2 * math.pi * t_s / w.pitch_period_s + 1.0),
+        w.heave_m * math.sin(2 * math.pi * t_s / w.heave_period_s + 2.0),
+    )
+
+
 @dataclass
 class AsvMotion:
     """The ASV's pose: a horizontal track and heading (stationary or following) plus waves."""
@@ -498,12 +507,7 @@ class AsvMotion:
         return euler_zyx_to_matrix(self.yaw_at(t_s), pitch, roll), np.array([p[0], p[1], heave])
 
     def _wave(self, t_s: float) -> tuple[float, float, float]:
-        w = self.waves
-        return (
-            math.radians(w.roll_deg) * math.sin(2 * math.pi * t_s / w.roll_period_s),
-            math.radians(w.pitch_deg) * math.sin(2 * math.pi * t_s / w.pitch_period_s + 1.0),
-            w.heave_m * math.sin(2 * math.pi * t_s / w.heave_period_s + 2.0),
-        )
+        return wave_motion(self.waves, t_s)
 
     def acceleration(self, t_s: float) -> Array:
         """World acceleration of the body origin: the track's plus the heave's."""

@@ -23,7 +23,7 @@ from capsd.mission.plan import Plan, Waypoint, cross_track_m
 
 State = Literal["waiting", "running", "paused", "done", "aborted", "stopped"]
 CommandKind = Literal["engage", "goto", "hold"]
-# ArduSub's mode names as the bridge reports them (RovStatus.mode).
+# ArduSub's mode names as the bridge reports them (AutopilotStatus.mode).
 GUIDED = "GUIDED"
 POSHOLD = "POSHOLD"
 # The vehicle gets this long to take a mode the mission asked for before a different one is

@@ -30,7 +30,7 @@ from capsd.errors import ConfigError
 from capsd.keys import check_name
 from capsd.mission.controller import Command, MissionController
 from capsd.mission.plan import Plan, Waypoint, load_plan, path_length_m
-from capsd.payloads import RovCommand, RovFix, RovStatus
+from capsd.payloads import AutopilotStatus, RovFix, VehicleCommand
 from capsd.runner import Publisher, ServiceRunner
 from capsd.services.locator.service import Config as LocatorConfig
 from capsd.signing import SiteKey
@@ -44,7 +44,7 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
 
     vehicle: str = "topside"  # the namespace its commands are put in (the locator's computer)
     locator_vehicle: str = "topside"  # where the fixes come from
-    rov_vehicle: str = "rov"  # where the bridge reports the vehicle's mode (RovStatus)
+    rov_vehicle: str = "rov"  # where the bridge reports the vehicle's mode (AutopilotStatus)
     # required: commands carry the site's fix key's tag (the bridge refuses untagged ones).
     command_auth: Literal["required", "off"] = "required"
     progress_period_s: Annotated[float, msgspec.Meta(gt=0.0, le=60.0)] = 2.0
@@ -93,7 +93,7 @@ class MissionNode:
         plan: Plan,
         points: list[Waypoint],
         runner: ServiceRunner,
-        commands: Publisher[RovCommand],
+        commands: Publisher[VehicleCommand],
         stream: TextIO,
         *,
         progress_period_s: float = 2.0,
@@ -117,7 +117,7 @@ class MissionNode:
                 good=fix.quality == "good", position_m=position, now=time.monotonic()
             )
 
-    def on_status(self, status: RovStatus) -> None:
+    def on_status(self, status: AutopilotStatus) -> None:
         mode = status.mode if status.link == "ok" else "link lost"
         with self.lock:
             self.mode = mode
@@ -146,7 +146,7 @@ class MissionNode:
 
     def put(self, command: Command) -> None:
         self.commands.put(
-            RovCommand(
+            VehicleCommand(
                 stamp_ns=time.time_ns(),
                 seq=self.commands.next_seq(),
                 mission=self.plan.name,

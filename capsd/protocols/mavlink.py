@@ -14,7 +14,7 @@ import os
 import re
 import time
 from dataclasses import dataclass
-from typing import Any, Self
+from typing import Any, Literal, Self
 
 # MAVLink 2 (extension fields: covariance, reset_counter) must be chosen before the import.
 os.environ["MAVLINK20"] = "1"
@@ -32,6 +32,10 @@ MAV_FRAME_LOCAL_NED = 1
 # SET_POSITION_TARGET_LOCAL_NED type_mask: position only (velocity, acceleration, yaw and yaw
 # rate ignored), the form ArduSub's GUIDED mode takes for a position target.
 POSITION_ONLY_MASK = 0b0000_1101_1111_1000
+# ... and with the yaw (bit 10 clear): ArduRover's GUIDED turns an omni or boat frame to it.
+POSITION_YAW_MASK = POSITION_ONLY_MASK & ~0b0100_0000_0000
+# Whose custom modes a HEARTBEAT carries: the ROV's ArduSub, the ASV's ArduRover (boat/omni).
+Autopilot = Literal["ardusub", "ardurover"]
 MAV_RESULT_ACCEPTED = 0
 MAV_RESULT_DENIED = 2
 MAV_SEVERITY = {"emergency": 0, "alert": 1, "critical": 2, "error": 3, "warning": 4,
@@ -189,6 +193,7 @@ class PositionTarget:
     north_m: float
     east_m: float
     down_m: float
+    yaw_rad: float | None = None  # None when the type mask says to ignore it
 
 
 Message = (
@@ -283,8 +288,9 @@ def _convert(msg: Any) -> Message | None:
     if kind == "PARAM_REQUEST_LIST":
         return ParamRequest(None)
     if kind == "SET_POSITION_TARGET_LOCAL_NED":
+        yaw = None if msg.type_mask & 0b0100_0000_0000 else float(msg.yaw)
         return PositionTarget(
-            msg.time_boot_ms, msg.coordinate_frame, msg.type_mask, msg.x, msg.y, msg.z
+            msg.time_boot_ms, msg.coordinate_frame, msg.type_mask, msg.x, msg.y, msg.z, yaw
         )
     return None
 
@@ -476,15 +482,17 @@ class MavLink:
             target_system, 1, MAV_CMD_PREFLIGHT_CALIBRATION, 0, 0, 0, 1, 0, 0, 0, 0
         )
 
-    def send_set_mode(self, *, target_system: int, mode: str) -> None:
-        """MAV_CMD_DO_SET_MODE with ArduSub's custom mode `mode` (GUIDED, POSHOLD...)."""
+    def send_set_mode(
+        self, *, target_system: int, mode: str, autopilot: Autopilot = "ardusub"
+    ) -> None:
+        """MAV_CMD_DO_SET_MODE with the autopilot's custom mode `mode` (GUIDED, POSHOLD...)."""
         self._mav.command_long_send(
             target_system,
             1,
             MAV_CMD_DO_SET_MODE,
             0,
             MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
-            mode_number(mode),
+            mode_number(mode, autopilot),
             0,
             0,
             0,
@@ -493,15 +501,20 @@ class MavLink:
         )
 
     def send_position_target(
-        self, *, target_system: int, time_boot_ms: int, ned_m: tuple[float, float, float]
+        self,
+        *,
+        target_system: int,
+        time_boot_ms: int,
+        ned_m: tuple[float, float, float],
+        yaw_rad: float | None = None,
     ) -> None:
-        """SET_POSITION_TARGET_LOCAL_NED, position only, in the EKF's local NED frame."""
+        """SET_POSITION_TARGET_LOCAL_NED in the EKF's local NED frame: position (and yaw)."""
         self._mav.set_position_target_local_ned_send(
             time_boot_ms & 0xFFFFFFFF,
             target_system,
             1,
             MAV_FRAME_LOCAL_NED,
-            POSITION_ONLY_MASK,
+            POSITION_ONLY_MASK if yaw_rad is None else POSITION_YAW_MASK,
             float(ned_m[0]),
             float(ned_m[1]),
             float(ned_m[2]),
@@ -511,7 +524,7 @@ class MavLink:
             0.0,
             0.0,
             0.0,
-            0.0,
+            0.0 if yaw_rad is None else float(yaw_rad),
             0.0,
         )
 
@@ -532,11 +545,13 @@ class MavLink:
 
     # ------------------------------------------------------------ vehicle side (stand-in)
 
-    def send_heartbeat_vehicle(self, *, armed: bool, custom_mode: int) -> None:
+    def send_heartbeat_vehicle(
+        self, *, armed: bool, custom_mode: int, autopilot: Autopilot = "ardusub"
+    ) -> None:
         mav = mavutil.mavlink
         base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (_ARMED_FLAG if armed else 0)
         self._mav.heartbeat_send(
-            mav.MAV_TYPE_SUBMARINE,
+            mav.MAV_TYPE_SUBMARINE if autopilot == "ardusub" else mav.MAV_TYPE_SURFACE_BOAT,
             mav.MAV_AUTOPILOT_ARDUPILOTMEGA,
             base,
             custom_mode,
@@ -578,17 +593,22 @@ class MavLink:
         self._mav.command_ack_send(command, result)
 
 
-def mode_name(custom_mode: int) -> str:
-    """ArduSub's name for a HEARTBEAT custom_mode (e.g. 16 -> POSHOLD)."""
-    return str(mavutil.mode_mapping_sub.get(custom_mode, f"MODE{custom_mode}"))
+def _modes(autopilot: Autopilot) -> dict[int, str]:
+    table = mavutil.mode_mapping_sub if autopilot == "ardusub" else mavutil.mode_mapping_rover
+    return {int(k): str(v) for k, v in table.items()}
 
 
-def mode_number(name: str) -> int:
-    """ArduSub's custom_mode for a mode name (e.g. POSHOLD -> 16)."""
-    for number, known in mavutil.mode_mapping_sub.items():
+def mode_name(custom_mode: int, autopilot: Autopilot = "ardusub") -> str:
+    """The autopilot's name for a HEARTBEAT custom_mode (ArduSub 16: POSHOLD)."""
+    return _modes(autopilot).get(custom_mode, f"MODE{custom_mode}")
+
+
+def mode_number(name: str, autopilot: Autopilot = "ardusub") -> int:
+    """The autopilot's custom_mode for a mode name (ArduSub POSHOLD -> 16)."""
+    for number, known in _modes(autopilot).items():
         if known == name:
-            return int(number)
-    raise KeyError(f"ArduSub has no mode '{name}'")
+            return number
+    raise KeyError(f"{autopilot} has no mode '{name}'")
 
 
 def message_id(name: str) -> int:

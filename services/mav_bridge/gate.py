@@ -1,4 +1,7 @@
-"""The safety gate: which locator estimates may reach the autopilot, and why others may not.
+"""The safety gate: which estimates may reach the autopilot, and why others may not.
+
+The estimates are the locator's ROV fixes (the ROV's bridge) or the ASV's own pose (the ASV's
+bridge, `role: asv`); a pose is "good" when its status is "ok".
 
 An estimate passes only if it is "good", carries a position and covariance, is younger than
 `max_age_s` (by this computer's clock, from its measurement stamp), its largest horizontal
@@ -19,7 +22,7 @@ from typing import Literal
 import numpy as np
 
 from capsd.geometry import Array
-from capsd.payloads import RovFix
+from capsd.payloads import AsvPose, RovFix
 from capsd.tank import TankBounds
 
 Decision = Literal[
@@ -48,6 +51,10 @@ class Passed:
     position_w: Array
     covariance_w: Array
     reset_counter: int
+    orientation_xyzw: tuple[float, float, float, float] | None = None  # an ASV pose's own
+
+
+Estimate = RovFix | AsvPose
 
 
 class SafetyGate:
@@ -60,24 +67,35 @@ class SafetyGate:
         self._last_sent_stamp_ns: int | None = None
         self._last_usec = 0
 
-    def from_future(self, fix: RovFix, *, now_ns: int) -> bool:
+    def from_future(self, fix: Estimate, *, now_ns: int) -> bool:
         """Stamped further ahead than clock skew explains (checked on arrival, and at send)."""
         future = fix.stamp_ns - now_ns > _MAX_FUTURE_NS
         if future:
             self.counts["from_future"] += 1
         return future
 
-    def check(self, fix: RovFix, *, now_ns: int) -> Passed | Decision:
+    def check(self, fix: Estimate, *, now_ns: int) -> Passed | Decision:
         decision = self._decide(fix, now_ns=now_ns)
         self.counts["sent" if isinstance(decision, Passed) else decision] += 1
         return decision
 
-    def _decide(self, fix: RovFix, *, now_ns: int) -> Passed | Decision:
+    def _decide(self, fix: Estimate, *, now_ns: int) -> Passed | Decision:
         s = self.settings
-        if fix.quality != "good":
-            return "not_good"
-        position = fix.position_m if fix.position_m is not None else fix.raw_position_m
-        covariance = fix.covariance_m2 if fix.position_m is not None else fix.raw_covariance_m2
+        orientation = None
+        if isinstance(fix, AsvPose):
+            if fix.status != "ok":
+                return "not_good"
+            position: tuple[float, ...] | None = fix.position_m
+            pose_cov = np.array(fix.covariance).reshape(6, 6)
+            covariance: tuple[float, ...] | None = tuple(pose_cov[:3, :3].ravel())
+            orientation = fix.orientation_xyzw
+            resets = 0
+        else:
+            if fix.quality != "good":
+                return "not_good"
+            position = fix.position_m if fix.position_m is not None else fix.raw_position_m
+            covariance = fix.covariance_m2 if fix.position_m is not None else fix.raw_covariance_m2
+            resets = fix.track_resets
         if position is None or covariance is None:
             return "no_position"
         age_ns = now_ns - fix.stamp_ns
@@ -86,7 +104,7 @@ class SafetyGate:
         if age_ns < -_MAX_FUTURE_NS:
             return "from_future"
         if not all(abs(v) <= _MAX_ABS_POSITION_M for v in position) or (
-            self.tank is not None and not self.tank.contains(position)
+            self.tank is not None and not self.tank.contains(np.array(position))
         ):
             return "outside_tank"
         cov = np.array(covariance).reshape(3, 3)
@@ -101,4 +119,4 @@ class SafetyGate:
             return "rate_limited"
         self._last_sent_stamp_ns = fix.stamp_ns
         self._last_usec = usec
-        return Passed(usec, np.array(position), cov, fix.track_resets)
+        return Passed(usec, np.array(position), cov, resets, orientation)

@@ -1,4 +1,11 @@
-"""The MAVLink bridge: ArduSub telemetry onto the bus, gated locator estimates into ArduSub.
+"""The MAVLink bridge: autopilot telemetry onto the bus, gated estimates into the autopilot.
+
+Two roles. `rov` (the default): ArduSub on the ROV, fed the locator's fixes, as below. `asv`:
+ArduRover (boat or omni frame) on the ASV, fed the ASV's own pose (asv_pose: the tank is
+GPS-denied for the ASV too) as VISION_POSITION_ESTIMATE with the pose's attitude, its state
+published on `asv/autopilot`, and the follower's GUIDED targets (`follow/command`, with a
+heading) passed on while the pilot keeps it in GUIDED; the ASV's bridge never switches to
+GUIDED itself, and it has no depth.
 
 Vehicle to bus (stamps from the autopilot's boot clock mapped to Unix time):
 - depth from SCALED_PRESSURE2, the Bar30's raw absolute pressure (baro instance 1 on a
@@ -10,7 +17,7 @@ Vehicle to bus (stamps from the autopilot's boot clock mapped to Unix time):
 - armed state and mode from HEARTBEAT, EKF flags from EKF_STATUS_REPORT.
 Bus to vehicle: RovFix estimates through the safety gate (capsd.services.mav_bridge.gate), converted
 to NED, as VISION_POSITION_ESTIMATE (or GPS_INPUT), usec = the estimate's measurement time.
-Mission commands (RovCommand, signed like fixes; only with `mission_commands: accept`): fresh,
+Mission commands (VehicleCommand, signed like fixes; only with `mission_commands: accept`): fresh,
 inside the tank's geofence, then MAV_CMD_DO_SET_MODE (GUIDED to engage, POSHOLD to hold, the
 latter only from GUIDED) and SET_POSITION_TARGET_LOCAL_NED, each logged and counted.
 """
@@ -23,7 +30,6 @@ import math
 import threading
 import time
 from collections import Counter
-from pathlib import Path
 from typing import Annotated, Literal
 
 import msgspec
@@ -32,14 +38,20 @@ import numpy as np
 from capsd import topics
 from capsd.config import ConfigSection, ServiceConfig
 from capsd.errors import ConfigError
-from capsd.geometry import matrix_to_quat
+from capsd.geometry import euler_zyx_to_matrix, matrix_to_quat, quat_to_matrix
 from capsd.keys import check_name
 from capsd.mailbox import Mailbox
 from capsd.ned import TankToNed, upper_triangle
-from capsd.payloads import RovAttitude, RovCommand, RovDepth, RovFix, RovStatus
+from capsd.payloads import (
+    AutopilotStatus,
+    RovAttitude,
+    RovDepth,
+    VehicleCommand,
+)
 from capsd.protocols.mavlink import (
     MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY,
     Attitude,
+    Autopilot,
     EkfStatus,
     Heartbeat,
     MavLink,
@@ -52,8 +64,8 @@ from capsd.protocols.mavlink import (
 )
 from capsd.runner import Publisher, ServiceRunner, StreamCounter
 from capsd.services.mav_bridge.clock import BootClock
-from capsd.services.mav_bridge.gate import GateSettings, Passed, SafetyGate
-from capsd.signing import SiteKey
+from capsd.services.mav_bridge.gate import Estimate, GateSettings, Passed, SafetyGate
+from capsd.signing import SiteKey, site_key
 from capsd.tank import TankBounds
 
 logger = logging.getLogger(__name__)
@@ -140,10 +152,18 @@ class RatesConfig(ConfigSection, frozen=True, kw_only=True):
     system_time_hz: Annotated[float, msgspec.Meta(gt=0.0, le=10.0)] = 1.0
 
 
+Role = Literal["rov", "asv"]
+_AUTOPILOT: dict[Role, Autopilot] = {"rov": "ardusub", "asv": "ardurover"}
+# The autopilot's own position hold, which a "hold" command switches to (from GUIDED only).
+_HOLD_MODE: dict[Role, str] = {"rov": "POSHOLD", "asv": "LOITER"}
+
+
 class Config(ServiceConfig, frozen=True, kw_only=True):
     """MAVLink bridge configuration."""
 
     vehicle: str = "rov"
+    # rov: ArduSub fed the locator's fixes; asv: ArduRover fed this vehicle's own pose.
+    role: Role = "rov"
     locator_vehicle: str = "topside"
     mavlink: MavlinkConfig = MavlinkConfig()
     ned: NedConfig = NedConfig()
@@ -181,6 +201,8 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
             raise ValueError("`ekf_origin`: GPS_INPUT output needs the EKF origin (lat/lon)")
         if self.mission_commands == "accept" and self.tank is None:
             raise ValueError("`mission_commands: accept` needs `tank`: the geofence for targets")
+        if self.role == "asv" and self.output == "gps_input":
+            raise ValueError("`output`: the ASV's bridge sends VISION_POSITION_ESTIMATE (its pose)")
 
 
 class Bridge:
@@ -190,14 +212,15 @@ class Bridge:
         self.config = config
         self.runner = runner
         self.ned = config.ned.tank_to_ned()
+        self.autopilot: Autopilot = _AUTOPILOT[config.role]
         self.gate = SafetyGate(
             GateSettings(config.gate.max_age_s, config.gate.max_sigma_m, config.gate.max_rate_hz),
             tank=config.tank,
         )
         # Fixes wait here for the sender: the newest only, so a flood cannot age good ones.
-        self.fixes: Mailbox[tuple[RovFix, int]] = Mailbox()
+        self.fixes: Mailbox[tuple[Estimate, int]] = Mailbox()
         # Mission commands: the newest only (a hold replaces a pending target and vice versa).
-        self.commands: Mailbox[RovCommand] = Mailbox()
+        self.commands: Mailbox[VehicleCommand] = Mailbox()
         self.command_stream: StreamCounter | None = None
         self.mode: str | None = None
         self.fix_stream: StreamCounter | None = None
@@ -238,11 +261,13 @@ class Bridge:
         self._announced: str | None = None
         self._last_statustext: dict[str, float] = {}
         rov = config.vehicle
-        self.depth_pub: Publisher[RovDepth] = runner.publisher(topics.ROV_DEPTH, vehicle=rov)
-        self.attitude_pub: Publisher[RovAttitude] = runner.publisher(
-            topics.ROV_ATTITUDE, vehicle=rov
-        )
-        self.status_pub: Publisher[RovStatus] = runner.publisher(topics.ROV_STATUS, vehicle=rov)
+        self.depth_pub: Publisher[RovDepth] | None = None
+        self.attitude_pub: Publisher[RovAttitude] | None = None
+        if config.role == "rov":
+            self.depth_pub = runner.publisher(topics.ROV_DEPTH, vehicle=rov)
+            self.attitude_pub = runner.publisher(topics.ROV_ATTITUDE, vehicle=rov)
+        status = topics.ROV_STATUS if config.role == "rov" else topics.ASV_AUTOPILOT
+        self.status_pub: Publisher[AutopilotStatus] = runner.publisher(status, vehicle=rov)
         # Fix arrival to the estimate leaving the socket; and the ping (the fix's stamp) to it.
         self.stage_latency = runner.latency("bridge")
         self.end_to_end_latency = runner.latency("end to end")
@@ -367,11 +392,10 @@ class Bridge:
         """Health says what is wrong: depth or attitude missing, the EKF disagreeing."""
         if self.clock.boots == 0 or now - self._link_opened < _INPUT_GRACE_S:
             return
-        missing = [
-            name
-            for name, last in (("depth", self._last_depth), ("attitude", self._last_attitude))
-            if now - last > _INPUT_GRACE_S
-        ]
+        inputs = [("attitude", self._last_attitude)]
+        if self.config.role == "rov":
+            inputs.insert(0, ("depth", self._last_depth))
+        missing = [name for name, last in inputs if now - last > _INPUT_GRACE_S]
         reasons = []
         if missing:
             reasons.append("no " + " and no ".join(missing) + " from the autopilot")
@@ -411,7 +435,7 @@ class Bridge:
         self.density = self.config.depth.water_density_kg_m3
         self._last_depth = self._last_attitude = -math.inf
         self.status_pub.put(
-            RovStatus(
+            AutopilotStatus(
                 stamp_ns=time.time_ns(),
                 seq=self.status_pub.next_seq(),
                 armed=False,
@@ -427,12 +451,15 @@ class Bridge:
         cfg, target = self.config, self.config.mavlink.target_system
         if self._configured_boot != self.clock.boots:
             self._configured_boot = self.clock.boots
-            for name, hz in (
+            rates = [
                 ("ATTITUDE", cfg.rates.attitude_hz),
                 ("SCALED_PRESSURE2", cfg.rates.pressure_hz),
                 ("EKF_STATUS_REPORT", cfg.rates.ekf_status_hz),
                 ("SYSTEM_TIME", cfg.rates.system_time_hz),
-            ):
+            ]
+            if cfg.role == "asv":  # no depth on the surface vehicle
+                rates = [(name, hz) for name, hz in rates if name != "SCALED_PRESSURE2"]
+            for name, hz in rates:
                 self.link.send_set_message_interval(
                     target_system=target, message_id=message_id(name), rate_hz=hz
                 )
@@ -447,6 +474,8 @@ class Bridge:
                 self.counts["origin_sent"] += 1
             self.runner.set_state("ok")
             logger.info("autopilot configured", extra={"fields": {"boot": self.clock.boots}})
+        if cfg.role == "asv":
+            return
         missing = [
             name
             for name, value in (
@@ -474,20 +503,22 @@ class Bridge:
         if isinstance(message, Heartbeat):
             self._last_vehicle_heartbeat = time.monotonic()
             self.status_pub.put(
-                RovStatus(
+                AutopilotStatus(
                     stamp_ns=arrival_ns,
                     seq=self.status_pub.next_seq(),
                     armed=message.armed,
-                    mode=mode_name(message.custom_mode),
+                    mode=mode_name(message.custom_mode, self.autopilot),
                     ekf_flags=self.ekf_flags,
                 )
             )
-            self.mode = mode_name(message.custom_mode)
+            self.mode = mode_name(message.custom_mode, self.autopilot)
         elif isinstance(message, Attitude):
             if not self._observe(message.time_boot_ms, arrival_ns):
                 return
             self.attitude = message
             self._last_attitude = time.monotonic()
+            if self.attitude_pub is None:
+                return
             r_w_r = self.ned.attitude_to_tank(message.roll, message.pitch, message.yaw)
             q = matrix_to_quat(r_w_r)
             rates = self.ned.body_rates_to_flu(
@@ -501,7 +532,11 @@ class Bridge:
                     angular_velocity_rad_s=rates,
                 )
             )
-        elif isinstance(message, ScaledPressure) and message.instance == 2:
+        elif (
+            isinstance(message, ScaledPressure)
+            and message.instance == 2
+            and self.depth_pub is not None
+        ):
             if not self._observe(message.time_boot_ms, arrival_ns):
                 return
             self._publish_depth(message)
@@ -534,6 +569,7 @@ class Bridge:
         return self.clock.ready
 
     def _publish_depth(self, message: ScaledPressure) -> None:
+        assert self.depth_pub is not None  # the ROV's bridge only
         if self.surface_pressure_pa is None or self.density is None:
             self.counts["depth_waiting_reference"] += 1
             return
@@ -558,8 +594,8 @@ class Bridge:
 
     # ------------------------------------------------------------------ bus to vehicle
 
-    def on_fix(self, fix: RovFix) -> None:
-        """Take an estimate off the bus (Zenoh's thread): refuse one from the future at once."""
+    def on_fix(self, fix: Estimate) -> None:
+        """Take a fix (or the ASV's pose) off the bus (Zenoh's thread); refuse a future one."""
         if self.config.output == "off":
             return
         received_ns = self.runner.received_ns()
@@ -569,13 +605,15 @@ class Bridge:
                 return
         self.fixes.put((fix, received_ns))
 
-    def on_command(self, command: RovCommand) -> None:
+    def on_command(self, command: VehicleCommand) -> None:
         """Take a mission command off the bus (Zenoh's thread), refused or kept for `step`.
 
         Refusals are counted at arrival; an acceptable command waits (the newest only).
         """
         if self.config.mission_commands == "refuse":
             refused: str | None = "disabled"
+        elif command.kind == "engage" and self.config.role == "asv":
+            refused = "engage_is_the_pilots"  # the ASV's pilot puts it in GUIDED, never we
         else:
             refused = self._refusal(command, self.runner.received_ns())
         if refused is None:
@@ -600,10 +638,11 @@ class Bridge:
                 # The pilot's mode (or one already holding) is never overridden.
                 self.counts["commands_hold_not_guided"] += 1
                 return
-            self.link.send_set_mode(target_system=target, mode="POSHOLD")
-            self.mode = "POSHOLD"  # ours until a HEARTBEAT says otherwise (1 Hz)
-            self.counts["commands_sent_poshold"] += 1
-            logger.info("mission: POSHOLD", extra={"fields": {**fields, "why": command.reason}})
+            hold = _HOLD_MODE[self.config.role]
+            self.link.send_set_mode(target_system=target, mode=hold, autopilot=self.autopilot)
+            self.mode = hold  # ours until a HEARTBEAT says otherwise (1 Hz)
+            self.counts[f"commands_sent_{hold.lower()}"] += 1
+            logger.info(f"mission: {hold}", extra={"fields": {**fields, "why": command.reason}})
             return
         if command.kind == "goto" and self.mode != "GUIDED":
             self.counts["commands_goto_not_guided"] += 1
@@ -617,10 +656,15 @@ class Bridge:
             logger.info("mission: GUIDED", extra={"fields": {**fields, "why": command.reason}})
         assert command.position_m is not None  # the payload refuses engage/goto without one
         ned = self.ned.position(np.array(command.position_m))
+        yaw_ned = None
+        if command.heading_rad is not None:
+            heading = euler_zyx_to_matrix(command.heading_rad, 0.0, 0.0)
+            yaw_ned = self.ned.attitude_to_ned(heading)[2]
         self.link.send_position_target(
             target_system=target,
             time_boot_ms=self.clock.last_boot_ms(),
             ned_m=(float(ned[0]), float(ned[1]), float(ned[2])),
+            yaw_rad=yaw_ned,
         )
         self.counts["commands_sent_target"] += 1
         # Every command is logged; the mission's twice-a-second repeats at debug level.
@@ -630,7 +674,7 @@ class Bridge:
             extra={"fields": {**fields, "tank_m": list(command.position_m)}},
         )
 
-    def _refusal(self, command: RovCommand, received_ns: int) -> str | None:
+    def _refusal(self, command: VehicleCommand, received_ns: int) -> str | None:
         """Why a command must not reach the autopilot (None: it may)."""
         if received_ns - command.stamp_ns > self.config.max_command_age_s * 1e9:
             return "stale"
@@ -650,10 +694,10 @@ class Bridge:
             if item is not None:
                 self._gate_and_send(*item)
 
-    def _gate_and_send(self, fix: RovFix, received_ns: int) -> None:
+    def _gate_and_send(self, fix: Estimate, received_ns: int) -> None:
         with self.lock:
             attitude = self.attitude
-            if attitude is None or not self.link.is_open:
+            if (attitude is None and self.config.role == "rov") or not self.link.is_open:
                 self.counts["no_link_or_attitude"] += 1
                 self._outage_reasons["no_link_or_attitude"] += 1
                 return
@@ -673,8 +717,15 @@ class Bridge:
             self._last_sent_mono = time.monotonic()
             self._outage_reasons.clear()
 
-    def _send(self, passed: Passed, attitude: Attitude) -> None:
+    def _send(self, passed: Passed, attitude: Attitude | None) -> None:
         p = self.ned.position(passed.position_w)
+        if passed.orientation_xyzw is not None:  # the ASV's pose carries its own attitude
+            roll, pitch, yaw = self.ned.attitude_to_ned(
+                quat_to_matrix(np.array(passed.orientation_xyzw))
+            )
+        else:
+            assert attitude is not None  # _gate_and_send waits for one in the ROV's role
+            roll, pitch, yaw = attitude.roll, attitude.pitch, attitude.yaw
         cov6 = np.zeros((6, 6))
         cov6[:3, :3] = self.ned.covariance(passed.covariance_w)
         att_var = math.radians(self.config.attitude_sigma_deg) ** 2
@@ -685,9 +736,9 @@ class Bridge:
                 x=float(p[0]),
                 y=float(p[1]),
                 z=float(p[2]),
-                roll=attitude.roll,
-                pitch=attitude.pitch,
-                yaw=attitude.yaw,
+                roll=roll,
+                pitch=pitch,
+                yaw=yaw,
                 covariance=upper_triangle(cov6),
                 reset_counter=passed.reset_counter,
             )
@@ -797,17 +848,8 @@ class Bridge:
 
 def fix_verifier(config: Config) -> SiteKey | None:
     """The key fixes must be tagged with; a config error if required and not given."""
-    if config.fix_auth == "off":
-        logger.warning("fix_auth is off: any client on the router can move the ROV")
-        return None
-    if config.fix_key is None:
-        raise ConfigError(
-            "config",
-            "fix_key",
-            "the bridge acts only on fixes signed with the site's fix key: give its path "
-            "(deploy/security/make-site-certs.sh writes fix.key), or `fix_auth: off` on a bench",
-        )
-    return SiteKey.load(Path(config.fix_key), config_key="fix_key")
+    what = "the ROV's bridge (acting on fixes)" if config.role == "rov" else "the ASV's bridge"
+    return site_key(auth=config.fix_auth, path=config.fix_key, needed_for=what)
 
 
 def main(config: Config) -> int:
@@ -816,11 +858,15 @@ def main(config: Config) -> int:
     with ServiceRunner("mav_bridge", config) as runner:
         bridge = Bridge(config, runner)
         runner.add_counters(bridge.counters)
-        bridge.fix_stream = runner.subscribe(
-            topics.ROV_FIX, bridge.on_fix, vehicle=config.locator_vehicle, verifier=verifier
-        )
+        if config.role == "rov":
+            bridge.fix_stream = runner.subscribe(
+                topics.ROV_FIX, bridge.on_fix, vehicle=config.locator_vehicle, verifier=verifier
+            )
+        else:
+            # The ASV's own pose, from asv_pose on this computer's namespace.
+            runner.subscribe(topics.ASV_POSE, bridge.on_fix, vehicle=config.vehicle)
         bridge.command_stream = runner.subscribe(
-            topics.ROV_COMMAND,
+            topics.ROV_COMMAND if config.role == "rov" else topics.ASV_COMMAND,
             bridge.on_command,
             vehicle=config.locator_vehicle,
             verifier=verifier,

@@ -6,6 +6,7 @@ import math
 
 from capsd.payloads import (
     AsvPose,
+    AutopilotStatus,
     Detection,
     FoxgloveTime,
     GhostEcho,
@@ -19,7 +20,6 @@ from capsd.payloads import (
     RovAttitude,
     RovDepth,
     RovFix,
-    RovStatus,
     RovVelocity,
     SimControl,
     SonarDetections,
@@ -63,7 +63,7 @@ SAMPLES: tuple[Payload, ...] = (
     RovDepth(stamp_ns=STAMP, seq=1, depth_m=3.2, pressure_pa=132_000.0, temperature_c=18.5),
     RovAttitude(stamp_ns=STAMP, seq=1, orientation_xyzw=(0.0, 0.0, math.sin(0.25), math.cos(0.25))),
     RovVelocity(stamp_ns=STAMP, seq=1, velocity_m_s=(0.2, 0.0, -0.05), covariance_m2_s2=_COV3),
-    RovStatus(stamp_ns=STAMP, seq=1, armed=True, mode="POSHOLD", ekf_flags=0x3FF),
+    AutopilotStatus(stamp_ns=STAMP, seq=1, armed=True, mode="POSHOLD", ekf_flags=0x3FF),
     RovFix(stamp_ns=STAMP, seq=1, method="capsd", quality="good", raw_position_m=(3.0, 4.0, -2.0),
            raw_covariance_m2=_COV3, conditioning=0.5, track_state="tracking",
            position_m=(3.0, 4.0, -2.0), velocity_m_s=(0.1, 0.0, 0.0), covariance_m2=_COV3,

@@ -21,7 +21,7 @@ import zenoh
 from capsd import topics
 from capsd.codec import Codec
 from capsd.ned import TankToNed
-from capsd.payloads import RovCommand
+from capsd.payloads import VehicleCommand
 from capsd.signing import SiteKey
 from capsd.simulator.autopilot import AutopilotStandIn, VehicleState
 from tests.conftest import Proc, free_port, wait_for
@@ -178,19 +178,19 @@ def test_the_bridge_refuses_unsigned_stale_and_fenced_out_commands(
     try:
         wait_for(lambda: autopilot.recorded.estimates, timeout_s=20, what="estimates flowing")
         key_expr = topics.ROV_COMMAND.key("tank", "topside")
-        codec = Codec(RovCommand)
+        codec = Codec(VehicleCommand)
         publisher = client.declare_publisher(key_expr, encoding=zenoh.Encoding(codec.encoding))
         publishers.append(publisher)
 
-        def put(command: RovCommand, *, signed: bool) -> None:
+        def put(command: VehicleCommand, *, signed: bool) -> None:
             data = codec.encode(command)
             attachment = time.time_ns().to_bytes(8, "little")
             if signed:
                 attachment += key.tag(key_expr, data)
             publisher.put(data, attachment=attachment)
 
-        def engage(position: tuple[float, float, float], *, age_s: float = 0.0) -> RovCommand:
-            return RovCommand(
+        def engage(position: tuple[float, float, float], *, age_s: float = 0.0) -> VehicleCommand:
+            return VehicleCommand(
                 stamp_ns=time.time_ns() - int(age_s * 1e9),
                 seq=0,
                 mission="hostile",

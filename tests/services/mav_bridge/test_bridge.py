@@ -21,7 +21,7 @@ from capsd.config import BusConfig
 from capsd.health import query_health
 from capsd.keys import is_concrete
 from capsd.ned import TankToNed
-from capsd.payloads import Health, RovAttitude, RovDepth, RovFix, RovStatus
+from capsd.payloads import AutopilotStatus, Health, RovAttitude, RovDepth, RovFix
 from capsd.signing import SiteKey, write_key
 from capsd.simulator.autopilot import AutopilotStandIn, VehicleState
 from tests.conftest import REPO, Proc, free_port, wait_for
@@ -320,8 +320,8 @@ def test_link_loss_and_return(
             sender.send()
             time.sleep(0.05)
 
-    statuses: list[RovStatus] = []
-    status_codec = Codec(RovStatus)
+    statuses: list[AutopilotStatus] = []
+    status_codec = Codec(AutopilotStatus)
     status_sub = client.declare_subscriber(
         topics.ROV_STATUS.key("tank", "rov"),
         lambda s: statuses.append(

@@ -1,0 +1,1 @@
+"""The ASV follower: keeps the ROV inside the sonar's view by moving the ASV (GUIDED targets)."""

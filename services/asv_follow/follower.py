@@ -1,0 +1,162 @@
+"""When the ASV moves, and how: a station held until the ROV leaves its comfort zone.
+
+No chasing of noise: the station is kept while the ROV, seen from the station, stays within
+`elevation_tolerance` of the target elevation, `azimuth_tolerance` of the boresight and the
+range band; only then (and at most every `replan_after_s`) is a new one chosen, from good
+fixes only. Without a good fix for `fix_timeout_s` the ASV holds its station. The target sent
+to the autopilot is a carrot that walks from where the ASV was told to be towards the station,
+speed and acceleration limited, turning at a bounded rate; it starts where the ASV is when the
+pilot hands over (GUIDED) and nothing is sent in any other mode.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from capsd.geometry import Array
+from capsd.services.asv_follow.station import Station, StationPlanner, View
+
+FollowState = Literal["standby", "holding", "following", "no_station"]
+
+
+@dataclass(frozen=True)
+class FollowSettings:
+    """Dead band, timing and motion limits of the follower."""
+
+    elevation_tolerance_rad: float = math.radians(4.0)
+    azimuth_tolerance_rad: float = math.radians(15.0)
+    replan_after_s: float = 2.0
+    fix_timeout_s: float = 1.0
+    max_speed_m_s: float = 0.3
+    max_accel_m_s2: float = 0.1
+    max_yaw_rate_rad_s: float = math.radians(15.0)
+
+
+@dataclass(frozen=True)
+class Target:
+    """What the autopilot is told: a position (W, the ASV origin) and a heading."""
+
+    position_xy: Array
+    heading_rad: float
+    state: FollowState
+    replanned: bool  # a new station was chosen on this step
+
+
+class Follower:
+    """Feed `on_pose`, `on_fix` and `on_mode`; `step(now_s)` gives the target (or None)."""
+
+    def __init__(self, planner: StationPlanner, settings: FollowSettings):
+        self.planner = planner
+        self.settings = settings
+        self.mode: str | None = None
+        self.asv_xy: Array | None = None
+        self.asv_heading = 0.0
+        self.rov_m: Array | None = None
+        self.fix_s = -math.inf
+        self.station: Station | None = None
+        self.replans = 0
+        self._carrot: Array | None = None
+        self._carrot_v = np.zeros(2)
+        self._carrot_heading = 0.0
+        self._last_plan_s = -math.inf
+        self._last_step_s: float | None = None
+
+    def on_pose(self, xy: Array, heading_rad: float) -> None:
+        self.asv_xy = np.asarray(xy[:2], dtype=np.float64)
+        self.asv_heading = heading_rad
+
+    def on_fix(self, now_s: float, rov_m: Array) -> None:
+        """A good fix of the ROV (the caller passes only those)."""
+        self.rov_m = np.asarray(rov_m, dtype=np.float64)
+        self.fix_s = now_s
+
+    def on_mode(self, mode: str | None) -> None:
+        if mode != "GUIDED":
+            self._carrot = None  # a new hand-over starts where the ASV then is
+            self.station = None
+        self.mode = mode
+
+    def view_now(self) -> View | None:
+        """The ROV seen from where the ASV is (for progress lines and the report)."""
+        if self.asv_xy is None or self.rov_m is None:
+            return None
+        return self.planner.view(self.asv_xy, self.asv_heading, self.rov_m)
+
+    def step(self, now_s: float) -> Target | None:
+        dt = 0.0 if self._last_step_s is None else max(0.0, now_s - self._last_step_s)
+        self._last_step_s = now_s
+        if self.mode != "GUIDED" or self.asv_xy is None:
+            return None
+        if self._carrot is None:
+            self._carrot = self.asv_xy.copy()
+            self._carrot_v = np.zeros(2)
+            self._carrot_heading = self.asv_heading
+        fresh = self.rov_m is not None and now_s - self.fix_s <= self.settings.fix_timeout_s
+        replanned = False
+        if (
+            fresh
+            and self._needs_station()
+            and now_s - self._last_plan_s >= self.settings.replan_after_s
+        ):
+            assert self.rov_m is not None
+            self._last_plan_s = now_s
+            chosen = self.planner.choose(self.rov_m, self._carrot, self._carrot_heading)
+            if chosen is not None:
+                self.station = chosen
+                self.replans += 1
+                replanned = True
+        state: FollowState
+        if self.station is None:
+            state = "no_station" if fresh else "holding"
+        else:
+            state = "following" if fresh else "holding"
+        self._walk(dt)
+        return Target(self._carrot.copy(), self._carrot_heading, state, replanned)
+
+    def _needs_station(self) -> bool:
+        """No station yet, or the ROV seen from it is outside the dead band."""
+        if self.station is None:
+            return True
+        assert self.rov_m is not None
+        s = self.settings
+        view = self.planner.view(self.station.position_xy, self.station.heading_rad, self.rov_m)
+        target = self.planner.settings.target_elevation_rad
+        return (
+            abs(view.elevation_rad - target) > s.elevation_tolerance_rad
+            or abs(view.azimuth_rad) > s.azimuth_tolerance_rad
+            or not self.planner.view_is_good(view)
+        )
+
+    def _walk(self, dt: float) -> None:
+        """Move the carrot towards the station: speed, acceleration and turn rate limited."""
+        assert self._carrot is not None
+        if self.station is None or dt <= 0.0:
+            return
+        s = self.settings
+        to_go = self.station.position_xy - self._carrot
+        distance = float(np.linalg.norm(to_go))
+        # Slow down to stop at the station: v^2 = 2 a d.
+        speed = min(s.max_speed_m_s, math.sqrt(2.0 * s.max_accel_m_s2 * distance))
+        wanted = to_go / distance * speed if distance > 1e-6 else np.zeros(2)
+        change = wanted - self._carrot_v
+        limit = s.max_accel_m_s2 * dt
+        norm = float(np.linalg.norm(change))
+        if norm > limit:
+            change = change * (limit / norm)
+        self._carrot_v = self._carrot_v + change
+        step = self._carrot_v * dt
+        if float(np.linalg.norm(step)) >= distance:
+            self._carrot = self.station.position_xy.copy()
+            self._carrot_v = np.zeros(2)
+        else:
+            self._carrot = self._carrot + step
+        turn = math.atan2(
+            math.sin(self.station.heading_rad - self._carrot_heading),
+            math.cos(self.station.heading_rad - self._carrot_heading),
+        )
+        max_turn = s.max_yaw_rate_rad_s * dt
+        self._carrot_heading += max(-max_turn, min(max_turn, turn))

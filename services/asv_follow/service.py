@@ -1,0 +1,210 @@
+"""The follower service: fixes, the ASV's pose and the tank map in, the ASV's GUIDED targets out.
+
+It runs beside the locator (topside namespace, where the site lets that computer write) and
+puts signed `follow/command` goto commands (position and heading) that the ASV's bridge
+(`role: asv`) passes to ArduRover while its pilot keeps it in GUIDED; it never changes the
+ASV's mode. Where to go: capsd.services.asv_follow.station; when and how fast:
+capsd.services.asv_follow.follower. Health counts stations chosen, commands put, and says
+when no station can see the ROV.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from typing import Annotated, Literal
+
+import msgspec
+import numpy as np
+
+from capsd import topics
+from capsd.config import ConfigSection, ServiceConfig
+from capsd.geometry import quat_to_matrix
+from capsd.keys import check_name
+from capsd.mounts import SonarMountConfig
+from capsd.payloads import AsvPose, AutopilotStatus, RovFix, VehicleCommand
+from capsd.runner import Publisher, ServiceRunner
+from capsd.services.asv_follow.follower import Follower, FollowSettings, Target
+from capsd.services.asv_follow.station import StationPlanner, StationSettings
+from capsd.signing import site_key
+from capsd.tank import TankBounds, TankFixture
+
+logger = logging.getLogger(__name__)
+
+Degrees = Annotated[float, msgspec.Meta(ge=0.0, le=90.0)]
+Positive = Annotated[float, msgspec.Meta(gt=0.0, le=100.0)]
+
+
+class StationConfig(ConfigSection, frozen=True, kw_only=True):
+    """What a good station is (capsd.services.asv_follow.station)."""
+
+    target_elevation_deg: Annotated[float, msgspec.Meta(ge=-45.0, le=45.0)] = 0.0
+    elevation_margin_deg: Degrees = 3.0
+    min_range_m: Positive = 2.0
+    max_range_m: Positive = 15.0
+    wall_clearance_m: Annotated[float, msgspec.Meta(ge=0.0, le=20.0)] = 1.0
+    hull_radius_m: Annotated[float, msgspec.Meta(ge=0.0, le=10.0)] = 0.6
+    max_conditioning: Positive = 2.0
+    # Where the ASV must not go, besides fixtures of the tank that reach the surface.
+    keep_out: Annotated[tuple[TankFixture, ...], msgspec.Meta(max_length=100)] = ()
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.min_range_m >= self.max_range_m:
+            raise ValueError("`min_range_m` must be below `max_range_m`")
+
+    def settings(self) -> StationSettings:
+        return StationSettings(
+            target_elevation_rad=math.radians(self.target_elevation_deg),
+            elevation_margin_rad=math.radians(self.elevation_margin_deg),
+            min_range_m=self.min_range_m,
+            max_range_m=self.max_range_m,
+            wall_clearance_m=self.wall_clearance_m,
+            hull_radius_m=self.hull_radius_m,
+            max_conditioning=self.max_conditioning,
+            keep_out=self.keep_out,
+        )
+
+
+class MotionConfig(ConfigSection, frozen=True, kw_only=True):
+    """Dead band and limits (capsd.services.asv_follow.follower)."""
+
+    elevation_tolerance_deg: Degrees = 4.0
+    azimuth_tolerance_deg: Degrees = 15.0
+    replan_after_s: Positive = 2.0
+    fix_timeout_s: Positive = 1.0
+    max_speed_m_s: Annotated[float, msgspec.Meta(gt=0.0, le=2.0)] = 0.3
+    max_accel_m_s2: Annotated[float, msgspec.Meta(gt=0.0, le=2.0)] = 0.1
+    max_yaw_rate_deg_s: Annotated[float, msgspec.Meta(gt=0.0, le=90.0)] = 15.0
+
+    def settings(self) -> FollowSettings:
+        return FollowSettings(
+            elevation_tolerance_rad=math.radians(self.elevation_tolerance_deg),
+            azimuth_tolerance_rad=math.radians(self.azimuth_tolerance_deg),
+            replan_after_s=self.replan_after_s,
+            fix_timeout_s=self.fix_timeout_s,
+            max_speed_m_s=self.max_speed_m_s,
+            max_accel_m_s2=self.max_accel_m_s2,
+            max_yaw_rate_rad_s=math.radians(self.max_yaw_rate_deg_s),
+        )
+
+
+class Config(ServiceConfig, frozen=True, kw_only=True):
+    """Follower configuration: the sonar's mount and the tank as the locator has them."""
+
+    vehicle: str = "topside"
+    locator_vehicle: str = "topside"
+    asv_vehicle: str = "asv"
+    sonar: SonarMountConfig = SonarMountConfig()
+    tank: TankBounds = TankBounds()
+    station: StationConfig = StationConfig()
+    motion: MotionConfig = MotionConfig()
+    command_rate_hz: Annotated[float, msgspec.Meta(gt=0.0, le=20.0)] = 5.0
+    # required: fixes must carry, and commands get, the site's fix key's tag.
+    fix_auth: Literal["required", "off"] = "required"
+    fix_key: str | None = None
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name in ("locator_vehicle", "asv_vehicle"):
+            try:
+                check_name("vehicle", getattr(self, name))
+            except ValueError as exc:
+                raise ValueError(f"`{name}`: {exc}") from None
+
+
+def _heading(orientation_xyzw: tuple[float, float, float, float]) -> float:
+    r = quat_to_matrix(np.array(orientation_xyzw))
+    return math.atan2(float(r[1, 0]), float(r[0, 0]))
+
+
+class FollowNode:
+    """Bus in, follower, bus out; thread-safe (Zenoh calls back on its own threads)."""
+
+    def __init__(self, config: Config, commands: Publisher[VehicleCommand]):
+        planner = StationPlanner(config.sonar, config.tank, config.station.settings())
+        self.follower = Follower(planner, config.motion.settings())
+        self.commands = commands
+        self.lock = threading.Lock()
+        self.put_count = 0
+        self.state = "standby"
+        self._announced_state: str | None = None
+
+    def on_fix(self, fix: RovFix) -> None:
+        if fix.quality != "good":
+            return
+        position = fix.position_m if fix.position_m is not None else fix.raw_position_m
+        if position is None:
+            return
+        with self.lock:
+            self.follower.on_fix(time.monotonic(), np.array(position))
+
+    def on_pose(self, pose: AsvPose) -> None:
+        if pose.status == "lost":
+            return
+        with self.lock:
+            self.follower.on_pose(np.array(pose.position_m[:2]), _heading(pose.orientation_xyzw))
+
+    def on_status(self, status: AutopilotStatus) -> None:
+        with self.lock:
+            self.follower.on_mode(status.mode if status.link == "ok" else None)
+
+    def step(self) -> None:
+        with self.lock:
+            target = self.follower.step(time.monotonic())
+            station = self.follower.station
+        self._announce(target)
+        if target is None:
+            return
+        self.commands.put(
+            VehicleCommand(
+                stamp_ns=time.time_ns(),
+                seq=self.commands.next_seq(),
+                mission="follow",
+                kind="goto",
+                position_m=(float(target.position_xy[0]), float(target.position_xy[1]), 0.0),
+                heading_rad=float(target.heading_rad),
+                reason="station" if target.replanned else "repeat",
+            )
+        )
+        self.put_count += 1
+        if target.replanned and station is not None:
+            logger.info(
+                "new station",
+                extra={
+                    "fields": {
+                        "x_m": round(float(station.position_xy[0]), 2),
+                        "y_m": round(float(station.position_xy[1]), 2),
+                        "heading_deg": round(math.degrees(station.heading_rad), 1),
+                        "range_m": round(station.view.range_m, 2),
+                        "elevation_deg": round(math.degrees(station.view.elevation_rad), 1),
+                    }
+                },
+            )
+
+    def _announce(self, target: Target | None) -> None:
+        state = "standby" if target is None else target.state
+        self.state = state
+        if state != self._announced_state:
+            logger.info("follower", extra={"fields": {"state": state}})
+            self._announced_state = state
+
+    def counters(self) -> dict[str, int]:
+        return {"commands_put": self.put_count, "stations_chosen": self.follower.replans}
+
+
+def main(config: Config) -> int:
+    """Run the follower until stopped."""
+    key = site_key(auth=config.fix_auth, path=config.fix_key, needed_for="the follower")
+    with ServiceRunner("asv_follow", config) as runner:
+        commands: Publisher[VehicleCommand] = runner.publisher(topics.ASV_COMMAND, signer=key)
+        node = FollowNode(config, commands)
+        runner.add_counters(node.counters)
+        runner.subscribe(topics.ROV_FIX, node.on_fix, vehicle=config.locator_vehicle, verifier=key)
+        runner.subscribe(topics.ASV_POSE, node.on_pose, vehicle=config.asv_vehicle)
+        runner.subscribe(topics.ASV_AUTOPILOT, node.on_status, vehicle=config.asv_vehicle)
+        logger.info("follower ready")
+        runner.run(node.step, period_s=1.0 / config.command_rate_hz)
+    return 0

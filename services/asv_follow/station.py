@@ -1,0 +1,165 @@
+"""Where the ASV should be for the sonar to see the ROV well, and the ROV as seen from a pose.
+
+The sonar sits at the mount's position on the ASV, looks along the mount's yaw and is tilted
+down by its pitch; the ASV floats level (waves are small against the 20 deg aperture). The ROV
+is in the middle of the vertical aperture when its depression angle from the sonar equals the
+pitch, i.e. at the horizontal distance d = (z_sonar - z_rov) / tan(pitch). Stations are
+sampled on rings around the ROV, facing it (azimuth 0): distances whose elevation stays
+`elevation_margin` inside the aperture's edge and whose slant range lies in [min, max] range.
+A station keeps the ASV's hull `wall_clearance_m` from every wall and out of keep-out boxes
+(fixtures reaching the surface, and the site's own), and its depth conditioning (metres of
+horizontal fix error per metre of depth error, tan of the depression) stays bounded. Of the
+feasible stations the cheapest wins: elevation off the target, distance from where the ASV is
+now, and turning, each weighted.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from capsd.geometry import Array
+from capsd.mounts import SonarMountConfig
+from capsd.tank import TankBounds, TankFixture
+
+
+@dataclass(frozen=True)
+class StationSettings:
+    """What a good station is; see the module docstring."""
+
+    target_elevation_rad: float = 0.0
+    elevation_margin_rad: float = math.radians(3.0)
+    min_range_m: float = 2.0
+    max_range_m: float = 15.0
+    wall_clearance_m: float = 1.0  # hull to wall
+    hull_radius_m: float = 0.6  # origin to the hull's furthest point
+    max_conditioning: float = 2.0
+    keep_out: tuple[TankFixture, ...] = ()
+    # Costs: per degree of elevation off the target, per metre moved, per degree turned.
+    elevation_cost_per_deg: float = 1.0
+    move_cost_per_m: float = 0.5
+    turn_cost_per_deg: float = 0.02
+
+
+@dataclass(frozen=True)
+class View:
+    """The ROV as the sonar sees it from one ASV pose."""
+
+    range_m: float
+    azimuth_rad: float
+    elevation_rad: float
+    conditioning: float  # tan of the depression: horizontal error per depth error
+
+
+@dataclass(frozen=True)
+class Station:
+    """An ASV pose in W (body origin, heading counter-clockwise from W's x) and its view."""
+
+    position_xy: Array
+    heading_rad: float
+    view: View
+
+
+def _wrap(angle: float) -> float:
+    return math.atan2(math.sin(angle), math.cos(angle))
+
+
+class StationPlanner:
+    """Stations for one sonar mount in one tank."""
+
+    def __init__(self, sonar: SonarMountConfig, tank: TankBounds, settings: StationSettings):
+        self.settings = settings
+        self.tank = tank
+        self.mount_xy = np.array(sonar.position_m[:2], dtype=np.float64)
+        self.sonar_z = float(sonar.position_m[2])
+        self.mount_yaw = math.radians(sonar.yaw_deg)
+        self.pitch = math.radians(sonar.pitch_deg)
+        self.half_aperture = math.radians(sonar.vertical_aperture_deg) / 2.0
+        surface = [f for f in tank.fixtures if f.hi_m[2] > -0.5]  # what a hull can hit
+        self.keep_out = tuple(surface) + settings.keep_out
+
+    # ------------------------------------------------------------------ views
+
+    def sonar_xy(self, asv_xy: Array, heading_rad: float) -> Array:
+        c, s = math.cos(heading_rad), math.sin(heading_rad)
+        mx, my = self.mount_xy
+        return np.array([asv_xy[0] + c * mx - s * my, asv_xy[1] + s * mx + c * my])
+
+    def view(self, asv_xy: Array, heading_rad: float, rov_m: Array) -> View:
+        """Range, azimuth and elevation of the ROV from the ASV pose (level ASV)."""
+        sonar = self.sonar_xy(asv_xy, heading_rad)
+        dx, dy = float(rov_m[0] - sonar[0]), float(rov_m[1] - sonar[1])
+        horizontal = math.hypot(dx, dy)
+        drop = self.sonar_z - float(rov_m[2])
+        depression = math.atan2(drop, horizontal)
+        azimuth = _wrap(math.atan2(dy, dx) - heading_rad - self.mount_yaw)
+        return View(
+            range_m=math.hypot(horizontal, drop),
+            azimuth_rad=azimuth,
+            elevation_rad=self.pitch - depression,
+            conditioning=math.tan(depression) if depression < math.pi / 2 else math.inf,
+        )
+
+    def view_is_good(self, view: View) -> bool:
+        """Inside the aperture (with the margin), the range band and the conditioning."""
+        s = self.settings
+        return (
+            abs(view.elevation_rad) <= self.half_aperture - s.elevation_margin_rad
+            and s.min_range_m <= view.range_m <= s.max_range_m
+            and view.conditioning <= s.max_conditioning
+        )
+
+    def clear(self, asv_xy: Array) -> bool:
+        """Whether the hull at `asv_xy` keeps its clearance from walls and keep-out boxes."""
+        c = self.settings.wall_clearance_m + self.settings.hull_radius_m
+        x, y = float(asv_xy[0]), float(asv_xy[1])
+        if not (c <= x <= self.tank.length_m - c and c <= y <= self.tank.width_m - c):
+            return False
+        r = self.settings.hull_radius_m
+        return not any(
+            f.lo_m[0] - r <= x <= f.hi_m[0] + r and f.lo_m[1] - r <= y <= f.hi_m[1] + r
+            for f in self.keep_out
+        )
+
+    # ------------------------------------------------------------------ choice
+
+    def choose(self, rov_m: Array, asv_xy: Array, heading_rad: float) -> Station | None:
+        """The cheapest feasible station for the ROV at `rov_m`, the ASV now at `asv_xy`."""
+        s = self.settings
+        drop = self.sonar_z - float(rov_m[2])
+        if drop <= 0.0:
+            return None  # the ROV at or above the sonar: no station sees it from above
+        best: tuple[float, Station] | None = None
+        for distance in self._distances(drop):
+            for bearing in np.linspace(-math.pi, math.pi, 72, endpoint=False):
+                heading = _wrap(float(bearing) - self.mount_yaw)
+                # The sonar on the ring at `distance` from the ROV, looking along `bearing`.
+                sonar = np.array(
+                    [
+                        rov_m[0] - distance * math.cos(bearing),
+                        rov_m[1] - distance * math.sin(bearing),
+                    ]
+                )
+                origin = sonar - (self.sonar_xy(np.zeros(2), heading))
+                if not self.clear(origin):
+                    continue
+                view = self.view(origin, heading, rov_m)
+                if not self.view_is_good(view):
+                    continue
+                cost = (
+                    s.elevation_cost_per_deg
+                    * math.degrees(abs(view.elevation_rad - s.target_elevation_rad))
+                    + s.move_cost_per_m * float(np.linalg.norm(origin - asv_xy[:2]))
+                    + s.turn_cost_per_deg * math.degrees(abs(_wrap(heading - heading_rad)))
+                )
+                if best is None or cost < best[0]:
+                    best = (cost, Station(origin, heading, view))
+        return None if best is None else best[1]
+
+    def _distances(self, drop: float) -> list[float]:
+        """Horizontal sonar-to-ROV distances to try: the ideal one first, then either side."""
+        s = self.settings
+        ideal = drop / math.tan(max(self.pitch - s.target_elevation_rad, math.radians(1.0)))
+        return [ideal * f for f in (1.0, 0.9, 1.1, 0.8, 1.25, 0.7, 1.4, 0.6, 1.6)]

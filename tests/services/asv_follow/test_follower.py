@@ -1,0 +1,97 @@
+"""Follower: nothing outside GUIDED, no jump at hand-over, dead band, holding, limits."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from capsd.mounts import SonarMountConfig
+from capsd.services.asv_follow.follower import Follower, FollowSettings
+from capsd.services.asv_follow.station import StationPlanner, StationSettings
+from capsd.tank import TankBounds
+
+START = np.array([10.0, 8.0])
+
+
+def _follower(**changes: object) -> Follower:
+    planner = StationPlanner(SonarMountConfig(), TankBounds(), StationSettings())
+    follower = Follower(planner, FollowSettings(**changes))  # type: ignore[arg-type]
+    follower.on_pose(START, 0.0)
+    return follower
+
+
+def test_nothing_is_commanded_unless_the_pilot_chose_guided() -> None:
+    follower = _follower()
+    follower.on_fix(0.0, np.array([20.0, 8.0, -3.5]))
+    for mode in (None, "MANUAL", "HOLD", "LOITER"):
+        follower.on_mode(mode)
+        assert follower.step(0.0) is None
+
+
+def test_hand_over_starts_where_the_asv_is_and_moves_within_the_limits() -> None:
+    follower = _follower(max_speed_m_s=0.3, max_accel_m_s2=0.1, max_yaw_rate_rad_s=0.2)
+    follower.on_mode("GUIDED")
+    rov = np.array([20.0, 6.0, -3.5])
+    follower.on_fix(0.0, rov)
+    first = follower.step(0.0)
+    assert first is not None
+    assert np.allclose(first.position_xy, START)
+    assert first.heading_rad == 0.0
+    assert first.replanned
+    assert first.state == "following"
+    previous, speed = first, 0.0
+    for k in range(1, 400):  # 40 s at 10 Hz
+        now = k * 0.1
+        follower.on_fix(now, rov)
+        target = follower.step(now)
+        assert target is not None
+        step = float(np.linalg.norm(target.position_xy - previous.position_xy))
+        assert step <= 0.3 * 0.1 + 1e-9
+        station = follower.station
+        assert station is not None
+        if not np.allclose(target.position_xy, station.position_xy):  # (the last step stops)
+            assert abs((step / 0.1) - speed) <= 0.1 * 0.1 + 1e-9  # acceleration limit
+        assert abs(target.heading_rad - previous.heading_rad) <= 0.2 * 0.1 + 1e-9
+        previous, speed = target, step / 0.1
+    station = follower.station
+    assert station is not None
+    assert np.allclose(previous.position_xy, station.position_xy)  # arrived
+    view = follower.planner.view(station.position_xy, station.heading_rad, rov)
+    assert abs(view.elevation_rad) < math.radians(0.5)
+
+
+def test_small_rov_motion_does_not_move_the_station_and_large_motion_does() -> None:
+    follower = _follower()
+    follower.on_mode("GUIDED")
+    rov = np.array([16.0, 8.0, -3.5])
+    follower.on_fix(0.0, rov)
+    follower.step(0.0)
+    chosen = follower.replans
+    rng = np.random.default_rng(1)
+    for k in range(1, 200):  # 20 s of fixes jittering by 5 cm and drifting 0.3 m
+        now = k * 0.1
+        follower.on_fix(now, rov + np.array([0.3 * k / 200, 0.0, 0.0]) + rng.normal(0, 0.05, 3))
+        follower.step(now)
+    assert follower.replans == chosen
+    follower.on_fix(21.0, rov + np.array([0.0, 4.0, 0.0]))  # well off the boresight
+    follower.step(21.0)
+    assert follower.replans == chosen + 1
+
+
+def test_without_a_fix_it_holds_its_station() -> None:
+    follower = _follower(fix_timeout_s=1.0)
+    follower.on_mode("GUIDED")
+    follower.on_fix(0.0, np.array([20.0, 6.0, -3.5]))
+    follower.step(0.0)
+    targets = [follower.step(k * 0.1) for k in range(11, 300)]
+    assert all(t is not None and t.state == "holding" for t in targets)
+    assert follower.replans == 1
+    # A pilot's mode change forgets the hand-over: back in GUIDED it starts where the ASV is.
+    follower.on_mode("MANUAL")
+    follower.on_pose(np.array([12.0, 9.0]), 0.5)
+    follower.on_mode("GUIDED")
+    target = follower.step(31.0)
+    assert target is not None
+    assert np.allclose(target.position_xy, [12.0, 9.0])
+    assert target.heading_rad == 0.5
