@@ -25,8 +25,11 @@ from capsd.accuracy import HEADER, Accuracy, row
 from capsd.bus import open_session
 from capsd.codec import Codec
 from capsd.config import BusConfig
+from capsd.errors import CapsdError
 from capsd.harness import (
+    FOLLOW_SERVICES,
     SERVICES,
+    AsvMode,
     Processes,
     Watch,
     free_port,
@@ -61,13 +64,16 @@ def main(
     port: int | None,
     record: Path | None = None,
     mission: Path | None = None,
+    asv: AsvMode = "station",
     stream: TextIO = sys.stdout,
 ) -> int:
     """Run the demo; returns 0 when every service ran to the end and fixes were good.
 
     With `mission` (a plan file) the loop is closed: the ROV starts at the plan's first
     waypoint and is flown by the ArduSub stand-in the simulator hosts, `capsd mission run`
-    commands it through the bridge, and the demo ends when the mission does.
+    commands it through the bridge, and the demo ends when the mission does. With `asv`
+    "follow" the ASV is driven too: the follower's targets through the ASV's bridge to the
+    ArduRover stand-in the simulator hosts; "station" keeps it where it starts.
     """
     from capsd import plots
 
@@ -77,6 +83,8 @@ def main(
     router_port = port or free_port()
     mav_port = free_port()
     endpoint = f"tcp/127.0.0.1:{router_port}"
+    if asv == "follow" and mission is None:
+        raise CapsdError("--asv follow needs --mission: the ASV follows a ROV flown live")
     points = None if mission is None else _plan_points(mission, tank)
     rov_start, station = (None, None) if points is None else _mission_start(points)
     configs = write_configs(
@@ -88,7 +96,10 @@ def main(
         mav_port=mav_port,
         rov_start_m=rov_start,
         asv_station_xy=station,
+        asv=asv,
+        asv_mav_port=free_port() if asv == "follow" else None,
     )
+    follow = FOLLOW_SERVICES if asv == "follow" else ()
     procs = Processes(logs)
     started = time.monotonic()
     health: dict[str, Health | None] = {}
@@ -111,6 +122,8 @@ def main(
         time.sleep(1.0)
         for _, name in SERVICES:
             start_service(procs, name, configs[name])
+        for _, name, service in follow:
+            start_service(procs, name, configs[name], service=service)
         if mission is not None:
             procs.start(
                 "mission",
@@ -119,7 +132,7 @@ def main(
                  "--out", str(out / "mission")],
             )  # fmt: skip
         with open_session(BusConfig(connect=(endpoint,))) as session:
-            watch = Watch(session)
+            watch = Watch(session, extra=follow)
             t0 = time.monotonic()
             try:
                 while time.monotonic() - t0 < duration_s:
@@ -150,6 +163,7 @@ def main(
     mission_figures = json.loads(mission_json.read_text()) if mission_json.exists() else None
     if points is not None and watch is not None and mission_figures is not None:
         mission_figures["truth"] = _flown_against_plan(points, watch.accuracy)
+        mission_figures["asv"] = {"mode": asv, **_asv_against_walls(watch.asv_xy, tank)}
     accuracy = watch.accuracy if watch is not None else Accuracy()
     summary = accuracy.summary()
     figures = {
@@ -218,11 +232,16 @@ def main(
             f"m, good fixes {truth['availability']} of pings while flying",
             file=stream,
         )
+        walls = mission_figures["asv"]
+        print(
+            f"ASV ({asv}): moved {walls['travelled_m']} m, nearest a wall "
+            f"{walls['min_wall_distance_m']} m (its origin)",
+            file=stream,
+        )
     print(f"report: {out}/summary.md (figures.json, 3 PNGs, logs/)", file=stream, flush=True)
-    services_ok = all(
-        codes.get(name) == 0
-        for name in ("sim", "asv_pose", "sonar_detect", "locator", "mav_bridge")
-    )
+    expected = ["sim", "asv_pose", "sonar_detect", "locator", "mav_bridge"]
+    expected += [name for _, name, _ in follow]
+    services_ok = all(codes.get(name) == 0 for name in expected)
     if record is not None and codes.get("recorder") != 0:
         # A recording that failed is no recording: say so, and fail (its log says why).
         print(f"capsd demo: the recorder exited {codes.get('recorder')}: see "
@@ -258,7 +277,8 @@ def _mission_start(
     xyz = np.array([p.position_m for p in points])
     height = float(-xyz[:, 2].max()) - 0.2  # the shallowest point, below the sonar
     nearest = height / math.tan(math.radians(40.0)) + 1.0
-    station = (max(1.0, float(xyz[:, 0].min()) - nearest), float(xyz[:, 1].mean()))
+    # 1.6 m: the follower's default hull clearance (1 m to the wall, 0.6 m hull radius).
+    station = (max(1.6, float(xyz[:, 0].min()) - nearest), float(xyz[:, 1].mean()))
     return points[0].position_m, station
 
 
@@ -294,6 +314,22 @@ def _flown_against_plan(points: list[Waypoint], accuracy: Accuracy) -> dict[str,
         else None,
         "cross_track_p95_m": round(float(np.percentile(distances, 95)), 4) if len(flying) else None,
         "cross_track_max_m": round(float(distances.max()), 4) if len(flying) else None,
+    }
+
+
+def _asv_against_walls(asv_xy: list[tuple[float, float]], tank: TankName) -> dict[str, Any]:
+    """How close the ASV's true position came to a wall, and how far it went."""
+    from capsd.simulator.world import make_tank
+
+    if not asv_xy:
+        return {"min_wall_distance_m": None, "travelled_m": None}
+    t = make_tank(tank)
+    xy = np.array(asv_xy)
+    walls = np.minimum.reduce([xy[:, 0], t.length_m - xy[:, 0], xy[:, 1], t.width_m - xy[:, 1]])
+    steps = np.linalg.norm(np.diff(xy, axis=0), axis=1) if len(xy) > 1 else np.zeros(1)
+    return {
+        "min_wall_distance_m": round(float(walls.min()), 3),
+        "travelled_m": round(float(steps.sum()), 2),
     }
 
 

@@ -17,7 +17,7 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import zenoh
 
@@ -27,7 +27,7 @@ from capsd.codec import Codec
 from capsd.errors import PayloadError
 from capsd.health import query_health
 from capsd.keys import is_concrete
-from capsd.payloads import Health, RovFix, SonarLabel
+from capsd.payloads import GroundTruth, Health, RovFix, SonarLabel
 from capsd.simulator.world import TankName, TrajectoryName
 
 SERVICES = (
@@ -38,6 +38,13 @@ SERVICES = (
     ("rov_ap", "mav_bridge"),
 )
 
+
+# With the ASV following (`--asv follow`): its bridge and the follower, besides SERVICES.
+FOLLOW_SERVICES = (
+    ("asv", "asv_bridge", "mav_bridge"),
+    ("topside", "asv_follow", "asv_follow"),
+)
+AsvMode = Literal["station", "follow"]
 
 SIM_NICENESS = 10
 
@@ -111,12 +118,16 @@ def write_configs(
     sonar_hz: float = 20.0,
     rov_start_m: tuple[float, float, float] | None = None,
     asv_station_xy: tuple[float, float] | None = None,
+    asv: AsvMode = "station",
+    asv_mav_port: int | None = None,
 ) -> dict[str, Path]:
     """Every process's config in `folder`, by name.
 
     With `rov_start_m` the ROV is flown live from there by the ArduSub stand-in the simulator
-    hosts on `mav_port` (missions); the ASV then keeps station where the sonar sees that point
-    best, and the bridge accepts mission commands.
+    hosts on `mav_port` (missions); the ASV then starts where the sonar sees that point best,
+    and the bridge accepts mission commands. With `asv` "follow" the ASV is driven live by the
+    ArduRover stand-in the simulator hosts on `asv_mav_port` (left in GUIDED by its pilot),
+    through the ASV's bridge, on the follower's targets.
     """
     import msgspec
     import yaml
@@ -149,6 +160,11 @@ def write_configs(
         sim["guided"] = {"port": mav_port, "start_m": list(rov_start_m)}
         sim["asv_mode"] = "stationary"
         sim["asv_start_xy"] = list(asv_station_xy)
+    if asv == "follow":
+        if asv_mav_port is None or rov_start_m is None:
+            raise ValueError("a following ASV needs its autopilot's port and a ROV flown live")
+        sim["asv_mode"] = "guided"
+        sim["asv_guided"] = {"port": asv_mav_port, "mode": "GUIDED", "max_speed_m_s": 0.5}
     run = msgspec.convert({k: v for k, v in sim.items() if k != "bus"}, SimConfig)
     start = Simulation(run, horizon_s=10)
     # The person putting the ASV in the water knows roughly which way it points: 20 deg off.
@@ -181,6 +197,24 @@ def write_configs(
         # `capsd mission run --config`: the demo's bridge reports as rov_ap.
         "mission": {"bus": bus, "rov_vehicle": "rov_ap"},
     }
+    if asv == "follow":
+        configs["asv_bridge"] = {
+            "vehicle": "asv",
+            "role": "asv",
+            "bus": bus,
+            "mavlink": {"connect": f"tcp:127.0.0.1:{asv_mav_port}"},
+            "fix_key": str(fix_key),
+            "tank": {**tank_box, "depth_m": t.depth_m},
+            "mission_commands": "accept",
+            "geofence_clearance_m": 1.0,
+            # asv_pose runs at the IMU's rate; ArduRover's EKF takes 20 Hz of poses at most.
+            "gate": {"max_rate_hz": 20.0},
+        }
+        configs["asv_follow"] = {
+            "bus": bus,
+            "tank": msgspec.to_builtins(tank_bounds(t)),
+            "fix_key": str(fix_key),
+        }
     paths = {}
     for name, body in configs.items():
         path = folder / f"{name}.yaml"
@@ -213,15 +247,17 @@ def decoder(
     return on_sample
 
 
-def start_service(procs: Processes, name: str, config: Path) -> Child:
-    """`capsd run NAME --config CONFIG` as a child; the simulator niced.
+def start_service(
+    procs: Processes, name: str, config: Path, *, service: str | None = None
+) -> Child:
+    """`capsd run SERVICE --config CONFIG` as a child called `name`; the simulator niced.
 
     It stands in for sensors with processors of their own: it renders ahead and yields the CPU
     to the system it feeds (its lateness is measured).
     """
     return procs.start(
         name,
-        ["-m", "capsd", "run", name, "--config", str(config)],
+        ["-m", "capsd", "run", service or name, "--config", str(config)],
         niceness=SIM_NICENESS if name == "sim" else 0,
     )
 
@@ -229,11 +265,15 @@ def start_service(procs: Processes, name: str, config: Path) -> Child:
 class Watch:
     """The demo's own Zenoh client: fixes and labels paired, health polled."""
 
-    def __init__(self, session: zenoh.Session):
+    def __init__(self, session: zenoh.Session, *, extra: tuple[tuple[str, str, str], ...] = ()):
         self.session = session
+        # (vehicle, process name, service) of every process whose health is polled.
+        self.services = tuple((v, name, name) for v, name in SERVICES) + extra
         self.accuracy = Accuracy()
         self.pairing = LivePairing(self.accuracy)
         self.decode_errors = 0
+        # The ASV's true (x, y) over the run, from the simulator's truth (scoring only).
+        self.asv_xy: list[tuple[float, float]] = []
         self._subs = [
             session.declare_subscriber(
                 topics.ROV_FIX.key("tank", "topside"), self._decoder(Codec(RovFix), self._on_fix)
@@ -241,6 +281,10 @@ class Watch:
             session.declare_subscriber(
                 topics.SIM_LABEL.key("tank", "sim"),
                 self._decoder(Codec(SonarLabel), self.pairing.add_label),
+            ),
+            session.declare_subscriber(
+                topics.SIM_TRUTH.key("tank", "sim"),
+                self._decoder(Codec(GroundTruth), self._on_truth),
             ),
         ]
 
@@ -253,12 +297,15 @@ class Watch:
     def _on_fix(self, fix: RovFix) -> None:
         self.pairing.add_fix(fix)
 
+    def _on_truth(self, truth: GroundTruth) -> None:
+        self.asv_xy.append((truth.asv_position_m[0], truth.asv_position_m[1]))
+
     def health(self) -> dict[str, Health | None]:
         return {
-            service: query_health(
+            name: query_health(
                 self.session, site="tank", vehicle=vehicle, service=service, timeout_s=0.5
             )
-            for vehicle, service in SERVICES
+            for vehicle, name, service in self.services
         }
 
     def close(self) -> None:

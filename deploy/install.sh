@@ -1,14 +1,15 @@
 #!/usr/bin/env bash
 # Install CAP-SD for one role of a site into a virtual environment and enable its units.
-#   asv      ASV computer: asv_pose, tim5xx, oculus, sonar_detect (torch CPU), ros_input
+#   asv      ASV computer: asv_pose, tim5xx, oculus, sonar_detect (torch CPU), ros_input,
+#            and the bridge to its ArduRover (asv role)
 #   rov      ROV companion (BlueOS Pi): mav_bridge only; no torch, scipy or opencv
-#   topside  topside computer: the router and the locator (and the laptop tools)
+#   topside  topside computer: the router, the locator and the ASV follower (and tools)
 # Usage: deploy/install.sh ROLE [--prefix /opt/capsd] [--etc /etc/capsd]
 #                               [--unit-dir /etc/systemd/system] [--no-enable] [--no-user]
 #                               [--certs DIR]
 # --certs DIR: the site's certificates (deploy/security/make-site-certs.sh DIR): the CA and this
 # role's identities go to ETC/certs, each key readable by the service user only; fix.key (the
-# fix signing key) only to the roles that sign or check fixes (topside, rov).
+# fix signing key) only to the roles that sign or check fixes and commands (all three).
 # Existing configs in --etc are kept (an upgrade never overwrites a site's settings).
 set -euo pipefail
 ROLE=${1:?usage: install.sh asv|rov|topside [options]}
@@ -26,10 +27,11 @@ while [ $# -gt 0 ]; do
   esac
 done
 case "$ROLE" in
-  asv) EXTRAS="asv,detect,ros"; UNITS="asv-pose tim5xx oculus sonar-detect ros-input"
-       IDENTITIES="capsd-asv" SECRETS="" ;;
+  asv) EXTRAS="asv,detect,ros,rov"
+       UNITS="asv-pose tim5xx oculus sonar-detect ros-input asv-bridge"
+       IDENTITIES="capsd-asv" SECRETS="fix.key" ;;
   rov) EXTRAS="rov"; UNITS="mav-bridge" IDENTITIES="capsd-rov" SECRETS="fix.key" ;;
-  topside) EXTRAS="topside"; UNITS="router locator"
+  topside) EXTRAS="topside"; UNITS="router locator asv-follow"
            IDENTITIES="capsd-router capsd-locator" SECRETS="fix.key" ;;
   *) echo "install.sh: role must be asv, rov or topside, not '$ROLE'" >&2; exit 2 ;;
 esac

@@ -142,8 +142,8 @@ class AsvLimits:
     """How the ArduRover stand-in drives the ASV (an omnidirectional MallARD-like frame)."""
 
     max_speed_m_s: float = 0.3
-    max_accel_m_s2: float = 0.15
-    approach_gain_1_s: float = 0.6
+    max_accel_m_s2: float = 0.3
+    approach_gain_1_s: float = 0.8
     velocity_tau_s: float = 0.8
     max_yaw_rate_rad_s: float = math.radians(20.0)
     yaw_gain_1_s: float = 1.0

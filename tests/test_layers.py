@@ -16,6 +16,7 @@ CORE = frozenset(
         "capsd.bus",
         "capsd.codec",
         "capsd.config",
+        "capsd.echo_cell",
         "capsd.errors",
         "capsd.fan",
         "capsd.geometry",

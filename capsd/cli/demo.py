@@ -24,6 +24,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         port=args.port,
         record=args.record,
         mission=args.mission,
+        asv=args.asv,
     )
 
 
@@ -58,6 +59,13 @@ def register(sub: Subcommands) -> None:
         type=Path,
         default=None,
         help="close the loop: fly this plan (capsd mission run) with the simulated ROV flown "
-        "by the ArduSub stand-in, the ASV on station; the demo ends with the mission",
+        "by the ArduSub stand-in; the demo ends with the mission",
+    )
+    dem.add_argument(
+        "--asv",
+        default="station",
+        choices=["station", "follow"],
+        help="with --mission: the ASV keeps its station, or follows (asv_follow and the "
+        "ASV's bridge drive the ArduRover stand-in the simulator hosts)",
     )
     dem.set_defaults(func=_cmd_demo)

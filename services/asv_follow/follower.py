@@ -3,7 +3,12 @@
 No chasing of noise: the station is kept while the ROV, seen from the station, stays within
 `elevation_tolerance` of the target elevation, `azimuth_tolerance` of the boresight and the
 range band; only then (and at most every `replan_after_s`) is a new one chosen, from good
-fixes only. Without a good fix for `fix_timeout_s` the ASV holds its station. The target sent
+fixes only, for where the ROV will be `lead_s` later at its tracked velocity (a ROV flying a
+survey leg would otherwise leave every station as soon as it is reached). Without a good fix
+for `fix_timeout_s` the ASV holds its station; still none after `reacquire_after_s`, it takes
+another look at where the ROV was last seen, from a bearing at least 40 deg from the one that
+lost it (clutter behind or under the ROV, or its own shadow, hide it from one side only), and
+again every `reacquire_after_s`. The target sent
 to the autopilot is a carrot that walks from where the ASV was told to be towards the station,
 speed and acceleration limited, turning at a bounded rate; it starts where the ASV is when the
 pilot hands over (GUIDED) and nothing is sent in any other mode.
@@ -31,6 +36,9 @@ class FollowSettings:
     azimuth_tolerance_rad: float = math.radians(15.0)
     replan_after_s: float = 2.0
     fix_timeout_s: float = 1.0
+    lead_s: float = 3.0
+    reacquire_after_s: float = 6.0
+    min_lead_speed_m_s: float = 0.05  # slower than this is hovering (or noise): no lead
     max_speed_m_s: float = 0.3
     max_accel_m_s2: float = 0.1
     max_yaw_rate_rad_s: float = math.radians(15.0)
@@ -56,6 +64,7 @@ class Follower:
         self.asv_xy: Array | None = None
         self.asv_heading = 0.0
         self.rov_m: Array | None = None
+        self.rov_velocity = np.zeros(3)
         self.fix_s = -math.inf
         self.station: Station | None = None
         self.replans = 0
@@ -63,15 +72,17 @@ class Follower:
         self._carrot_v = np.zeros(2)
         self._carrot_heading = 0.0
         self._last_plan_s = -math.inf
+        self.looks = 0  # stations chosen to look again at a lost ROV
         self._last_step_s: float | None = None
 
     def on_pose(self, xy: Array, heading_rad: float) -> None:
         self.asv_xy = np.asarray(xy[:2], dtype=np.float64)
         self.asv_heading = heading_rad
 
-    def on_fix(self, now_s: float, rov_m: Array) -> None:
-        """A good fix of the ROV (the caller passes only those)."""
+    def on_fix(self, now_s: float, rov_m: Array, velocity_m_s: Array | None = None) -> None:
+        """A good fix of the ROV (the caller passes only those), with its tracked velocity."""
         self.rov_m = np.asarray(rov_m, dtype=np.float64)
+        self.rov_velocity = np.zeros(3) if velocity_m_s is None else np.asarray(velocity_m_s)
         self.fix_s = now_s
 
     def on_mode(self, mode: str | None) -> None:
@@ -104,10 +115,29 @@ class Follower:
         ):
             assert self.rov_m is not None
             self._last_plan_s = now_s
-            chosen = self.planner.choose(self.rov_m, self._carrot, self._carrot_heading)
+            chosen = self.planner.choose(self._ahead(), self._carrot, self._carrot_heading)
             if chosen is not None:
                 self.station = chosen
                 self.replans += 1
+                replanned = True
+        lost_for = now_s - self.fix_s
+        if (
+            not fresh
+            and self.rov_m is not None
+            and self.station is not None
+            and lost_for >= self.settings.reacquire_after_s
+            and now_s - self._last_plan_s >= self.settings.reacquire_after_s
+        ):
+            self._last_plan_s = now_s
+            chosen = self.planner.choose(
+                self.rov_m,
+                self._carrot,
+                self._carrot_heading,
+                avoid_bearing_rad=self.station.heading_rad + self.planner.mount_yaw,
+            )
+            if chosen is not None:
+                self.station = chosen
+                self.looks += 1
                 replanned = True
         state: FollowState
         if self.station is None:
@@ -116,6 +146,15 @@ class Follower:
             state = "following" if fresh else "holding"
         self._walk(dt)
         return Target(self._carrot.copy(), self._carrot_heading, state, replanned)
+
+    def _ahead(self) -> Array:
+        """Where the ROV will be `lead_s` from now, at its horizontal tracked velocity."""
+        assert self.rov_m is not None
+        v = self.rov_velocity.copy()
+        v[2] = 0.0
+        if float(np.linalg.norm(v)) < self.settings.min_lead_speed_m_s:
+            return self.rov_m
+        return self.rov_m + v * self.settings.lead_s
 
     def _needs_station(self) -> bool:
         """No station yet, or the ROV seen from it is outside the dead band."""

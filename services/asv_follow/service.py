@@ -71,12 +71,14 @@ class StationConfig(ConfigSection, frozen=True, kw_only=True):
 class MotionConfig(ConfigSection, frozen=True, kw_only=True):
     """Dead band and limits (capsd.services.asv_follow.follower)."""
 
-    elevation_tolerance_deg: Degrees = 4.0
+    elevation_tolerance_deg: Degrees = 2.0
     azimuth_tolerance_deg: Degrees = 15.0
-    replan_after_s: Positive = 2.0
+    replan_after_s: Positive = 1.0
     fix_timeout_s: Positive = 1.0
-    max_speed_m_s: Annotated[float, msgspec.Meta(gt=0.0, le=2.0)] = 0.3
-    max_accel_m_s2: Annotated[float, msgspec.Meta(gt=0.0, le=2.0)] = 0.1
+    lead_s: Annotated[float, msgspec.Meta(ge=0.0, le=30.0)] = 3.0
+    reacquire_after_s: Positive = 6.0
+    max_speed_m_s: Annotated[float, msgspec.Meta(gt=0.0, le=2.0)] = 0.5
+    max_accel_m_s2: Annotated[float, msgspec.Meta(gt=0.0, le=2.0)] = 0.25
     max_yaw_rate_deg_s: Annotated[float, msgspec.Meta(gt=0.0, le=90.0)] = 15.0
 
     def settings(self) -> FollowSettings:
@@ -85,6 +87,8 @@ class MotionConfig(ConfigSection, frozen=True, kw_only=True):
             azimuth_tolerance_rad=math.radians(self.azimuth_tolerance_deg),
             replan_after_s=self.replan_after_s,
             fix_timeout_s=self.fix_timeout_s,
+            lead_s=self.lead_s,
+            reacquire_after_s=self.reacquire_after_s,
             max_speed_m_s=self.max_speed_m_s,
             max_accel_m_s2=self.max_accel_m_s2,
             max_yaw_rate_rad_s=math.radians(self.max_yaw_rate_deg_s),
@@ -138,8 +142,9 @@ class FollowNode:
         position = fix.position_m if fix.position_m is not None else fix.raw_position_m
         if position is None:
             return
+        velocity = None if fix.velocity_m_s is None else np.array(fix.velocity_m_s)
         with self.lock:
-            self.follower.on_fix(time.monotonic(), np.array(position))
+            self.follower.on_fix(time.monotonic(), np.array(position), velocity)
 
     def on_pose(self, pose: AsvPose) -> None:
         if pose.status == "lost":
@@ -192,7 +197,11 @@ class FollowNode:
             self._announced_state = state
 
     def counters(self) -> dict[str, int]:
-        return {"commands_put": self.put_count, "stations_chosen": self.follower.replans}
+        return {
+            "commands_put": self.put_count,
+            "stations_chosen": self.follower.replans,
+            "looks_for_a_lost_rov": self.follower.looks,
+        }
 
 
 def main(config: Config) -> int:

@@ -10,7 +10,11 @@ A station keeps the ASV's hull `wall_clearance_m` from every wall and out of kee
 (fixtures reaching the surface, and the site's own), and its depth conditioning (metres of
 horizontal fix error per metre of depth error, tan of the depression) stays bounded. Of the
 feasible stations the cheapest wins: elevation off the target, distance from where the ASV is
-now, and turning, each weighted.
+now, turning, and masking, each weighted. Masking: a 2D sonar image cannot tell echoes apart
+that share a range and bearing at any elevation, so a ROV whose range cell (at its bearing,
+over the whole vertical aperture) also holds a mapped fixture, the floor or a wall is hidden
+in that echo (a ROV passing over a rack, seen along it); such views cost `mask_cost_per_deg`
+degrees of elevation error, so another bearing is taken where one exists.
 """
 
 from __future__ import annotations
@@ -20,8 +24,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from capsd.geometry import Array
+from capsd.echo_cell import any_inside, cell_points, fixture_boxes
+from capsd.geometry import Array, Transform
 from capsd.mounts import SonarMountConfig
+from capsd.sonar_geometry import to_polar
 from capsd.tank import TankBounds, TankFixture
 
 
@@ -41,6 +47,8 @@ class StationSettings:
     elevation_cost_per_deg: float = 1.0
     move_cost_per_m: float = 0.5
     turn_cost_per_deg: float = 0.02
+    mask_cost_per_deg: float = 20.0
+    mask_margin_m: float = 0.3  # range half-width of the ROV's cell, and fixtures' growth
 
 
 @dataclass(frozen=True)
@@ -79,6 +87,9 @@ class StationPlanner:
         self.half_aperture = math.radians(sonar.vertical_aperture_deg) / 2.0
         surface = [f for f in tank.fixtures if f.hi_m[2] > -0.5]  # what a hull can hit
         self.keep_out = tuple(surface) + settings.keep_out
+        self.sonar_mount = sonar.transform()
+        self.beam_model = sonar.beam_model
+        self._echo_boxes = fixture_boxes(tank.fixtures, settings.mask_margin_m)
 
     # ------------------------------------------------------------------ views
 
@@ -123,10 +134,51 @@ class StationPlanner:
             for f in self.keep_out
         )
 
+    def masked(self, asv_xy: Array, heading_rad: float, rov_m: Array) -> bool:
+        """Whether a fixture, the floor or a wall shares the ROV's range cell at its bearing."""
+        body = Transform.from_euler_zyx(
+            (float(asv_xy[0]), float(asv_xy[1]), 0.0),
+            yaw_rad=heading_rad,
+            pitch_rad=0.0,
+            roll_rad=0.0,
+        )
+        sonar = body.compose(self.sonar_mount)
+        r, azimuth, elevation = to_polar(self.beam_model, sonar.inverse().apply(rov_m))
+        m = self.settings.mask_margin_m
+        p = cell_points(
+            sonar,
+            range_m=r,
+            azimuth_rad=azimuth,
+            beam_model=self.beam_model,
+            vertical_aperture_rad=2.0 * self.half_aperture,
+            half_width_m=m,
+            skip_elevation_rad=elevation,
+        )
+        t = self.tank
+        if bool(
+            np.any(p[:, 2] <= -t.depth_m + m)
+            or np.any((p[:, 0] <= m) | (p[:, 0] >= t.length_m - m))
+            or np.any((p[:, 1] <= m) | (p[:, 1] >= t.width_m - m))
+        ):
+            return True
+        return any_inside(p, self._echo_boxes)
+
     # ------------------------------------------------------------------ choice
 
-    def choose(self, rov_m: Array, asv_xy: Array, heading_rad: float) -> Station | None:
-        """The cheapest feasible station for the ROV at `rov_m`, the ASV now at `asv_xy`."""
+    def choose(
+        self,
+        rov_m: Array,
+        asv_xy: Array,
+        heading_rad: float,
+        *,
+        avoid_bearing_rad: float | None = None,
+        avoid_within_rad: float = math.radians(40.0),
+    ) -> Station | None:
+        """The cheapest feasible station for the ROV at `rov_m`, the ASV now at `asv_xy`.
+
+        `avoid_bearing_rad`: no station looking along a bearing within `avoid_within_rad` of
+        it (another look at a ROV the sonar lost from there).
+        """
         s = self.settings
         drop = self.sonar_z - float(rov_m[2])
         if drop <= 0.0:
@@ -134,6 +186,11 @@ class StationPlanner:
         best: tuple[float, Station] | None = None
         for distance in self._distances(drop):
             for bearing in np.linspace(-math.pi, math.pi, 72, endpoint=False):
+                if (
+                    avoid_bearing_rad is not None
+                    and abs(_wrap(float(bearing) - avoid_bearing_rad)) < avoid_within_rad
+                ):
+                    continue
                 heading = _wrap(float(bearing) - self.mount_yaw)
                 # The sonar on the ring at `distance` from the ROV, looking along `bearing`.
                 sonar = np.array(
@@ -154,6 +211,10 @@ class StationPlanner:
                     + s.move_cost_per_m * float(np.linalg.norm(origin - asv_xy[:2]))
                     + s.turn_cost_per_deg * math.degrees(abs(_wrap(heading - heading_rad)))
                 )
+                if best is not None and cost >= best[0]:
+                    continue  # masking only adds: no need to look
+                if self.masked(origin, heading, rov_m):
+                    cost += s.mask_cost_per_deg
                 if best is None or cost < best[0]:
                     best = (cost, Station(origin, heading, view))
         return None if best is None else best[1]

@@ -21,6 +21,7 @@ import numpy as np
 
 from capsd import topics
 from capsd.config import ConfigSection, ServiceConfig
+from capsd.echo_cell import any_inside, cell_points, fixture_boxes
 from capsd.geometry import Array, Transform, quat_slerp, quat_to_matrix
 from capsd.keys import check_name
 from capsd.mounts import RovConfig, SonarMountConfig
@@ -41,6 +42,7 @@ from capsd.services.locator.paper import paper_fix
 from capsd.services.locator.timeline import Lookup, Timeline
 from capsd.services.locator.tracker import Tracker, TrackerSettings
 from capsd.signing import SiteKey
+from capsd.sonar_geometry import to_polar
 from capsd.tank import TankBounds
 
 logger = logging.getLogger(__name__)
@@ -118,9 +120,17 @@ class TrackingConfig(ConfigSection, frozen=True, kw_only=True):
 
 
 class ClutterConfig(ConfigSection, frozen=True, kw_only=True):
-    """Static clutter learned while tracking (capsd.services.locator.clutter)."""
+    """Clutter that may not start a track: learned, and explained by the tank's map.
+
+    Learned while tracking: capsd.services.locator.clutter; the map: capsd.echo_cell.
+    """
 
     mode: Literal["learn", "off"] = "learn"
+    # refuse_start: an echo whose range cell, at its bearing and anywhere in the vertical
+    # aperture, holds a mapped fixture (`tank.fixtures`, grown by `map_margin_m`) may update a
+    # track but never start one (the 2D image cannot tell the two apart); off.
+    map_explained: Literal["refuse_start", "off"] = "refuse_start"
+    map_margin_m: Annotated[float, msgspec.Meta(ge=0.0, le=2.0)] = 0.3
     cell_m: Annotated[float, msgspec.Meta(ge=0.1, le=5.0)] = 0.5
     static_after_s: Annotated[float, msgspec.Meta(gt=0.0, le=600.0)] = 5.0
     min_sightings: Annotated[int, msgspec.Meta(ge=1)] = 10
@@ -217,6 +227,9 @@ class Locator:
         self.tracker = Tracker(config.tracking.settings())
         self.clutter = ClutterMap(config.clutter.settings())
         self.static_refusals = 0  # candidates kept from starting a track by the clutter map
+        self.map_explained = 0  # candidate echoes the tank's fixtures could have made
+        fixtures = () if config.tank is None else config.tank.fixtures
+        self._fixture_boxes = fixture_boxes(fixtures, config.clutter.map_margin_m)
         # Velocities wait here until the ping they precede, so the tracker sees time in order.
         self._velocities: list[tuple[int, Array, Array]] = []
         # Zenoh may run different subscribers' callbacks on different threads at once.
@@ -375,7 +388,29 @@ class Locator:
                     reasons.append("outside_tank")
                 else:
                     fixes.append((solved[0], solved[1], detection))
-        return self._finish(out, stamp, fixes, reasons)
+            explained = [self._explained(asv, d, p) for p, _, d in fixes]
+        else:
+            explained = []
+        return self._finish(out, stamp, fixes, reasons, explained)
+
+    def _explained(self, asv: Transform, detection: Detection, position: Array) -> bool:
+        """Whether a mapped fixture shares this echo's range cell (capsd.echo_cell)."""
+        if self.config.clutter.map_explained == "off" or not len(self._fixture_boxes[0]):
+            return False
+        sonar = asv.compose(self.mount)
+        own = to_polar(self.config.sonar.beam_model, sonar.inverse().apply(position))[2]
+        points = cell_points(
+            sonar,
+            range_m=detection.range_m,
+            azimuth_rad=detection.azimuth_rad,
+            beam_model=self.config.sonar.beam_model,
+            vertical_aperture_rad=self.aperture_rad,
+            half_width_m=self.config.clutter.map_margin_m,
+            skip_elevation_rad=own,
+        )
+        found = any_inside(points, self._fixture_boxes)
+        self.map_explained += int(found)
+        return found
 
     def _finish(
         self,
@@ -383,6 +418,7 @@ class Locator:
         stamp: int,
         fixes: list[tuple[Array, Array | None, Detection]],
         reasons: list[str],
+        explained: list[bool],
     ) -> RovFix:
         reason = ",".join(sorted(set(reasons))) or None
         if self.method.tracking == "per_frame":
@@ -396,9 +432,13 @@ class Locator:
                 raw_covariance_m2=None if covariance is None else _flat(covariance),
             )
         usable = [(p, c) for p, c, _ in fixes if c is not None]
+        by_map = [e for (_, c, _), e in zip(fixes, explained, strict=True) if c is not None]
         self._fuse_velocities_until(stamp)
         learning = self.config.clutter.mode == "learn"
-        may_start = [not (learning and self.clutter.is_static(stamp, p)) for p, _ in usable]
+        may_start = [
+            not (learning and self.clutter.is_static(stamp, p)) and not mapped
+            for (p, _), mapped in zip(usable, by_map, strict=True)
+        ]
         association = self.tracker.update(stamp, usable, may_start=may_start)
         estimate = self.tracker.estimate()
         if learning:
@@ -407,7 +447,7 @@ class Locator:
         if raw is None and usable:
             if estimate.state in ("none", "lost") and not any(may_start):
                 self.static_refusals += len(usable)
-                reason = "static_clutter"
+                reason = "map_clutter" if any(by_map) else "static_clutter"
             else:
                 reason = "outside_gate"
         floor = np.eye(3) * self.config.unmodelled_sigma_m**2
@@ -451,6 +491,7 @@ def main(config: Config) -> int:
             lambda: {
                 "late_inputs": locator.late_inputs,
                 "static_clutter_refusals": locator.static_refusals,
+                "map_explained_echoes": locator.map_explained,
             }
         )
 

@@ -683,7 +683,10 @@ class Bridge:
         if command.position_m is not None:
             tank = self.config.tank
             assert tank is not None  # Config requires it with mission_commands: accept
-            if not tank.clear_of_walls(command.position_m, self.config.geofence_clearance_m):
+            x, y, z = command.position_m
+            if self.config.role == "asv":
+                z = -tank.depth_m / 2.0  # a surface vehicle: only the walls fence it
+            if not tank.clear_of_walls((x, y, z), self.config.geofence_clearance_m):
                 return "outside_geofence"
         return None
 

@@ -11,6 +11,7 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -19,18 +20,14 @@ from tests.conftest import REPO
 pytestmark = pytest.mark.integration
 
 
-@pytest.mark.timeout(300)
-def test_demo_flies_a_short_mission_closed_loop(tmp_path: Path) -> None:
+def _demo(tmp_path: Path, plan_text: str, *flags: str) -> tuple[Path, dict[str, Any]]:
+    """`capsd demo --mission PLAN FLAGS`; its report folder and figures (exit 0 asserted)."""
     plan = tmp_path / "plan.yaml"
-    plan.write_text(
-        "name: short\nresume_after_s: 2.0\npoints:\n"
-        "  - {position_m: [15.0, 7.0], depth_m: 3.5}\n"
-        "  - {position_m: [16.5, 7.0], depth_m: 3.5, dwell_s: 2}\n"
-    )
+    plan.write_text(plan_text)
     out = tmp_path / "demo"
     run = subprocess.run(
-        [sys.executable, "-m", "capsd", "demo", "--mission", str(plan), "--duration", "150",
-         "--out", str(out)],
+        [sys.executable, "-m", "capsd", "demo", "--mission", str(plan), *flags,
+         "--duration", "150", "--out", str(out)],
         capture_output=True,
         text=True,
         timeout=280,
@@ -38,7 +35,17 @@ def test_demo_flies_a_short_mission_closed_loop(tmp_path: Path) -> None:
     )  # fmt: skip
     assert run.returncode == 0, run.stdout[-4000:] + run.stderr[-2000:]
     assert "the mission ended" in run.stdout
-    figures = json.loads((out / "figures.json").read_text())
+    return out, json.loads((out / "figures.json").read_text())
+
+
+@pytest.mark.timeout(300)
+def test_demo_flies_a_short_mission_closed_loop(tmp_path: Path) -> None:
+    out, figures = _demo(
+        tmp_path,
+        "name: short\nresume_after_s: 2.0\npoints:\n"
+        "  - {position_m: [15.0, 7.0], depth_m: 3.5}\n"
+        "  - {position_m: [16.5, 7.0], depth_m: 3.5, dwell_s: 2}\n",
+    )
     mission = figures["mission"]
     assert mission["state"] == "done", mission
     assert mission["waypoint_reached"] == 2
@@ -53,3 +60,26 @@ def test_demo_flies_a_short_mission_closed_loop(tmp_path: Path) -> None:
     assert truth["pings"] > 50
     assert truth["cross_track_rms_m"] < 0.15, truth
     assert truth["availability"] > 0.5, truth
+    assert mission["asv"]["travelled_m"] < 0.5, mission["asv"]  # on station: waves only
+
+
+@pytest.mark.timeout(300)
+def test_demo_with_the_asv_following(tmp_path: Path) -> None:
+    """The ASV's bridge and the follower drive the simulated ASV after the ROV."""
+    _, figures = _demo(
+        tmp_path,
+        "name: follow\nresume_after_s: 2.0\npoints:\n"
+        "  - {position_m: [15.0, 7.0], depth_m: 3.5}\n"
+        "  - {position_m: [17.5, 7.0], depth_m: 3.5, dwell_s: 2}\n",
+        "--asv",
+        "follow",
+    )
+    mission = figures["mission"]
+    assert mission["state"] == "done", mission
+    follower = figures["health"]["asv_follow"]["counters"]
+    bridge = figures["health"]["asv_bridge"]["counters"]
+    assert follower["stations_chosen"] >= 2, follower  # the first, and one as the ROV moved
+    assert bridge["commands_sent_target"] > 10, bridge
+    assert bridge["gate_sent"] > 100, bridge  # the ASV's own pose into its autopilot
+    assert mission["asv"]["travelled_m"] > 0.5, mission["asv"]
+    assert mission["asv"]["min_wall_distance_m"] >= 1.6, mission["asv"]

@@ -79,14 +79,33 @@ def test_small_rov_motion_does_not_move_the_station_and_large_motion_does() -> N
     assert follower.replans == chosen + 1
 
 
-def test_without_a_fix_it_holds_its_station() -> None:
-    follower = _follower(fix_timeout_s=1.0)
+def test_without_a_fix_it_holds_then_looks_again_from_another_bearing() -> None:
+    follower = _follower(fix_timeout_s=1.0, reacquire_after_s=6.0)
     follower.on_mode("GUIDED")
     follower.on_fix(0.0, np.array([20.0, 6.0, -3.5]))
     follower.step(0.0)
-    targets = [follower.step(k * 0.1) for k in range(11, 300)]
-    assert all(t is not None and t.state == "holding" for t in targets)
+    first = follower.station
+    assert first is not None
+    held = [follower.step(k * 0.1) for k in range(11, 60)]  # 1.1 s to 5.9 s: holding
+    assert all(t is not None and t.state == "holding" for t in held)
+    assert follower.station is first
     assert follower.replans == 1
+    follower.step(6.0)  # lost for 6 s: another look
+    second = follower.station
+    assert second is not None
+    assert second is not first
+    assert follower.looks == 1
+    turned = math.atan2(
+        math.sin(second.heading_rad - first.heading_rad),
+        math.cos(second.heading_rad - first.heading_rad),
+    )
+    assert abs(turned) >= math.radians(40.0) - 1e-9
+    view = follower.planner.view(
+        second.position_xy, second.heading_rad, np.array([20.0, 6.0, -3.5])
+    )
+    assert follower.planner.view_is_good(view)
+    follower.step(9.0)
+    assert follower.looks == 1  # not again before another 6 s
     # A pilot's mode change forgets the hand-over: back in GUIDED it starts where the ASV is.
     follower.on_mode("MANUAL")
     follower.on_pose(np.array([12.0, 9.0]), 0.5)

@@ -126,3 +126,20 @@ def test_on_the_boresight_the_elevation_is_the_beam_models(
     assert abs(azimuth) < 1e-6
     assert math.isclose(view.range_m, r, rel_tol=1e-9)
     assert math.isclose(view.elevation_rad, elevation, abs_tol=1e-6)
+
+
+def test_a_view_where_a_rack_shares_the_rovs_range_cell_is_avoided() -> None:
+    """Seen along a rack's top, the ROV's echo merges with it: another bearing is chosen."""
+    rov = np.array([16.0, 8.0, -3.5])
+    free = _planner().choose(rov, np.array([10.0, 8.0]), 0.0)
+    assert free is not None
+    # A rack top 1.2 m under the ROV's level, along the free view's line of sight.
+    rack = TankFixture(name="rack", lo_m=(14.0, 7.0, -8.0), hi_m=(16.5, 9.0, -4.7))
+    planner = StationPlanner(MOUNT, TankBounds(fixtures=(rack,)), StationSettings())
+    assert planner.masked(free.position_xy, free.heading_rad, rov)
+    chosen = planner.choose(rov, np.array([10.0, 8.0]), 0.0)
+    assert chosen is not None
+    assert not planner.masked(chosen.position_xy, chosen.heading_rad, rov)
+    assert planner.view_is_good(chosen.view)
+    # Open water: the same view is not masked.
+    assert not _planner().masked(free.position_xy, free.heading_rad, rov)

@@ -10,7 +10,7 @@ from capsd.geometry import Transform
 from capsd.payloads import AsvPose, Detection, RovAttitude, RovDepth, SonarDetections
 from capsd.services.locator.service import ClutterConfig, Config, Locator, MethodConfig
 from capsd.sonar_geometry import to_polar
-from capsd.tank import TankBounds
+from capsd.tank import TankBounds, TankFixture
 
 SECOND = 1_000_000_000
 IDENTITY_Q = (0.0, 0.0, 0.0, 1.0)
@@ -167,3 +167,28 @@ def test_a_static_echo_learned_while_tracking_never_restarts_the_track() -> None
     # Without the clutter map the lost track restarts on the echo, called good.
     blind = _locator(clutter=ClutterConfig(mode="off"))
     assert any(q.startswith("good") for q in _ghost_then_loss(blind))
+
+
+def test_an_echo_a_mapped_fixture_explains_never_starts_a_track() -> None:
+    """A rack top in the echo's range cell (same range and bearing, lower): it may be the rack."""
+    rack = TankFixture(name="rack", lo_m=(7.5, 4.5, -3.5), hi_m=(8.8, 5.5, -3.0))
+    tank = TankBounds(fixtures=(rack,))
+    for mode, expect_start in (("refuse_start", False), ("off", True)):
+        locator = _locator(tank=tank, clutter=ClutterConfig(map_explained=mode))  # type: ignore[arg-type]
+        started = False
+        for k in range(10):
+            stamp = k * SECOND // 10
+            _feed_inputs(locator, from_s=k / 10, until_s=(k + 1) / 10)
+            fix = locator.locate(_ping(stamp, _detection_of(locator, ROV)), seq=k)
+            started = started or fix.track_state in ("tentative", "tracking")
+            if not expect_start:
+                assert fix.no_fix_reason == "map_clutter", fix
+        assert started == expect_start
+    # The same echo with the rack elsewhere in the tank starts a track.
+    elsewhere = TankFixture(name="rack", lo_m=(20.0, 10.0, -8.0), hi_m=(22.0, 12.0, -5.0))
+    open_water = _locator(tank=TankBounds(fixtures=(elsewhere,)))
+    _feed_inputs(open_water, until_s=1.0)
+    assert (
+        open_water.locate(_ping(SECOND // 2, _detection_of(open_water, ROV)), seq=0).track_state
+        == "tentative"
+    )

@@ -18,10 +18,19 @@ from capsd.bench.footprint import _heavy_mapped
 from capsd.bus import open_session
 from capsd.codec import Codec
 from capsd.config import BusConfig
+from capsd.geometry import matrix_to_quat
 from capsd.health import query_health
 from capsd.keys import is_concrete
 from capsd.ned import TankToNed
-from capsd.payloads import AutopilotStatus, Health, RovAttitude, RovDepth, RovFix
+from capsd.payloads import (
+    AsvPose,
+    AutopilotStatus,
+    Health,
+    RovAttitude,
+    RovDepth,
+    RovFix,
+    VehicleCommand,
+)
 from capsd.signing import SiteKey, write_key
 from capsd.simulator.autopilot import AutopilotStandIn, VehicleState
 from tests.conftest import REPO, Proc, free_port, wait_for
@@ -654,3 +663,119 @@ def test_mav_check_wants_the_delay_the_bridge_measures(
     assert wanted == max(5.0, 5.0 * round(median / 5.0))
     assert 25.0 <= wanted <= 60.0
     assert "CHANGE" in row  # the stand-in's 10 ms is not what this system needs
+
+
+def test_the_asv_role_feeds_its_pose_and_passes_follow_targets_only_in_guided(
+    spawn: Callable[..., Proc], client: zenoh.Session, endpoint: str, tmp_path: Path
+) -> None:
+    """ArduRover: the ASV's pose in, follow targets with a heading out while GUIDED.
+
+    The pose's own attitude goes with it; never an engage; its status on asv/autopilot.
+    """
+    heading_deg = 30.0
+    with AutopilotStandIn(free_port(), mode="MANUAL", autopilot="ardurover") as rover:
+        config = tmp_path / "asv_bridge.yaml"
+        config.write_text(
+            f"site: tank\nvehicle: asv\nrole: asv\nbus:\n  connect: [{endpoint}]\n"
+            f"fix_key: {_key_path(tmp_path)}\nmission_commands: accept\n"
+            "geofence_clearance_m: 1.0\n"
+            "tank:\n  length_m: 28.0\n  width_m: 16.0\n  depth_m: 8.0\n"
+            f"mavlink:\n  connect: tcp:127.0.0.1:{rover.port}\n"
+            f"ned:\n  heading_deg: {heading_deg}\n  origin_ned_m: [0.0, 0.0, 0.0]\n"
+        )
+        spawn("run", "mav_bridge", "--config", str(config))
+        key = SiteKey.load(_key_path(tmp_path), config_key="fix_key")
+        poses = client.declare_publisher(
+            topics.ASV_POSE.key("tank", "asv"), encoding=zenoh.Encoding(Codec(AsvPose).encoding)
+        )
+        commands = client.declare_publisher(
+            topics.ASV_COMMAND.key("tank", "topside"),
+            encoding=zenoh.Encoding(Codec(VehicleCommand).encoding),
+        )
+        statuses: list[AutopilotStatus] = []
+        status_sub = client.declare_subscriber(
+            topics.ASV_AUTOPILOT.key("tank", "asv"),
+            lambda s: statuses.append(
+                Codec(AutopilotStatus).decode(
+                    s.payload.to_bytes(), encoding=str(s.encoding), key_expr=str(s.key_expr)
+                )
+            ),
+        )
+        yaw_w = 0.4  # the ASV's heading in W (ccw from x)
+        r_w_b = np.array(
+            [[math.cos(yaw_w), -math.sin(yaw_w), 0.0], [math.sin(yaw_w), math.cos(yaw_w), 0.0],
+             [0.0, 0.0, 1.0]]
+        )  # fmt: skip
+        q = matrix_to_quat(r_w_b)
+        cov6 = tuple(float(i == j) * 1e-4 for i in range(6) for j in range(6))
+
+        def put_pose() -> None:
+            pose = AsvPose(
+                stamp_ns=time.time_ns(), seq=0, position_m=(9.0, 8.0, 0.01),
+                orientation_xyzw=(float(q[0]), float(q[1]), float(q[2]), float(q[3])),
+                covariance=cov6,
+            )  # fmt: skip
+            poses.put(Codec(AsvPose).encode(pose), attachment=time.time_ns().to_bytes(8, "little"))
+
+        def put_command(kind: str, position: tuple[float, float, float]) -> None:
+            command = VehicleCommand(
+                stamp_ns=time.time_ns(), seq=0, mission="follow", kind=kind,  # type: ignore[arg-type]
+                position_m=position, heading_rad=yaw_w,
+            )  # fmt: skip
+            data = Codec(VehicleCommand).encode(command)
+            key_expr = topics.ASV_COMMAND.key("tank", "topside")
+            tag = key.tag(key_expr, data)
+            commands.put(data, attachment=time.time_ns().to_bytes(8, "little") + tag)
+
+        def estimate_arrived() -> bool:
+            put_pose()
+            time.sleep(0.05)
+            return bool(rover.recorded.estimates)
+
+        wait_for(estimate_arrived, timeout_s=20, what="the ASV's pose at ArduRover")
+        ned = TankToNed(math.radians(heading_deg), np.zeros(3))
+        estimate = rover.recorded.estimates[-1][1]
+        assert (estimate.x, estimate.y, estimate.z) == pytest.approx(
+            tuple(ned.position(np.array([9.0, 8.0, 0.01]))), abs=1e-5
+        )
+        assert estimate.yaw == pytest.approx(ned.attitude_to_ned(r_w_b)[2], abs=1e-6)
+        # MANUAL (the pilot's): a goto is not passed on, an engage is refused outright.
+        for _ in range(5):
+            put_command("goto", (10.0, 8.0, 0.0))
+            put_command("engage", (10.0, 8.0, 0.0))
+            time.sleep(0.1)
+        assert rover.recorded.position_targets == []
+        assert rover.recorded.targets_refused == 0  # nothing was even sent
+        assert not [m for m in rover.recorded.modes if m[1] == "GUIDED"]
+        # The pilot hands over: targets with the heading, in NED, reach the autopilot.
+        rover.mode = "GUIDED"
+
+        def target_arrived() -> bool:
+            put_pose()
+            put_command("goto", (10.0, 8.0, 0.0))
+            time.sleep(0.1)
+            return bool(rover.recorded.position_targets)
+
+        wait_for(target_arrived, timeout_s=10, what="a follow target at ArduRover")
+        target = rover.recorded.position_targets[-1][1]
+        assert (target.north_m, target.east_m) == pytest.approx(
+            tuple(ned.position(np.array([10.0, 8.0, 0.0]))[:2]), abs=1e-4
+        )
+        assert target.yaw_rad == pytest.approx(ned.attitude_to_ned(r_w_b)[2], abs=1e-5)
+        # Fenced out (0.5 m from a wall, the fence is 1 m): refused.
+        before = len(rover.recorded.position_targets)
+        for _ in range(5):
+            put_command("goto", (0.5, 8.0, 0.0))
+            time.sleep(0.05)
+        time.sleep(0.3)
+        assert all(t.north_m != pytest.approx(ned.position(np.array([0.5, 8.0, 0.0]))[0])
+                   for _, t in rover.recorded.position_targets[before:])  # fmt: skip
+        wait_for(lambda: any(s.mode == "GUIDED" for s in statuses), timeout_s=5,
+                 what="GUIDED on asv/autopilot")  # fmt: skip
+        health = query_health(client, site="tank", vehicle="asv", service="mav_bridge")
+        assert health is not None
+        assert health.counters.get("commands_refused_engage_is_the_pilots", 0) >= 1
+        assert health.counters.get("commands_refused_outside_geofence", 0) >= 1
+        status_sub.undeclare()
+        poses.undeclare()
+        commands.undeclare()
