@@ -277,8 +277,9 @@ def _mission_start(
     xyz = np.array([p.position_m for p in points])
     height = float(-xyz[:, 2].max()) - 0.2  # the shallowest point, below the sonar
     nearest = height / math.tan(math.radians(40.0)) + 1.0
-    # 1.6 m: the follower's default hull clearance (1 m to the wall, 0.6 m hull radius).
-    station = (max(1.6, float(xyz[:, 0].min()) - nearest), float(xyz[:, 1].mean()))
+    # 2.1 m: where the follower keeps the ASV's origin (1 m to the wall, 0.6 m of hull, 0.5 m
+    # for the autopilot's overshoot).
+    station = (max(2.1, float(xyz[:, 0].min()) - nearest), float(xyz[:, 1].mean()))
     return points[0].position_m, station
 
 

@@ -124,9 +124,12 @@ class MissionController:
         if p.state in ("done", "aborted", "stopped"):
             return []
         if p.state == "waiting":
-            if self.fix_ok(now):
+            # Fixes good for `start_after_s` first: the autopilot has then had positions long
+            # enough to accept GUIDED (it refuses without them).
+            good_for = now - self._good_since_s if self._good_since_s is not None else 0.0
+            if self.fix_ok(now) and good_for >= self.plan.start_after_s:
                 p.state = "running"
-                return [self._engage(now, "start")]
+                return [self._engage(now, f"fix good for {good_for:.1f} s: start")]
             return []
         if p.state == "running":
             if not self.fix_ok(now):

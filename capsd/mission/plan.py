@@ -67,6 +67,9 @@ class Plan(ConfigSection, frozen=True, kw_only=True):
     speed_m_s: Annotated[float, msgspec.Meta(gt=0.0, le=2.0)] = 0.25
     # The fix must have been good for this long before a paused mission resumes.
     resume_after_s: Annotated[float, msgspec.Meta(ge=0.0, le=60.0)] = 2.0
+    # Good fixes for this long before the first GUIDED: the autopilot refuses GUIDED until
+    # it has had external positions (the bridge starts sending with the first good fix).
+    start_after_s: Annotated[float, msgspec.Meta(ge=0.0, le=60.0)] = 2.0
     # A fix older than this, or not good, pauses the mission (the ROV holds position).
     fix_timeout_s: Annotated[float, msgspec.Meta(gt=0.0, le=5.0)] = 0.5
     # The geofence: every waypoint at least this far from the walls, the floor and the surface.

@@ -2,16 +2,16 @@
 
 No chasing of noise: the station is kept while the ROV, seen from the station, stays within
 `elevation_tolerance` of the target elevation, `azimuth_tolerance` of the boresight and the
-range band; only then (and at most every `replan_after_s`) is a new one chosen, from good
-fixes only, for where the ROV will be `lead_s` later at its tracked velocity (a ROV flying a
-survey leg would otherwise leave every station as soon as it is reached). Without a good fix
-for `fix_timeout_s` the ASV holds its station; still none after `reacquire_after_s`, it takes
-another look at where the ROV was last seen, from a bearing at least 40 deg from the one that
-lost it (clutter behind or under the ROV, or its own shadow, hide it from one side only), and
-again every `reacquire_after_s`. The target sent
-to the autopilot is a carrot that walks from where the ASV was told to be towards the station,
-speed and acceleration limited, turning at a bounded rate; it starts where the ASV is when the
-pilot hands over (GUIDED) and nothing is sent in any other mode.
+range band, and no mapped fixture shares its range cell (capsd.echo_cell); only then (and at
+most every `replan_after_s`) is a new one chosen, from good fixes only, for where the ROV will
+be `lead_s` later at its tracked velocity (a ROV flying a survey leg would otherwise leave
+every station as soon as it is reached). Without a good fix for `fix_timeout_s` the ASV holds
+its station; still none after `reacquire_after_s`, it takes another look at where the ROV was
+last seen, from a bearing at least 40 deg from the one that lost it (clutter behind or under
+the ROV, or its own shadow, hide it from one side only), and again every `reacquire_after_s`.
+The target sent to the autopilot is a carrot that walks from where the ASV was told to be
+towards the station, speed and acceleration limited, turning at a bounded rate; it starts where
+the ASV is when the pilot hands over (GUIDED) and nothing is sent in any other mode.
 """
 
 from __future__ import annotations
@@ -168,6 +168,8 @@ class Follower:
             abs(view.elevation_rad - target) > s.elevation_tolerance_rad
             or abs(view.azimuth_rad) > s.azimuth_tolerance_rad
             or not self.planner.view_is_good(view)
+            # The ROV moved into a cell a fixture shares: look from elsewhere if one is free.
+            or self.planner.masked(self.station.position_xy, self.station.heading_rad, self.rov_m)
         )
 
     def _walk(self, dt: float) -> None:

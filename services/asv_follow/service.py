@@ -46,6 +46,7 @@ class StationConfig(ConfigSection, frozen=True, kw_only=True):
     max_range_m: Positive = 15.0
     wall_clearance_m: Annotated[float, msgspec.Meta(ge=0.0, le=20.0)] = 1.0
     hull_radius_m: Annotated[float, msgspec.Meta(ge=0.0, le=10.0)] = 0.6
+    tracking_margin_m: Annotated[float, msgspec.Meta(ge=0.0, le=10.0)] = 0.5
     max_conditioning: Positive = 2.0
     # Where the ASV must not go, besides fixtures of the tank that reach the surface.
     keep_out: Annotated[tuple[TankFixture, ...], msgspec.Meta(max_length=100)] = ()
@@ -63,6 +64,7 @@ class StationConfig(ConfigSection, frozen=True, kw_only=True):
             max_range_m=self.max_range_m,
             wall_clearance_m=self.wall_clearance_m,
             hull_radius_m=self.hull_radius_m,
+            tracking_margin_m=self.tracking_margin_m,
             max_conditioning=self.max_conditioning,
             keep_out=self.keep_out,
         )

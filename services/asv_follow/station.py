@@ -41,6 +41,9 @@ class StationSettings:
     max_range_m: float = 15.0
     wall_clearance_m: float = 1.0  # hull to wall
     hull_radius_m: float = 0.6  # origin to the hull's furthest point
+    # The autopilot overshoots a target it was driven to (the simulated ArduRover by up to
+    # 0.2 m at 0.5 m/s): stations keep this much more, so the hull keeps `wall_clearance_m`.
+    tracking_margin_m: float = 0.5
     max_conditioning: float = 2.0
     keep_out: tuple[TankFixture, ...] = ()
     # Costs: per degree of elevation off the target, per metre moved, per degree turned.
@@ -124,11 +127,12 @@ class StationPlanner:
 
     def clear(self, asv_xy: Array) -> bool:
         """Whether the hull at `asv_xy` keeps its clearance from walls and keep-out boxes."""
-        c = self.settings.wall_clearance_m + self.settings.hull_radius_m
+        s = self.settings
+        c = s.wall_clearance_m + s.hull_radius_m + s.tracking_margin_m
         x, y = float(asv_xy[0]), float(asv_xy[1])
         if not (c <= x <= self.tank.length_m - c and c <= y <= self.tank.width_m - c):
             return False
-        r = self.settings.hull_radius_m
+        r = s.hull_radius_m + s.tracking_margin_m
         return not any(
             f.lo_m[0] - r <= x <= f.hi_m[0] + r and f.lo_m[1] - r <= y <= f.hi_m[1] + r
             for f in self.keep_out

@@ -11,8 +11,10 @@ POINTS = [Waypoint((5.0, 4.0, -3.0)), Waypoint((9.0, 4.0, -3.0), dwell_s=2.0)]
 
 
 def _plan(**overrides: float) -> Plan:
+    # Engaging at the first good fix keeps these timelines short; start_after_s has its test.
+    settings = {"start_after_s": 0.0, **overrides}
     return msgspec.convert(
-        {"points": [{"position_m": [5.0, 4.0], "depth_m": 3.0}], **overrides}, Plan
+        {"points": [{"position_m": [5.0, 4.0], "depth_m": 3.0}], **settings}, Plan
     )
 
 
@@ -56,6 +58,17 @@ def test_waits_for_a_good_fix_then_engages_and_flies_every_waypoint() -> None:
     assert done_at - arrived_at >= 2.0 - 1e-9
     # Cross-track measured on the leg between the two points: 0.1 m off at x = 7.
     assert abs(max(ctl.progress.cross_track_m) - 0.1) < 1e-9
+
+
+def test_the_first_engage_waits_for_fixes_good_for_start_after_s() -> None:
+    ctl = MissionController(_plan(start_after_s=1.0, fix_timeout_s=0.5), POINTS)
+    path: list[tuple[float, float, float] | None] = [(4.0, 4.0, -3.0)] * 10  # 0.45 s
+    path += [None] * 20  # a 1 s gap, longer than fix_timeout_s: the good run restarts
+    path += [(4.0, 4.0, -3.0)] * 30
+    commands = _fly(ctl, path)
+    engages = [t for t, k, _ in commands if k == "engage"]
+    assert len(engages) == 1
+    assert engages[0] - 30 * 0.05 >= 1.0 - 1e-9
 
 
 def test_a_lost_fix_pauses_within_the_timeout_and_resumes_after_good_fixes() -> None:

@@ -55,8 +55,8 @@ def test_a_chosen_station_is_clear_of_walls_and_sees_the_rov_well(
     if station is None:
         return
     x, y = station.position_xy
-    assert 1.6 - 1e-9 <= x <= 28.0 - 1.6 + 1e-9
-    assert 1.6 - 1e-9 <= y <= 16.0 - 1.6 + 1e-9
+    assert 2.1 - 1e-9 <= x <= 28.0 - 2.1 + 1e-9
+    assert 2.1 - 1e-9 <= y <= 16.0 - 2.1 + 1e-9
     view = planner.view(station.position_xy, station.heading_rad, np.array(rov))
     assert planner.view_is_good(view)
     assert abs(view.azimuth_rad) < math.radians(0.5)
@@ -85,7 +85,7 @@ def test_keep_out_boxes_and_surface_fixtures_are_avoided() -> None:
     blocked = _planner(keep_out=(box,)).choose(rov, np.array([10.0, 8.0]), 0.0)
     assert blocked is not None
     bx, by = blocked.position_xy
-    assert not (fx - 1.6 <= bx <= fx + 1.6 and fy - 1.6 <= by <= fy + 1.6)
+    assert not (fx - 2.1 <= bx <= fx + 2.1 and fy - 2.1 <= by <= fy + 2.1)
     with_post = StationPlanner(MOUNT, TankBounds(fixtures=(box,)), StationSettings()).choose(
         rov, np.array([10.0, 8.0]), 0.0
     )
