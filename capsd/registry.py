@@ -78,3 +78,12 @@ SERVICES: dict[str, ServiceEntry] = {
         ),
     )
 }
+
+# Shipped configs named for their role rather than their service (deploy/config, deploy/roles).
+CONFIG_SERVICE = {"asv_bridge": "mav_bridge"}
+
+
+def service_of_config(stem: str) -> ServiceEntry:
+    """The service a shipped config file (by its name without .yaml) configures."""
+    return SERVICES[CONFIG_SERVICE.get(stem, stem)]
+

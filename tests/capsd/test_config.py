@@ -90,8 +90,8 @@ def test_dump_round_trips() -> None:
 @pytest.mark.parametrize("path", sorted(Path("deploy/config").glob("*.yaml")), ids=str)
 def test_shipped_example_configs_load(path: Path) -> None:
     from capsd.cli import RouterConfig
-    from capsd.registry import SERVICES
+    from capsd.registry import service_of_config
 
     name = path.name.split(".")[0]
-    cls = RouterConfig if name == "router" else SERVICES[name].load()[0]
+    cls = RouterConfig if name == "router" else service_of_config(name).load()[0]
     load_config(path, cls)

@@ -10,7 +10,7 @@ import zenoh
 
 from capsd.cli import RouterConfig
 from capsd.config import load_config
-from capsd.registry import SERVICES
+from capsd.registry import service_of_config
 from tests.conftest import REPO
 
 ROLES = REPO / "deploy" / "roles"
@@ -35,8 +35,7 @@ def test_role_config_loads(path: Path, certs: Path, tmp_path: Path) -> None:
     local = tmp_path / path.name
     local.write_text(text)
     name = path.stem
-    service = {"asv_bridge": "mav_bridge"}.get(name, name)  # the bridge in the ASV's role
-    cls = RouterConfig if name == "router" else SERVICES[service].load()[0]
+    cls = RouterConfig if name == "router" else service_of_config(name).load()[0]
     config = load_config(local, cls)
     role = path.parent.name
     if role == "rov":  # the Pi: BlueOS's router on loopback, no second router
