@@ -86,4 +86,3 @@ CONFIG_SERVICE = {"asv_bridge": "mav_bridge"}
 def service_of_config(stem: str) -> ServiceEntry:
     """The service a shipped config file (by its name without .yaml) configures."""
     return SERVICES[CONFIG_SERVICE.get(stem, stem)]
-
