@@ -159,3 +159,8 @@ class Transform:
 
     def quat_xyzw(self) -> Array:
         return matrix_to_quat(self.rotation)
+
+
+def wrap_angle(angle_rad: float) -> float:
+    """The same angle in (-pi, pi]."""
+    return math.atan2(math.sin(angle_rad), math.cos(angle_rad))

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from capsd.geometry import euler_zyx_to_matrix
+from capsd.geometry import euler_zyx_to_matrix, wrap_angle
 from capsd.simulator.world import RovState, Waves, rov_attitude, wave_motion
 
 Array = np.ndarray
@@ -210,11 +210,9 @@ class GuidedAsv:
 
     def on_estimate(self, t_s: float, estimate_xy: Array) -> None:
         """An external position estimate of the ASV measured at sim time `t_s`."""
-        self.pose(t_s)  # integrate up to it
+        true_xy, _, _ = self._at(t_s)
         with self._lock:
-            first_t = self._history[0][0]
-            k = min(max(round((t_s - first_t) / DT_S), 0), len(self._history) - 1)
-            self._error = np.asarray(estimate_xy[:2], dtype=np.float64) - self._history[k][1]
+            self._error = np.asarray(estimate_xy[:2], dtype=np.float64) - true_xy
             self._last_estimate_t = max(self._last_estimate_t, self._t)
 
     # ------------------------------------------------------------------ the world's side
@@ -262,7 +260,7 @@ class GuidedAsv:
         self._p = self._p + self._v * DT_S
         self._a = accel
         if yaw_goal is not None:
-            turn = math.atan2(math.sin(yaw_goal - self._yaw), math.cos(yaw_goal - self._yaw))
+            turn = wrap_angle(yaw_goal - self._yaw)
             rate = max(
                 -lim.max_yaw_rate_rad_s, min(lim.max_yaw_rate_rad_s, lim.yaw_gain_1_s * turn)
             )

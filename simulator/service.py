@@ -18,7 +18,7 @@ import queue
 import threading
 import time
 from collections import defaultdict
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
@@ -105,14 +105,17 @@ class _Lookahead(threading.Thread):
         return item
 
 
+def _sim_clock(start_ns: int) -> Callable[[float], float]:
+    """Sim time of a Unix time (s): sim time 0 is wall time `start_ns`."""
+    return lambda unix_s: max(0.0, unix_s - start_ns / 1e9)
+
+
 def hosted_autopilot(config: Config, rov: GuidedRov, start_ns: int) -> AutopilotStandIn:
     """The ArduSub stand-in that flies `rov` (sim time 0 is wall time `start_ns`)."""
     assert config.guided is not None
     g = config.guided
     ned = TankToNed(math.radians(g.ned_heading_deg), np.array(g.ned_origin_m))
-
-    def sim_time(unix_s: float) -> float:
-        return max(0.0, unix_s - start_ns / 1e9)
+    sim_time = _sim_clock(start_ns)
 
     def vehicle(unix_s: float) -> VehicleState:
         state = rov.state(sim_time(unix_s))
@@ -147,9 +150,7 @@ def hosted_asv_autopilot(config: Config, asv: GuidedAsv, start_ns: int) -> Autop
     assert config.asv_guided is not None
     g = config.asv_guided
     ned = TankToNed(math.radians(g.ned_heading_deg), np.array(g.ned_origin_m))
-
-    def sim_time(unix_s: float) -> float:
-        return max(0.0, unix_s - start_ns / 1e9)
+    sim_time = _sim_clock(start_ns)
 
     def vehicle(unix_s: float) -> VehicleState:
         rotation, position = asv.pose(sim_time(unix_s))

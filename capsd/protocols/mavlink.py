@@ -33,7 +33,8 @@ MAV_FRAME_LOCAL_NED = 1
 # rate ignored), the form ArduSub's GUIDED mode takes for a position target.
 POSITION_ONLY_MASK = 0b0000_1101_1111_1000
 # ... and with the yaw (bit 10 clear): ArduRover's GUIDED turns an omni or boat frame to it.
-POSITION_YAW_MASK = POSITION_ONLY_MASK & ~0b0100_0000_0000
+_YAW_IGNORE = 0b0100_0000_0000
+POSITION_YAW_MASK = POSITION_ONLY_MASK & ~_YAW_IGNORE
 # Whose custom modes a HEARTBEAT carries: the ROV's ArduSub, the ASV's ArduRover (boat/omni).
 Autopilot = Literal["ardusub", "ardurover"]
 MAV_RESULT_ACCEPTED = 0
@@ -288,7 +289,7 @@ def _convert(msg: Any) -> Message | None:
     if kind == "PARAM_REQUEST_LIST":
         return ParamRequest(None)
     if kind == "SET_POSITION_TARGET_LOCAL_NED":
-        yaw = None if msg.type_mask & 0b0100_0000_0000 else float(msg.yaw)
+        yaw = None if msg.type_mask & _YAW_IGNORE else float(msg.yaw)
         return PositionTarget(
             msg.time_boot_ms, msg.coordinate_frame, msg.type_mask, msg.x, msg.y, msg.z, yaw
         )

@@ -22,8 +22,8 @@ from typing import Literal
 
 import numpy as np
 
-from capsd.geometry import Array
-from capsd.services.asv_follow.station import Station, StationPlanner, View
+from capsd.geometry import Array, wrap_angle
+from capsd.services.asv_follow.station import Station, StationPlanner
 
 FollowState = Literal["standby", "holding", "following", "no_station"]
 
@@ -91,12 +91,6 @@ class Follower:
             self.station = None
         self.mode = mode
 
-    def view_now(self) -> View | None:
-        """The ROV seen from where the ASV is (for progress lines and the report)."""
-        if self.asv_xy is None or self.rov_m is None:
-            return None
-        return self.planner.view(self.asv_xy, self.asv_heading, self.rov_m)
-
     def step(self, now_s: float) -> Target | None:
         dt = 0.0 if self._last_step_s is None else max(0.0, now_s - self._last_step_s)
         self._last_step_s = now_s
@@ -110,8 +104,8 @@ class Follower:
         replanned = False
         if (
             fresh
-            and self._needs_station()
             and now_s - self._last_plan_s >= self.settings.replan_after_s
+            and self._needs_station()  # last: it looks at the map
         ):
             assert self.rov_m is not None
             self._last_plan_s = now_s
@@ -195,9 +189,6 @@ class Follower:
             self._carrot_v = np.zeros(2)
         else:
             self._carrot = self._carrot + step
-        turn = math.atan2(
-            math.sin(self.station.heading_rad - self._carrot_heading),
-            math.cos(self.station.heading_rad - self._carrot_heading),
-        )
+        turn = wrap_angle(self.station.heading_rad - self._carrot_heading)
         max_turn = s.max_yaw_rate_rad_s * dt
         self._carrot_heading += max(-max_turn, min(max_turn, turn))

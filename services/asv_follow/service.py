@@ -135,8 +135,7 @@ class FollowNode:
         self.commands = commands
         self.lock = threading.Lock()
         self.put_count = 0
-        self.state = "standby"
-        self._announced_state: str | None = None
+        self.state: str | None = None  # the last one logged
 
     def on_fix(self, fix: RovFix) -> None:
         if fix.quality != "good":
@@ -193,10 +192,9 @@ class FollowNode:
 
     def _announce(self, target: Target | None) -> None:
         state = "standby" if target is None else target.state
-        self.state = state
-        if state != self._announced_state:
+        if state != self.state:
             logger.info("follower", extra={"fields": {"state": state}})
-            self._announced_state = state
+            self.state = state
 
     def counters(self) -> dict[str, int]:
         return {

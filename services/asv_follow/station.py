@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from capsd.echo_cell import any_inside, cell_points, fixture_boxes
-from capsd.geometry import Array, Transform
+from capsd.geometry import Array, Transform, wrap_angle
 from capsd.mounts import SonarMountConfig
 from capsd.sonar_geometry import to_polar
 from capsd.tank import TankBounds, TankFixture
@@ -73,10 +73,6 @@ class Station:
     view: View
 
 
-def _wrap(angle: float) -> float:
-    return math.atan2(math.sin(angle), math.cos(angle))
-
-
 class StationPlanner:
     """Stations for one sonar mount in one tank."""
 
@@ -108,7 +104,7 @@ class StationPlanner:
         horizontal = math.hypot(dx, dy)
         drop = self.sonar_z - float(rov_m[2])
         depression = math.atan2(drop, horizontal)
-        azimuth = _wrap(math.atan2(dy, dx) - heading_rad - self.mount_yaw)
+        azimuth = wrap_angle(math.atan2(dy, dx) - heading_rad - self.mount_yaw)
         return View(
             range_m=math.hypot(horizontal, drop),
             azimuth_rad=azimuth,
@@ -192,10 +188,10 @@ class StationPlanner:
             for bearing in np.linspace(-math.pi, math.pi, 72, endpoint=False):
                 if (
                     avoid_bearing_rad is not None
-                    and abs(_wrap(float(bearing) - avoid_bearing_rad)) < avoid_within_rad
+                    and abs(wrap_angle(float(bearing) - avoid_bearing_rad)) < avoid_within_rad
                 ):
                     continue
-                heading = _wrap(float(bearing) - self.mount_yaw)
+                heading = wrap_angle(float(bearing) - self.mount_yaw)
                 # The sonar on the ring at `distance` from the ROV, looking along `bearing`.
                 sonar = np.array(
                     [
@@ -213,7 +209,7 @@ class StationPlanner:
                     s.elevation_cost_per_deg
                     * math.degrees(abs(view.elevation_rad - s.target_elevation_rad))
                     + s.move_cost_per_m * float(np.linalg.norm(origin - asv_xy[:2]))
-                    + s.turn_cost_per_deg * math.degrees(abs(_wrap(heading - heading_rad)))
+                    + s.turn_cost_per_deg * math.degrees(abs(wrap_angle(heading - heading_rad)))
                 )
                 if best is not None and cost >= best[0]:
                     continue  # masking only adds: no need to look

@@ -226,7 +226,8 @@ class Locator:
         )
         self.tracker = Tracker(config.tracking.settings())
         self.clutter = ClutterMap(config.clutter.settings())
-        self.static_refusals = 0  # candidates kept from starting a track by the clutter map
+        # Candidates kept from starting a track (learned clutter or the map explains them).
+        self.clutter_refusals = 0
         self.map_explained = 0  # candidate echoes the tank's fixtures could have made
         fixtures = () if config.tank is None else config.tank.fixtures
         self._fixture_boxes = fixture_boxes(fixtures, config.clutter.map_margin_m)
@@ -345,6 +346,16 @@ class Locator:
             if i != taken and float(np.linalg.norm(position[:2] - track_m[:2])) > clear:
                 self.clutter.observe(stamp, position)
 
+    def counters(self) -> dict[str, int]:
+        """Health counters (Zenoh's thread: under the lock the pings take)."""
+        with self._lock:
+            return {
+                "late_inputs": self.late_inputs,
+                "clutter_refusals": self.clutter_refusals,
+                "static_clutter_cells": self.clutter.static_cells(self._solved_until_ns),
+                "map_explained_echoes": self.map_explained,
+            }
+
     def locate(self, detections: SonarDetections, *, seq: int) -> RovFix:
         """The fix for one ping, tracked; an invalid RovFix says why there is none."""
         with self._lock:
@@ -446,7 +457,7 @@ class Locator:
         raw = usable[association.index] if association.index is not None else None
         if raw is None and usable:
             if estimate.state in ("none", "lost") and not any(may_start):
-                self.static_refusals += len(usable)
+                self.clutter_refusals += len(usable)
                 reason = "map_clutter" if any(by_map) else "static_clutter"
             else:
                 reason = "outside_gate"
@@ -487,13 +498,7 @@ def main(config: Config) -> int:
     with ServiceRunner("locator", config) as runner:
         fixes: Publisher[RovFix] = runner.publisher(topics.ROV_FIX, signer=signer)
         stage = runner.latency("fix")  # detections arrival to fix put
-        runner.add_counters(
-            lambda: {
-                "late_inputs": locator.late_inputs,
-                "static_clutter_refusals": locator.static_refusals,
-                "map_explained_echoes": locator.map_explained,
-            }
-        )
+        runner.add_counters(locator.counters)
 
         def on_detections(detections: SonarDetections) -> None:
             received_ns = runner.received_ns()

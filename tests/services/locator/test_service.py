@@ -163,7 +163,7 @@ def test_a_static_echo_learned_while_tracking_never_restarts_the_track() -> None
     after_loss = _ghost_then_loss(locator)
     assert not any(q.startswith("good") for q in after_loss)
     assert after_loss[-1] == "invalid:static_clutter"
-    assert locator.static_refusals > 0
+    assert locator.clutter_refusals > 0
     # Without the clutter map the lost track restarts on the echo, called good.
     blind = _locator(clutter=ClutterConfig(mode="off"))
     assert any(q.startswith("good") for q in _ghost_then_loss(blind))
