@@ -128,9 +128,16 @@ class ClutterConfig(ConfigSection, frozen=True, kw_only=True):
     mode: Literal["learn", "off"] = "learn"
     # refuse_start: an echo whose range cell, at its bearing and anywhere in the vertical
     # aperture, holds a mapped fixture (`tank.fixtures`, grown by `map_margin_m`) may update a
-    # track but never start one (the 2D image cannot tell the two apart); off.
+    # track but never start one (the 2D image cannot tell the two apart), unless it lies where
+    # the ROV was last confirmed (see `reacquire_*`); off.
     map_explained: Literal["refuse_start", "off"] = "refuse_start"
     map_margin_m: Annotated[float, msgspec.Meta(ge=0.0, le=2.0)] = 0.3
+    # A ROV lost over a rack is found again where it was: a map-explained echo may start a
+    # track within reacquire_radius_m + reacquire_speed_m_s x (time since the last confirmed
+    # fix) of that fix, for reacquire_window_s. A fixture's echo farther off still may not.
+    reacquire_radius_m: Annotated[float, msgspec.Meta(ge=0.0, le=5.0)] = 0.5
+    reacquire_speed_m_s: Annotated[float, msgspec.Meta(ge=0.0, le=2.0)] = 0.3
+    reacquire_window_s: Annotated[float, msgspec.Meta(ge=0.0, le=600.0)] = 10.0
     cell_m: Annotated[float, msgspec.Meta(ge=0.1, le=5.0)] = 0.5
     static_after_s: Annotated[float, msgspec.Meta(gt=0.0, le=600.0)] = 5.0
     min_sightings: Annotated[int, msgspec.Meta(ge=1)] = 10
@@ -231,6 +238,8 @@ class Locator:
         self.map_explained = 0  # candidate echoes the tank's fixtures could have made
         fixtures = () if config.tank is None else config.tank.fixtures
         self._fixture_boxes = fixture_boxes(fixtures, config.clutter.map_margin_m)
+        # Where and when the ROV was last seen by a confirmed track (the reacquire rule).
+        self._last_confirmed: tuple[int, Array] | None = None
         # Velocities wait here until the ping they precede, so the tracker sees time in order.
         self._velocities: list[tuple[int, Array, Array]] = []
         # Zenoh may run different subscribers' callbacks on different threads at once.
@@ -330,6 +339,18 @@ class Locator:
         if result.position_m is None or result.covariance_m2 is None:
             return result.reason or "no_fix"
         return result.position_m, result.covariance_m2
+
+    def _reacquires(self, stamp: int, position: Array) -> bool:
+        """Whether a map-explained echo lies where the ROV was last confirmed (may restart)."""
+        if self._last_confirmed is None:
+            return False
+        seen_ns, seen_m = self._last_confirmed
+        settings = self.config.clutter
+        elapsed_s = (stamp - seen_ns) / 1e9
+        if not 0.0 <= elapsed_s <= settings.reacquire_window_s:
+            return False
+        radius_m = settings.reacquire_radius_m + settings.reacquire_speed_m_s * elapsed_s
+        return float(np.linalg.norm(position - seen_m)) <= radius_m
 
     def _learn_clutter(
         self,
@@ -447,11 +468,18 @@ class Locator:
         self._fuse_velocities_until(stamp)
         learning = self.config.clutter.mode == "learn"
         may_start = [
-            not (learning and self.clutter.is_static(stamp, p)) and not mapped
+            not (learning and self.clutter.is_static(stamp, p))
+            and (not mapped or self._reacquires(stamp, p))
             for (p, _), mapped in zip(usable, by_map, strict=True)
         ]
         association = self.tracker.update(stamp, usable, may_start=may_start)
         estimate = self.tracker.estimate()
+        if (
+            association.index is not None
+            and estimate.state == "tracking"
+            and estimate.position_m is not None
+        ):
+            self._last_confirmed = (stamp, estimate.position_m)
         if learning:
             self._learn_clutter(stamp, usable, association.index, estimate.position_m)
         raw = usable[association.index] if association.index is not None else None

@@ -192,3 +192,41 @@ def test_an_echo_a_mapped_fixture_explains_never_starts_a_track() -> None:
         open_water.locate(_ping(SECOND // 2, _detection_of(open_water, ROV)), seq=0).track_state
         == "tentative"
     )
+
+
+def _lost_then_over_the_rack(locator: Locator, *, hidden_s: float) -> list[str]:
+    """Tracked 1.5 m beside the rack for 2 s, unseen for `hidden_s`, then seen over the rack."""
+    beside = ROV + np.array([0.0, 1.5, 0.0])
+    states = []
+    steps_before, hidden = 20, round(hidden_s * 10)
+    for k in range(steps_before + hidden + 10):  # 10 Hz
+        stamp = k * SECOND // 10
+        _feed_inputs(locator, from_s=k / 10, until_s=(k + 1) / 10)
+        if k < steps_before:
+            seen = [_detection_of(locator, beside)]
+        elif k < steps_before + hidden:
+            seen = []
+        else:
+            seen = [_detection_of(locator, ROV)]
+        fix = locator.locate(_ping(stamp, *seen), seq=k)
+        if k >= steps_before + hidden:
+            states.append(f"{fix.track_state}:{fix.no_fix_reason}")
+    return states
+
+
+def test_a_rov_lost_over_a_rack_is_found_again_where_it_was_last_confirmed() -> None:
+    rack = TankFixture(name="rack", lo_m=(7.5, 4.5, -3.5), hi_m=(8.8, 5.5, -3.0))
+    tank = TankBounds(fixtures=(rack,))
+    # 3 s unseen: 1.5 m from the last confirmed fix is within 0.5 m + 0.3 m/s x 3 s.
+    found = _lost_then_over_the_rack(_locator(tank=tank), hidden_s=3.0)
+    assert found[-1].startswith("tracking"), found
+    # Without the rule, or too long unseen to say it is the same ROV: the rack's echo, refused.
+    never = _locator(tank=tank, clutter=ClutterConfig(reacquire_window_s=0.0))
+    assert set(_lost_then_over_the_rack(never, hidden_s=3.0)) == {"lost:map_clutter"}
+    stale = _locator(tank=tank, clutter=ClutterConfig(reacquire_window_s=5.0))
+    assert set(_lost_then_over_the_rack(stale, hidden_s=6.0)) == {"lost:map_clutter"}
+    # Too far for the time unseen (0.5 m + 0.3 m/s x 2.5 s = 1.25 m < 1.5 m): refused until
+    # the ROV could have come that far (after 3.33 s).
+    fast = _lost_then_over_the_rack(_locator(tank=tank), hidden_s=2.5)
+    assert fast[:8] == ["lost:map_clutter"] * 8, fast
+    assert fast[-1].startswith("tentative"), fast
