@@ -1,11 +1,14 @@
 """An ArduSub (or ArduRover) stand-in on a loopback link: telemetry, parameters, a recorder.
 
-It listens (`tcpin:`), sends HEARTBEAT (1 Hz), ATTITUDE, SCALED_PRESSURE2, SYSTEM_TIME and
-EKF_STATUS_REPORT (a model of EKF3's position test ratio, see `pos_horiz_ratio`) at the rates
-the bridge asks for (MAV_CMD_SET_MESSAGE_INTERVAL, acknowledged), serves parameters
-(PARAM_REQUEST_READ/LIST, PARAM_SET echoes PARAM_VALUE), and records what it receives:
-VISION_POSITION_ESTIMATE, GPS_INPUT, STATUSTEXT, SET_GPS_GLOBAL_ORIGIN. The vehicle's attitude
-and depth come from a callable, so a simulator can drive it. For tests and the demo only.
+It listens (`tcpin:`), sends HEARTBEAT (1 Hz), ATTITUDE, SCALED_PRESSURE2, SYSTEM_TIME,
+SYS_STATUS and EKF_STATUS_REPORT (a model of EKF3's position test ratio, see `pos_horiz_ratio`)
+at the rates the bridge asks for (MAV_CMD_SET_MESSAGE_INTERVAL, acknowledged), serves
+parameters (PARAM_REQUEST_READ/LIST, PARAM_SET echoes PARAM_VALUE), reboots when disarmed
+(MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN) and records what it receives: VISION_POSITION_ESTIMATE,
+GPS_INPUT, STATUSTEXT, SET_GPS_GLOBAL_ORIGIN. As ArduPilot does, it takes external position
+only when VISO_TYPE was set at its last boot (the backend is made then); SYS_STATUS says so.
+The vehicle's attitude and depth come from a callable, so a simulator can drive it. For tests
+and the demo only.
 """
 
 from __future__ import annotations
@@ -23,9 +26,11 @@ from typing import Self
 from capsd.protocols.mavlink import (
     MAV_CMD_DO_SET_MODE,
     MAV_CMD_PREFLIGHT_CALIBRATION,
+    MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN,
     MAV_CMD_SET_MESSAGE_INTERVAL,
     MAV_RESULT_ACCEPTED,
     MAV_RESULT_DENIED,
+    MAV_SYS_STATUS_SENSOR_VISION_POSITION,
     Attitude,
     Autopilot,
     CommandLong,
@@ -38,6 +43,7 @@ from capsd.protocols.mavlink import (
     ParamSet,
     PositionTarget,
     StatusText,
+    SysStatus,
     VisionPositionEstimate,
     message_id,
     mode_name,
@@ -57,6 +63,19 @@ DEFAULT_PARAMS: dict[str, float] = {
     "BARO2_GND_PRESS": 101_325.0,
     "BARO_SPEC_GRAV": 1.0,
 }
+
+# ... and one `capsd mav check --apply` and a reboot later.
+CONFIGURED_PARAMS: dict[str, float] = DEFAULT_PARAMS | {
+    "VISO_TYPE": 1.0,
+    "EK3_SRC1_POSXY": 6.0,
+    "EK3_SRC1_VELXY": 0.0,
+    "GPS1_TYPE": 0.0,
+    "VISO_POS_M_NSE": 0.05,
+}
+# Read by ArduPilot at boot only (its parameter documentation: RebootRequired).
+BOOT_PARAMS = ("VISO_TYPE", "GPS1_TYPE")
+REBOOT_S = 1.0  # how long a reboot keeps the link down
+VISO_TIMEOUT_S = 0.3  # AP_VisualOdom: healthy with an estimate this recent
 
 RHO_G = 1000.0 * 9.80665
 EKF_WINDOW_S = 3.0
@@ -112,8 +131,11 @@ class AutopilotStandIn:
         on_mode: Callable[[str], None] | None = None,
         on_target: Callable[[PositionTarget], None] | None = None,
         on_estimate: Callable[[VisionPositionEstimate], None] | None = None,
+        gcs_port: int | None = None,
     ):
         self.port = port
+        # A second client (a ground station beside the bridge), as BlueOS's router allows.
+        self.gcs_port = gcs_port
         # A simulator flying the vehicle hears what the autopilot is told (its own thread).
         self.on_mode = on_mode
         self.on_target = on_target
@@ -136,21 +158,31 @@ class AutopilotStandIn:
             message_id("ATTITUDE"): 10.0,
             message_id("SCALED_PRESSURE2"): 5.0,
             message_id("SYSTEM_TIME"): 1.0,
+            message_id("SYS_STATUS"): 1.0,
         }
         self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._threads: list[threading.Thread] = []
         self._booted = time.monotonic()
         self._paused = threading.Event()
+        self._reboot_due = threading.Event()
+        self.boots = 1
+        # What the running firmware read at boot: parameters changed since wait for a reboot.
+        self.boot_params = {name: self.params[name] for name in BOOT_PARAMS if name in self.params}
 
     def __enter__(self) -> Self:
-        self._thread = threading.Thread(target=self._run, name="autopilot-stand-in", daemon=True)
-        self._thread.start()
+        ports = [self.port] + ([] if self.gcs_port is None else [self.gcs_port])
+        for k, port in enumerate(ports):
+            thread = threading.Thread(
+                target=self._run, args=(port, k == 0), name=f"autopilot-{port}", daemon=True
+            )
+            thread.start()
+            self._threads.append(thread)
         return self
 
     def __exit__(self, *_exc: object) -> None:
         self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5)
+        for thread in self._threads:
+            thread.join(timeout=5)
 
     def restart(self, *, down_s: float) -> None:
         """Close the link for `down_s` seconds (the bridge sees the autopilot vanish)."""
@@ -165,18 +197,38 @@ class AutopilotStandIn:
     def time_boot_ms(self) -> int:
         return int((time.monotonic() - self._booted) * 1000)
 
+    @property
+    def takes_estimates(self) -> bool:
+        """Whether the firmware has an external-position backend (VISO_TYPE at boot)."""
+        return self.boot_params.get("VISO_TYPE", 0.0) != 0.0
+
+    def _boot(self) -> None:
+        self._booted = time.monotonic()
+        self.boots += 1
+        self.boot_params = {name: self.params[name] for name in BOOT_PARAMS if name in self.params}
+        with self.lock:
+            self._innovations.clear()
+
     # ------------------------------------------------------------------ loop
 
-    def _run(self) -> None:
+    def _run(self, port: int, primary: bool) -> None:
         while not self._stop.is_set():
-            with MavLink(f"tcpin:127.0.0.1:{self.port}", system_id=1, component_id=1) as link:
+            with MavLink(f"tcpin:127.0.0.1:{port}", system_id=1, component_id=1) as link:
                 self._serve(link)
+            if self._reboot_due.is_set():
+                if primary:  # one thread boots the firmware; the others wait for it
+                    self._stop.wait(REBOOT_S)
+                    self._boot()
+                    self._reboot_due.clear()
+                else:
+                    while self._reboot_due.is_set() and not self._stop.is_set():
+                        time.sleep(0.02)
             while self._paused.is_set() and not self._stop.is_set():
                 time.sleep(0.02)
 
     def _serve(self, link: MavLink) -> None:
         next_due: dict[int | str, float] = {"heartbeat": 0.0}
-        while not self._stop.is_set() and not self._paused.is_set():
+        while not (self._stop.is_set() or self._paused.is_set() or self._reboot_due.is_set()):
             received = link.recv(timeout_s=0.005)
             if received is not None:
                 self._handle(link, received.message)
@@ -208,6 +260,8 @@ class AutopilotStandIn:
             )
         elif msg == message_id("SYSTEM_TIME"):
             link.send_system_time(time_unix_usec=0, time_boot_ms=boot_ms)
+        elif msg == message_id("SYS_STATUS"):
+            link.send_sys_status(self.sys_status())
         elif msg == message_id("EKF_STATUS_REPORT"):
             link.send_ekf_status(
                 EkfStatus(
@@ -217,6 +271,15 @@ class AutopilotStandIn:
                     compass_variance=0.05,
                 )
             )
+
+    def sys_status(self) -> SysStatus:
+        """External position: present once VISO_TYPE is set, healthy once it is in use."""
+        vision = MAV_SYS_STATUS_SENSOR_VISION_POSITION
+        present = vision if self.params.get("VISO_TYPE", 0.0) != 0.0 else 0
+        with self.lock:
+            used = [t for t, _ in self.recorded.estimates[-1:]] if self.takes_estimates else []
+        healthy = present if used and time.time() - used[0] < VISO_TIMEOUT_S else 0
+        return SysStatus(present=present, enabled=present, health=healthy)
 
     def pressure_pa(self, state: VehicleState) -> float:
         """The Bar30's absolute pressure at the vehicle's true depth."""
@@ -250,7 +313,8 @@ class AutopilotStandIn:
             if isinstance(message, VisionPositionEstimate):
                 self.recorded.estimates.append((now, message))
                 truth = self.state(now)
-                if truth.north_m is not None and truth.east_m is not None:
+                used = self.takes_estimates
+                if used and truth.north_m is not None and truth.east_m is not None:
                     self._innovations.append(
                         (now, message.x, message.y, truth.north_m, truth.east_m)
                     )
@@ -268,12 +332,26 @@ class AutopilotStandIn:
                     taken = message
                 else:
                     self.recorded.targets_refused += 1
-        if isinstance(message, VisionPositionEstimate) and self.on_estimate is not None:
+        if (
+            isinstance(message, VisionPositionEstimate)
+            and self.on_estimate is not None
+            and self.takes_estimates
+        ):
             self.on_estimate(message)
         if taken is not None and self.on_target is not None:
             self.on_target(taken)
-        if isinstance(message, CommandLong) and message.command == MAV_CMD_DO_SET_MODE:
+        command = message.command if isinstance(message, CommandLong) else None
+        if isinstance(message, CommandLong) and command == MAV_CMD_DO_SET_MODE:
             link.send_command_ack(command=message.command, result=self._set_mode(message, now))
+        elif isinstance(message, CommandLong) and command == MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN:
+            # ArduPilot refuses to reboot an armed vehicle.
+            rebooting = message.params[0] == 1 and not self.armed
+            link.send_command_ack(
+                command=message.command,
+                result=MAV_RESULT_ACCEPTED if rebooting else MAV_RESULT_DENIED,
+            )
+            if rebooting:
+                self._reboot_due.set()
         elif isinstance(message, CommandLong) and message.command == MAV_CMD_PREFLIGHT_CALIBRATION:
             if message.params[2] == 1:  # barometer: the pressure now becomes the surface's
                 self.params["BARO2_GND_PRESS"] = self.pressure_pa(self.state(time.time()))
@@ -313,7 +391,11 @@ class AutopilotStandIn:
         if asked.startswith("MODE"):  # a number the autopilot has no mode for
             return MAV_RESULT_DENIED
         with self.lock:
-            fresh = bool(self.recorded.estimates) and now - self.recorded.estimates[-1][0] < 1.0
+            fresh = (
+                self.takes_estimates
+                and bool(self.recorded.estimates)
+                and now - self.recorded.estimates[-1][0] < 1.0
+            )
             taken = asked not in POSITION_MODES[self.autopilot] or fresh
             if taken:
                 self.mode = asked
@@ -334,6 +416,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--port", type=int, default=5777)
     parser.add_argument(
+        "--setup",
+        choices=["configured", "fresh"],
+        default="configured",
+        help="configured: set up for external position and rebooted (default); fresh: as "
+        "delivered, what `capsd mav check --apply` fixes",
+    )
+    parser.add_argument(
         "--estimates-out",
         type=Path,
         default=None,
@@ -344,7 +433,8 @@ def main(argv: list[str] | None = None) -> int:
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda *_: stop.set())
     started = time.monotonic()
-    with AutopilotStandIn(args.port) as autopilot:
+    params = CONFIGURED_PARAMS if args.setup == "configured" else DEFAULT_PARAMS
+    with AutopilotStandIn(args.port, params=params) as autopilot:
         stop.wait()
         elapsed = time.monotonic() - started
         with autopilot.lock:

@@ -29,7 +29,7 @@ from capsd.ned import TankToNed
 from capsd.payloads import Payload, SimControl, SonarFrame
 from capsd.protocols.mavlink import PositionTarget, VisionPositionEstimate
 from capsd.runner import Publisher, ServiceRunner
-from capsd.simulator.autopilot import AutopilotStandIn, VehicleState
+from capsd.simulator.autopilot import CONFIGURED_PARAMS, AutopilotStandIn, VehicleState
 from capsd.simulator.config import Config
 from capsd.simulator.guided import GuidedAsv, GuidedRov
 from capsd.simulator.sim import Event, Simulation
@@ -138,6 +138,7 @@ def hosted_autopilot(config: Config, rov: GuidedRov, start_ns: int) -> Autopilot
     return AutopilotStandIn(
         g.port,
         state=vehicle,
+        params=CONFIGURED_PARAMS,
         mode="MANUAL",
         on_mode=rov.set_mode,
         on_target=on_target,
@@ -175,6 +176,7 @@ def hosted_asv_autopilot(config: Config, asv: GuidedAsv, start_ns: int) -> Autop
     return AutopilotStandIn(
         g.port,
         state=vehicle,
+        params=CONFIGURED_PARAMS,
         mode=g.mode,
         autopilot="ardurover",
         on_mode=asv.set_mode,

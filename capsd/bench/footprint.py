@@ -78,7 +78,7 @@ def bridge(*, runs: int, settle_s: float) -> int:
     from capsd.bus import open_session
     from capsd.config import BusConfig
     from capsd.signing import SiteKey, write_key
-    from capsd.simulator.autopilot import AutopilotStandIn
+    from capsd.simulator.autopilot import CONFIGURED_PARAMS, AutopilotStandIn
 
     def free_port() -> int:
         with socket.socket() as sock:
@@ -90,7 +90,7 @@ def bridge(*, runs: int, settle_s: float) -> int:
     results = []
     with (
         open_session(router_bus),
-        AutopilotStandIn(free_port()) as autopilot,
+        AutopilotStandIn(free_port(), params=CONFIGURED_PARAMS) as autopilot,
         tempfile.TemporaryDirectory() as tmp,
     ):
         config = Path(tmp) / "bridge.yaml"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -63,6 +64,28 @@ def _measured_delay_ms(args: argparse.Namespace) -> float | None:
     return wanted
 
 
+def _estimates_arriving(args: argparse.Namespace) -> bool | None:
+    """Whether the bridge on the bus is sending estimates now (its gate_sent counter grows)."""
+    from capsd.bus import open_session
+    from capsd.health import query_health
+
+    try:
+        with open_session(BusConfig(connect=(args.bus,), connect_timeout_s=2.0)) as session:
+            sent = []
+            for attempt in range(2):
+                if attempt:
+                    time.sleep(1.0)
+                health = query_health(
+                    session, site=args.site, vehicle=args.vehicle, service="mav_bridge"
+                )
+                if health is None:
+                    return None
+                sent.append(health.counters.get("gate_sent", 0))
+    except (BusError, ConfigError):
+        return None
+    return sent[1] > sent[0]
+
+
 def _cmd_mav_check(args: argparse.Namespace) -> int:
     delay = _measured_delay_ms(args) if args.delay_ms == "auto" else float(args.delay_ms)
     return _mav_tool(
@@ -74,6 +97,8 @@ def _cmd_mav_check(args: argparse.Namespace) -> int:
             position_noise_m=args.position_noise_m,
             delay_ms=delay,
             timeout_s=args.timeout,
+            estimates_arriving=lambda: _estimates_arriving(args),
+            reboot="when_pending" if args.reboot else "ask",
         ),
     )
 
@@ -97,7 +122,9 @@ def register(sub: Subcommands) -> None:
         "check",
         help="check (and --apply) ArduSub parameters for external position",
         description="Read the autopilot's parameters, print what is wrong for CAP-SD's "
-        "external position and the values to set; --apply sets them.",
+        "external position and the values to set; --apply sets them. Exit 0: all right; 1: "
+        "parameters wrong; 3: a reboot is pending (a boot-time parameter changed, or estimates "
+        "arrive and the autopilot does not use them).",
     )
     check.add_argument(
         "--connect",
@@ -105,6 +132,11 @@ def register(sub: Subcommands) -> None:
         help="MAVLink connection (default: BlueOS's tcp:127.0.0.1:5777)",
     )
     check.add_argument("--apply", action="store_true", help="set the wrong parameters")
+    check.add_argument(
+        "--reboot",
+        action="store_true",
+        help="reboot the autopilot (disarmed only) when a reboot is pending",
+    )
     check.add_argument(
         "--yaw-source",
         choices=["compass", "vision"],
@@ -127,7 +159,8 @@ def register(sub: Subcommands) -> None:
     check.add_argument(
         "--bus",
         default="tcp/127.0.0.1:7447",
-        help="Zenoh endpoint where the bridge's Health is (with --delay-ms auto)",
+        help="Zenoh endpoint where the bridge's Health is (--delay-ms auto; whether "
+        "estimates are arriving)",
     )
     check.add_argument("--site", default="tank", help="site of the bridge (--delay-ms auto)")
     check.add_argument("--vehicle", default="rov", help="vehicle of the bridge (--delay-ms auto)")

@@ -27,6 +27,10 @@ MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY = 197
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
 MAV_CMD_PREFLIGHT_CALIBRATION = 241
 MAV_CMD_DO_SET_MODE = 176
+MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN = 246
+# SYS_STATUS sensor bit of external position (ArduPilot: VISO_TYPE set; healthy once the
+# visual-odometry backend made at boot has had an estimate within 300 ms).
+MAV_SYS_STATUS_SENSOR_VISION_POSITION = 2048
 MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
 MAV_FRAME_LOCAL_NED = 1
 # SET_POSITION_TARGET_LOCAL_NED type_mask: position only (velocity, acceleration, yaw and yaw
@@ -116,6 +120,20 @@ class EkfStatus:
 
 
 @dataclass(frozen=True)
+class SysStatus:
+    """SYS_STATUS: which sensors the autopilot has (present), uses (enabled), trusts (health)."""
+
+    present: int
+    enabled: int
+    health: int
+
+    def sensor(self, bit: int) -> Literal["absent", "unhealthy", "healthy"]:
+        if not self.present & bit:
+            return "absent"
+        return "healthy" if self.health & bit else "unhealthy"
+
+
+@dataclass(frozen=True)
 class ParamValue:
     name: str
     value: float
@@ -198,9 +216,9 @@ class PositionTarget:
 
 
 Message = (
-    Heartbeat | Attitude | ScaledPressure | SystemTime | EkfStatus | ParamValue | CommandAck
-    | CommandLong | StatusText | VisionPositionEstimate | GpsInput | GlobalOrigin | ParamSet
-    | ParamRequest | PositionTarget
+    Heartbeat | Attitude | ScaledPressure | SystemTime | EkfStatus | SysStatus | ParamValue
+    | CommandAck | CommandLong | StatusText | VisionPositionEstimate | GpsInput | GlobalOrigin
+    | ParamSet | ParamRequest | PositionTarget
 )  # fmt: skip
 
 
@@ -249,6 +267,12 @@ def _convert(msg: Any) -> Message | None:
             float(msg.pos_horiz_variance),
             float(msg.velocity_variance),
             float(msg.compass_variance),
+        )
+    if kind == "SYS_STATUS":
+        return SysStatus(
+            msg.onboard_control_sensors_present,
+            msg.onboard_control_sensors_enabled,
+            msg.onboard_control_sensors_health,
         )
     if kind == "PARAM_VALUE":
         return ParamValue(
@@ -483,6 +507,12 @@ class MavLink:
             target_system, 1, MAV_CMD_PREFLIGHT_CALIBRATION, 0, 0, 0, 1, 0, 0, 0, 0
         )
 
+    def send_reboot(self, *, target_system: int) -> None:
+        """MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN: reboot the autopilot (ArduPilot: only disarmed)."""
+        self._mav.command_long_send(
+            target_system, 1, MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 0, 1, 0, 0, 0, 0, 0, 0
+        )
+
     def send_set_mode(
         self, *, target_system: int, mode: str, autopilot: Autopilot = "ardusub"
     ) -> None:
@@ -583,6 +613,11 @@ class MavLink:
             0.0,  # pos_vert_variance
             status.compass_variance,
             0.0,  # terrain_alt_variance
+        )
+
+    def send_sys_status(self, status: SysStatus) -> None:
+        self._mav.sys_status_send(
+            status.present, status.enabled, status.health, 0, 16_000, -1, -1, 0, 0, 0, 0, 0, 0
         )
 
     def send_param_value(self, *, name: str, value: float, index: int, count: int) -> None:

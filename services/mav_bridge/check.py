@@ -4,27 +4,43 @@ The values (FIELD-NOTES, ArduSub 4.5-4.7): VISO_TYPE=1 (MAVLink; takes effect af
 EK3_SRC1_POSXY=6 (ExternalNav), EK3_SRC1_VELXY=0, EK3_SRC1_POSZ=1 (baro: the Bar30),
 EK3_SRC1_YAW=1 (compass) or 6 (the yaw we send), GPS1_TYPE=0 (GPS_TYPE before 4.6),
 VISO_POS_M_NSE at most our position noise (it is a floor), VISO_DELAY_MS near our latency.
+
+VISO_TYPE and GPS1_TYPE are read at boot only. Whether the running firmware uses what the
+parameters say is the autopilot's own state: its SYS_STATUS reports external position healthy
+only when the backend made at boot has an estimate within 300 ms. So a reboot is pending when
+this run changed a boot parameter, or when the parameters are right and estimates are arriving
+(the bridge says so) but the autopilot does not report them healthy. Exit codes: 0 all right,
+1 wrong (or unreadable), 3 reboot pending (`--reboot` reboots a disarmed autopilot).
 """
 
 from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal, TextIO
 
 from capsd.protocols.mavlink import (
     MAV_CMD_PREFLIGHT_CALIBRATION,
+    MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN,
     MAV_RESULT_ACCEPTED,
+    MAV_SYS_STATUS_SENSOR_VISION_POSITION,
     CommandAck,
     Heartbeat,
     MavLink,
     ParamValue,
     ScaledPressure,
+    SysStatus,
+    SystemTime,
     message_id,
 )
 
 YawSource = Literal["compass", "vision"]
+RebootChoice = Literal["ask", "when_pending"]
+# Parameters ArduPilot reads at boot only (RebootRequired in its parameter documentation).
+BOOT_PARAMS = frozenset({"VISO_TYPE", "GPS1_TYPE", "GPS_TYPE"})
+EXIT_REBOOT_PENDING = 3
 
 _GCS_SYSTEM = 255
 _GCS_COMPONENT = 190  # MAV_COMP_ID_MISSIONPLANNER: a ground-station identity
@@ -151,9 +167,15 @@ def run_check(
     position_noise_m: float = 0.05,
     delay_ms: float | None = 50.0,
     timeout_s: float = 5.0,
+    estimates_arriving: Callable[[], bool | None] = lambda: None,
+    reboot: RebootChoice = "ask",
     out: TextIO = sys.stdout,
 ) -> int:
-    """Print the findings (and fix them with `apply`); 0 when all is right at the end."""
+    """Print the findings (and fix them with `apply`); the exit code (module docstring).
+
+    `estimates_arriving`: whether estimates reach the autopilot now (the bridge's word), None
+    when unknown. `reboot`: when_pending reboots a disarmed autopilot whose reboot is pending.
+    """
     checks = rules(yaw_source=yaw_source, position_noise_m=position_noise_m, delay_ms=delay_ms)
     names = [n for rule in checks for n in rule.names]
     with _Autopilot(connection, timeout_s=timeout_s, out=out) as (link, target):
@@ -163,28 +185,152 @@ def run_check(
         findings = evaluate(values, checks)
         _print(findings, out)
         wrong = [f for f in findings if not f.ok]
-        if not wrong:
-            print("ArduSub is set up for CAP-SD external position.", file=out)
-            return 0
-        if not apply:
+        if wrong and not apply:
             print(
                 f"{len(wrong)} parameter(s) to change; run again with --apply to set them.",
                 file=out,
             )
             return 1
-        for finding in wrong:
-            link.send_param_set(target_system=target, name=finding.name, value=finding.wanted)
-        after = evaluate(_read(link, target, names, timeout_s), checks)
-        still = [f for f in after if not f.ok]
-        print("after --apply:", file=out)
-        _print(after, out)
-        if still:
-            print(f"{len(still)} parameter(s) could not be set.", file=out)
-            return 1
-        print(
-            "Parameters set. Reboot the autopilot: VISO_TYPE takes effect after a reboot.", file=out
+        changed_at_boot = sorted(f.name for f in wrong if f.name in BOOT_PARAMS)
+        if wrong:
+            for finding in wrong:
+                link.send_param_set(target_system=target, name=finding.name, value=finding.wanted)
+            after = evaluate(_read(link, target, names, timeout_s), checks)
+            still = [f for f in after if not f.ok]
+            print("after --apply:", file=out)
+            _print(after, out)
+            if still:
+                print(f"{len(still)} parameter(s) could not be set.", file=out)
+                return 1
+            print("Parameters set.", file=out)
+        pending = _reboot_pending(
+            link, target, changed_at_boot, estimates_arriving, timeout_s=timeout_s, out=out
         )
-        return 0
+        if not pending:
+            return 0
+        if reboot == "when_pending":
+            return _reboot(link, target, timeout_s=timeout_s, out=out)
+        print(
+            "Reboot the autopilot (disarmed; `capsd mav check --reboot` does it), then run "
+            "this check again.",
+            file=out,
+        )
+        return EXIT_REBOOT_PENDING
+
+
+def _reboot_pending(
+    link: MavLink,
+    target: int,
+    changed_at_boot: list[str],
+    estimates_arriving: Callable[[], bool | None],
+    *,
+    timeout_s: float,
+    out: TextIO,
+) -> bool:
+    """Say whether the running firmware uses the parameters; True when a reboot is pending."""
+    boot_names = ", ".join(sorted(BOOT_PARAMS - {"GPS_TYPE"}))
+    if changed_at_boot:
+        print(
+            f"REBOOT PENDING: {', '.join(changed_at_boot)} changed now; the autopilot reads "
+            f"{boot_names} at boot only.",
+            file=out,
+        )
+        return True
+    status, uptime_s = _status_and_uptime(link, target, timeout_s)
+    vision = None if status is None else status.sensor(MAV_SYS_STATUS_SENSOR_VISION_POSITION)
+    if vision == "healthy":
+        print("External position in use: the autopilot takes CAP-SD's estimates.", file=out)
+        return False
+    arriving = estimates_arriving()
+    since_boot = "" if uptime_s is None else f" (it booted {uptime_s / 60:.1f} min ago)"
+    if arriving and status is not None:
+        print(
+            f"REBOOT PENDING: the parameters are right and estimates are arriving, but the "
+            f"autopilot reports external position {vision}{since_boot}: it reads {boot_names} "
+            "at boot only.",
+            file=out,
+        )
+        return True
+    why = (
+        "no SYS_STATUS from the autopilot"
+        if status is None
+        else "no estimates arriving (is the bridge running?)"
+    )
+    print(
+        f"Parameters right; not verified that the autopilot uses them: {why}. If {boot_names} "
+        f"changed since the autopilot booted{since_boot}, reboot it.",
+        file=out,
+    )
+    return False
+
+
+def _status_and_uptime(
+    link: MavLink, target: int, timeout_s: float
+) -> tuple[SysStatus | None, float | None]:
+    """The autopilot's SYS_STATUS and seconds since boot (SYSTEM_TIME), asked for at 2 Hz."""
+    for name in ("SYS_STATUS", "SYSTEM_TIME"):
+        link.send_set_message_interval(
+            target_system=target, message_id=message_id(name), rate_hz=2.0
+        )
+    status: SysStatus | None = None
+    uptime_s: float | None = None
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and (status is None or uptime_s is None):
+        received = link.recv(timeout_s=0.2)
+        message = None if received is None else received.message
+        if isinstance(message, SysStatus):
+            status = message
+        elif isinstance(message, SystemTime):
+            uptime_s = message.time_boot_ms / 1000.0
+    return status, uptime_s
+
+
+def _wait_ack(link: MavLink, command: int, timeout_s: float) -> int | None:
+    """The result of the autopilot's COMMAND_ACK for `command`, None if none came in time."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        received = link.recv(timeout_s=0.2)
+        ack = None if received is None else received.message
+        if isinstance(ack, CommandAck) and ack.command == command:
+            return ack.result
+    return None
+
+
+def _reboot(link: MavLink, target: int, *, timeout_s: float, out: TextIO) -> int:
+    """Reboot the autopilot and wait for it to come back; 0 when it did."""
+    _status, up_before_s = _status_and_uptime(link, target, timeout_s)
+    link.send_reboot(target_system=target)
+    result = _wait_ack(link, MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, timeout_s)
+    if result != MAV_RESULT_ACCEPTED:
+        print(
+            f"the autopilot refused to reboot (result {result}; ArduPilot refuses when armed)",
+            file=out,
+        )
+        return EXIT_REBOOT_PENDING
+    print("rebooting the autopilot ...", file=out)
+    back = _back_after_reboot(link, target, up_before_s, timeout_s=timeout_s * 6, out=out)
+    return 0 if back else 1
+
+
+def _back_after_reboot(
+    link: MavLink, target: int, up_before_s: float | None, *, timeout_s: float, out: TextIO
+) -> bool:
+    """Reconnect until the autopilot answers again with a boot time later than before."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        time.sleep(0.5)
+        try:
+            link.close()
+            link.open()
+            link.send_heartbeat_onboard()
+            _status, uptime_s = _status_and_uptime(link, target, 2.0)
+        except OSError:
+            continue
+        if uptime_s is not None and (up_before_s is None or uptime_s < up_before_s):
+            print(f"the autopilot is back (up {uptime_s:.1f} s); run this check again", file=out)
+            return True
+    print(f"the autopilot did not come back within {timeout_s:.0f} s", file=out)
+    return False
 
 
 def _print(findings: list[Finding], out: TextIO) -> None:
@@ -240,13 +386,7 @@ def run_zero_depth(
             print("at the surface, run again with --apply to take this pressure as 0 m", file=out)
             return 0
         link.send_calibrate_surface_pressure(target_system=target)
-        deadline = time.monotonic() + timeout_s
-        result = None
-        while time.monotonic() < deadline and result is None:
-            received = link.recv(timeout_s=0.2)
-            ack = None if received is None else received.message
-            if isinstance(ack, CommandAck) and ack.command == MAV_CMD_PREFLIGHT_CALIBRATION:
-                result = ack.result
+        result = _wait_ack(link, MAV_CMD_PREFLIGHT_CALIBRATION, timeout_s)
         if result != MAV_RESULT_ACCEPTED:
             print(f"the autopilot did not accept the calibration (result {result})", file=out)
             return 1

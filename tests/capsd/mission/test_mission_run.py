@@ -23,7 +23,7 @@ from capsd.codec import Codec
 from capsd.ned import TankToNed
 from capsd.payloads import VehicleCommand
 from capsd.signing import SiteKey
-from capsd.simulator.autopilot import AutopilotStandIn, VehicleState
+from capsd.simulator.autopilot import CONFIGURED_PARAMS, AutopilotStandIn, VehicleState
 from tests.conftest import Proc, free_port, wait_for
 from tests.services.mav_bridge.test_bridge import FixSender, _health, _key_path
 
@@ -36,7 +36,9 @@ WAYPOINTS = [(5.0, 4.0, -3.0), (9.0, 4.0, -3.0)]
 @pytest.fixture
 def autopilot() -> Iterator[AutopilotStandIn]:
     state = VehicleState(roll=0.0, pitch=0.0, yaw=0.5, depth_m=3.0)
-    with AutopilotStandIn(free_port(), state=lambda _t: state, mode="MANUAL") as stand_in:
+    with AutopilotStandIn(
+        free_port(), state=lambda _t: state, mode="MANUAL", params=CONFIGURED_PARAMS
+    ) as stand_in:
         yield stand_in
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -32,7 +33,7 @@ from capsd.payloads import (
     VehicleCommand,
 )
 from capsd.signing import SiteKey, write_key
-from capsd.simulator.autopilot import AutopilotStandIn, VehicleState
+from capsd.simulator.autopilot import CONFIGURED_PARAMS, AutopilotStandIn, VehicleState
 from tests.conftest import REPO, Proc, free_port, wait_for
 
 pytestmark = pytest.mark.integration
@@ -43,7 +44,9 @@ COV_W = np.array([[0.010, 0.002, 0.0], [0.002, 0.020, 0.0], [0.0, 0.0, 0.030]])
 
 @pytest.fixture
 def autopilot() -> Iterator[AutopilotStandIn]:
-    with AutopilotStandIn(free_port(), state=lambda _t: STATE) as stand_in:
+    with AutopilotStandIn(
+        free_port(), state=lambda _t: STATE, params=CONFIGURED_PARAMS
+    ) as stand_in:
         yield stand_in
 
 
@@ -381,26 +384,70 @@ def _capsd(*args: str) -> subprocess.CompletedProcess[str]:
     )
 
 
-def test_mav_check_reports_and_apply_fixes(autopilot: AutopilotStandIn) -> None:
-    connect = f"tcp:127.0.0.1:{autopilot.port}"
+def test_mav_check_applies_and_tracks_a_pending_reboot_through_the_autopilot(
+    spawn: Callable[..., Proc], client: zenoh.Session, endpoint: str, tmp_path: Path
+) -> None:
+    """A fresh ArduSub: set up, reboot pending (this run, then seen in the autopilot), rebooted."""
+    with AutopilotStandIn(
+        free_port(), state=lambda _t: STATE, armed=False, gcs_port=free_port()
+    ) as fresh:
+        assert fresh.gcs_port is not None
 
-    def check(*extra: str) -> subprocess.CompletedProcess[str]:
-        return _capsd("mav", "check", "--connect", connect, *extra)
+        def check(*extra: str) -> subprocess.CompletedProcess[str]:
+            return _capsd(
+                "mav", "check", "--connect", f"tcp:127.0.0.1:{fresh.gcs_port}",
+                "--bus", endpoint, "--delay-ms", "10", *extra,
+            )  # fmt: skip
 
-    first = check()
-    assert first.returncode == 1
-    assert "VISO_TYPE" in first.stdout
-    assert "CHANGE" in first.stdout
-    assert "--apply" in first.stdout
-    applied = check("--apply")
-    assert applied.returncode == 0, applied.stdout
-    assert "Reboot the autopilot" in applied.stdout
-    assert autopilot.params["VISO_TYPE"] == 1.0
-    assert autopilot.params["EK3_SRC1_POSXY"] == 6.0
-    assert autopilot.params["GPS1_TYPE"] == 0.0
-    again = check()
-    assert again.returncode == 0
-    assert "CHANGE" not in again.stdout
+        first = check()
+        assert first.returncode == 1, first.stdout
+        assert "CHANGE" in first.stdout
+        assert "--apply" in first.stdout
+        applied = check("--apply")
+        assert applied.returncode == 3, applied.stdout
+        pending_line = next(x for x in applied.stdout.splitlines() if "REBOOT PENDING" in x)
+        assert "VISO_TYPE" in pending_line
+        assert "GPS1_TYPE" in pending_line
+        assert fresh.params["VISO_TYPE"] == 1.0
+        assert fresh.params["GPS1_TYPE"] == 0.0
+        # No estimates arriving yet: the autopilot's state cannot tell, and the check says so.
+        unverified = check()
+        assert unverified.returncode == 0, unverified.stdout
+        assert "not verified" in unverified.stdout
+        assert "CHANGE" not in unverified.stdout
+
+        bridge = _start_bridge(spawn, tmp_path, endpoint, fresh, heading_deg=0.0)
+        sender = FixSender(client, SiteKey.load(_key_path(tmp_path), config_key="fix_key"))
+        stop = threading.Event()
+
+        def send_fixes() -> None:
+            while not stop.is_set():
+                sender.send(position=(20.0, 0.0, -2.0))
+                stop.wait(0.05)
+
+        feeder = threading.Thread(target=send_fixes, daemon=True)
+        feeder.start()
+        try:
+            wait_for(lambda: len(fresh.recorded.estimates) > 10, timeout_s=15, what="estimates")
+            # A later run, no memory of the first: estimates arrive, the firmware ignores them.
+            pending = check()
+            assert pending.returncode == 3, pending.stdout
+            assert "estimates are arriving" in pending.stdout
+            rebooted = check("--reboot")
+            assert rebooted.returncode == 0, rebooted.stdout
+            assert fresh.boots == 2
+            wait_for(
+                lambda: fresh.sys_status().health != 0,
+                timeout_s=15,
+                what="the rebooted autopilot taking the bridge's estimates",
+            )
+            done = check()
+            assert done.returncode == 0, done.stdout
+            assert "External position in use" in done.stdout
+        finally:
+            stop.set()
+            feeder.join(timeout=2)
+        assert bridge.popen.poll() is None
 
 
 def test_gps_input_output_and_requested_rates(
@@ -564,7 +611,7 @@ def test_a_wrong_heading_is_told_to_the_pilot(
         # W to NED with heading 0 and origin (10, -5): north = x + 10, east = -y - 5.
         return VehicleState(depth_m=2.0, north_m=x_at(t) + 10.0, east_m=-2.0 - 5.0)
 
-    with AutopilotStandIn(free_port(), state=truth) as autopilot:
+    with AutopilotStandIn(free_port(), state=truth, params=CONFIGURED_PARAMS) as autopilot:
         bridge = _start_bridge(spawn, tmp_path, endpoint, autopilot, heading_deg=heading_deg)
         sender = FixSender(client, SiteKey.load(_key_path(tmp_path), config_key="fix_key"))
         deadline = time.monotonic() + 14.0
@@ -596,7 +643,10 @@ def test_a_vehicle_booted_under_water_is_noticed_and_zeroed(
 ) -> None:
     # Booted 0.17 m under water, then surfaced: depth reads -0.17 m from the boot reference.
     with AutopilotStandIn(
-        free_port(), state=lambda _t: VehicleState(depth_m=0.0), boot_depth_m=0.17
+        free_port(),
+        state=lambda _t: VehicleState(depth_m=0.0),
+        boot_depth_m=0.17,
+        params=CONFIGURED_PARAMS,
     ) as autopilot:
         bridge = _start_bridge(spawn, tmp_path, endpoint, autopilot, heading_deg=0.0)
         wait_for(
@@ -673,7 +723,9 @@ def test_the_asv_role_feeds_its_pose_and_passes_follow_targets_only_in_guided(
     The pose's own attitude goes with it; never an engage; its status on asv/autopilot.
     """
     heading_deg = 30.0
-    with AutopilotStandIn(free_port(), mode="MANUAL", autopilot="ardurover") as rover:
+    with AutopilotStandIn(
+        free_port(), mode="MANUAL", autopilot="ardurover", params=CONFIGURED_PARAMS
+    ) as rover:
         config = tmp_path / "asv_bridge.yaml"
         config.write_text(
             f"site: tank\nvehicle: asv\nrole: asv\nbus:\n  connect: [{endpoint}]\n"
