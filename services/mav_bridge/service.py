@@ -50,6 +50,7 @@ from capsd.payloads import (
 )
 from capsd.protocols.mavlink import (
     MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY,
+    MAV_SYS_STATUS_SENSOR_VISION_POSITION,
     Attitude,
     Autopilot,
     EkfStatus,
@@ -57,6 +58,7 @@ from capsd.protocols.mavlink import (
     MavLink,
     ParamValue,
     ScaledPressure,
+    SysStatus,
     SystemTime,
     check_connection,
     message_id,
@@ -65,6 +67,7 @@ from capsd.protocols.mavlink import (
 from capsd.runner import Publisher, ServiceRunner, StreamCounter
 from capsd.services.mav_bridge.clock import BootClock
 from capsd.services.mav_bridge.gate import Estimate, GateSettings, Passed, SafetyGate
+from capsd.services.mav_bridge.uptake import EstimateUptake
 from capsd.signing import SiteKey, site_key
 from capsd.tank import TankBounds
 
@@ -150,6 +153,7 @@ class RatesConfig(ConfigSection, frozen=True, kw_only=True):
     pressure_hz: Annotated[float, msgspec.Meta(gt=0.0, le=100.0)] = 20.0
     ekf_status_hz: Annotated[float, msgspec.Meta(gt=0.0, le=10.0)] = 2.0
     system_time_hz: Annotated[float, msgspec.Meta(gt=0.0, le=10.0)] = 1.0
+    sys_status_hz: Annotated[float, msgspec.Meta(gt=0.0, le=10.0)] = 1.0
 
 
 Role = Literal["rov", "asv"]
@@ -257,6 +261,8 @@ class Bridge:
         self._configured_boot = 0
         self._last_param_request = 0.0
         self._last_sent_mono: float | None = None
+        self.uptake = EstimateUptake()
+        self._ignored_told = False
         self._outage_reasons: Counter[str] = Counter()
         self._announced: str | None = None
         self._last_statustext: dict[str, float] = {}
@@ -404,6 +410,17 @@ class Bridge:
                 f"depth reads {self._reference_suspect:+.2f} m, above the surface: the surface "
                 "pressure was taken under water (at the surface: capsd mav zero-depth --apply)"
             )
+        ignored = self.uptake.ignored(now)
+        if ignored:
+            reasons.append(
+                f"the autopilot does not use our estimates (SYS_STATUS external position "
+                f"{self.uptake.state}): VISO_TYPE 0, or set since its last boot (capsd mav check)"
+            )
+            if not self._ignored_told:  # the pilot hears it once per episode
+                self.counts["estimates_ignored_episodes"] += 1
+                with contextlib.suppress(OSError):
+                    self.link.send_statustext("warning", "CAP-SD: autopilot ignores fixes: reboot?")
+        self._ignored_told = ignored
         if self._ekf_disagrees:
             reasons.append(
                 f"the EKF rejects our positions (test ratio {self.ekf_pos_ratio:.1f}): "
@@ -431,6 +448,7 @@ class Bridge:
         self.attitude = None
         self.mode = None  # a mission's hold must never act on a mode from before the loss
         self.ekf_flags = 0
+        self.uptake.reset()
         self.surface_pressure_pa = self.config.depth.surface_pressure_pa
         self.density = self.config.depth.water_density_kg_m3
         self._last_depth = self._last_attitude = -math.inf
@@ -456,6 +474,7 @@ class Bridge:
                 ("SCALED_PRESSURE2", cfg.rates.pressure_hz),
                 ("EKF_STATUS_REPORT", cfg.rates.ekf_status_hz),
                 ("SYSTEM_TIME", cfg.rates.system_time_hz),
+                ("SYS_STATUS", cfg.rates.sys_status_hz),
             ]
             if cfg.role == "asv":  # no depth on the surface vehicle
                 rates = [(name, hz) for name, hz in rates if name != "SCALED_PRESSURE2"]
@@ -542,6 +561,10 @@ class Bridge:
             self._publish_depth(message)
         elif isinstance(message, SystemTime):
             self._observe(message.time_boot_ms, arrival_ns)
+        elif isinstance(message, SysStatus):
+            self.uptake.status(
+                message.sensor(MAV_SYS_STATUS_SENSOR_VISION_POSITION), time.monotonic()
+            )
         elif isinstance(message, EkfStatus):
             self.ekf_flags = message.flags
             self._observe_ekf(message.pos_horiz_variance, time.monotonic())
@@ -718,6 +741,7 @@ class Bridge:
             self.stage_latency.record_ns(sent_ns - received_ns)
             self.end_to_end_latency.record_ns(sent_ns - fix.stamp_ns)
             self._last_sent_mono = time.monotonic()
+            self.uptake.sent(self._last_sent_mono)
             self._outage_reasons.clear()
 
     def _send(self, passed: Passed, attitude: Attitude | None) -> None:

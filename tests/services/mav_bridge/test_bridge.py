@@ -429,6 +429,15 @@ def test_mav_check_applies_and_tracks_a_pending_reboot_through_the_autopilot(
         feeder.start()
         try:
             wait_for(lambda: len(fresh.recorded.estimates) > 10, timeout_s=15, what="estimates")
+            # The bridge sees it too: health degraded, the pilot told once.
+            wait_for(
+                lambda: any("ignores fixes" in t.text for t in fresh.recorded.statustexts),
+                timeout_s=15,
+                what="the pilot told the autopilot ignores the fixes",
+            )
+            health = _health(client)
+            assert health.state == "degraded"
+            assert "does not use our estimates" in (health.state_reason or "")
             # A later run, no memory of the first: estimates arrive, the firmware ignores them.
             pending = check()
             assert pending.returncode == 3, pending.stdout
@@ -444,6 +453,13 @@ def test_mav_check_applies_and_tracks_a_pending_reboot_through_the_autopilot(
             done = check()
             assert done.returncode == 0, done.stdout
             assert "External position in use" in done.stdout
+            wait_for(
+                lambda: _health(client).state == "ok",
+                timeout_s=15,
+                what="the bridge's health ok once the autopilot uses the estimates",
+            )
+            told = [t for t in fresh.recorded.statustexts if "ignores fixes" in t.text]
+            assert len(told) == 1
         finally:
             stop.set()
             feeder.join(timeout=2)
