@@ -34,6 +34,7 @@ from capsd.harness import (
     Watch,
     free_port,
     start_service,
+    station_wall_offset_m,
     write_configs,
 )
 from capsd.mission.plan import Waypoint
@@ -86,7 +87,7 @@ def main(
     if asv == "follow" and mission is None:
         raise CapsdError("--asv follow needs --mission: the ASV follows a ROV flown live")
     points = None if mission is None else _plan_points(mission, tank)
-    rov_start, station = (None, None) if points is None else _mission_start(points)
+    rov_start, station = (None, None) if points is None else _mission_start(points, tank)
     configs = write_configs(
         logs,
         endpoint,
@@ -266,20 +267,20 @@ def _plan_points(plan_path: Path, tank: TankName) -> list[Waypoint]:
 
 
 def _mission_start(
-    points: list[Waypoint],
+    points: list[Waypoint], tank: TankName
 ) -> tuple[tuple[float, float, float], tuple[float, float]]:
     """Where the ROV starts (the plan's first waypoint) and where the ASV keeps station.
 
-    The ASV does not follow yet: it stands on the -x side of the plan, as close as lets the
-    sonar (pitched 30 deg down, 20 deg aperture) still see the plan's nearest point, so the
-    farthest is in view too when the plan is short enough along x.
+    A stationary ASV stands on the -x side of the plan, as close as lets the sonar (pitched
+    30 deg down, 20 deg aperture) still see the plan's nearest point, so the farthest is in
+    view too when the plan is short enough along x; never nearer the walls than the follower
+    would put it.
     """
     xyz = np.array([p.position_m for p in points])
     height = float(-xyz[:, 2].max()) - 0.2  # the shallowest point, below the sonar
     nearest = height / math.tan(math.radians(40.0)) + 1.0
-    # 2.1 m: where the follower keeps the ASV's origin (1 m to the wall, 0.6 m of hull, 0.5 m
-    # for the autopilot's overshoot).
-    station = (max(2.1, float(xyz[:, 0].min()) - nearest), float(xyz[:, 1].mean()))
+    offset = station_wall_offset_m(tank)
+    station = (max(offset, float(xyz[:, 0].min()) - nearest), float(xyz[:, 1].mean()))
     return points[0].position_m, station
 
 

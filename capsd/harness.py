@@ -107,6 +107,26 @@ class Processes:
         return [c.name for c in self.children if c.popen.poll() is not None]
 
 
+# The follower's stations where the defaults (a 1.2 m ASV, ROV 2-15 m off) do not fit: the
+# mockup (4.8 x 3.6 m) takes a small ASV (0.6 m across) and near ranges.
+FOLLOW_STATION: dict[str, dict[str, float]] = {
+    "mockup": {
+        "min_range_m": 1.0,
+        "max_range_m": 6.0,
+        "hull_radius_m": 0.3,
+        "tracking_margin_m": 0.2,
+    },
+}
+
+
+def station_wall_offset_m(tank: TankName) -> float:
+    """How far from the walls the follower keeps the ASV's origin in this tank."""
+    from capsd.services.asv_follow.service import StationConfig
+
+    station = StationConfig(**FOLLOW_STATION.get(tank, {}))  # type: ignore[arg-type]
+    return station.wall_clearance_m + station.hull_radius_m + station.tracking_margin_m
+
+
 def write_configs(
     folder: Path,
     endpoint: str,
@@ -214,6 +234,7 @@ def write_configs(
             "bus": bus,
             "tank": msgspec.to_builtins(tank_bounds(t)),
             "fix_key": str(fix_key),
+            "station": FOLLOW_STATION.get(tank, {}),
         }
     paths = {}
     for name, body in configs.items():

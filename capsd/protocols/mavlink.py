@@ -30,7 +30,7 @@ MAV_CMD_DO_SET_MODE = 176
 MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN = 246
 # SYS_STATUS sensor bit of external position (ArduPilot: VISO_TYPE set; healthy once the
 # visual-odometry backend made at boot has had an estimate within 300 ms).
-MAV_SYS_STATUS_SENSOR_VISION_POSITION = 2048
+MAV_SYS_STATUS_SENSOR_VISION_POSITION = int(mavutil.mavlink.MAV_SYS_STATUS_SENSOR_VISION_POSITION)
 MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
 MAV_FRAME_LOCAL_NED = 1
 # SET_POSITION_TARGET_LOCAL_NED type_mask: position only (velocity, acceleration, yaw and yaw
