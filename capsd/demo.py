@@ -13,7 +13,6 @@ summary.md (the accuracy table, services, what reached the autopilot), figures.j
 from __future__ import annotations
 
 import json
-import math
 import sys
 import time
 from pathlib import Path
@@ -33,8 +32,9 @@ from capsd.harness import (
     Processes,
     Watch,
     free_port,
+    sigterm_as_interrupt,
     start_service,
-    station_wall_offset_m,
+    start_station,
     write_configs,
 )
 from capsd.mission.plan import Waypoint
@@ -87,7 +87,9 @@ def main(
     if asv == "follow" and mission is None:
         raise CapsdError("--asv follow needs --mission: the ASV follows a ROV flown live")
     points = None if mission is None else _plan_points(mission, tank)
-    rov_start, station = (None, None) if points is None else _mission_start(points, tank)
+    rov_start, station, heading = (
+        (None, None, None) if points is None else _mission_start(points, tank, asv)
+    )
     configs = write_configs(
         logs,
         endpoint,
@@ -97,6 +99,7 @@ def main(
         mav_port=mav_port,
         rov_start_m=rov_start,
         asv_station_xy=station,
+        asv_station_heading_deg=heading,
         asv=asv,
         asv_mav_port=free_port() if asv == "follow" else None,
     )
@@ -111,48 +114,50 @@ def main(
         file=stream,
         flush=True,
     )
-    try:
-        procs.start("router", ["-m", "capsd", "router", "--listen", endpoint])
-        if mission is None:  # with a mission the simulator hosts the stand-in (it flies it)
-            procs.start("autopilot", ["-m", "capsd.simulator.autopilot", "--port", str(mav_port)])
-        if record is not None:
-            # Started first and stopped last: the recording holds each service's whole life.
-            args = ["cap/**", "-o", str(record), "--exclude", "cap/*/*/sonar/frame",
-                    "--locator-config", str(configs["locator"])]  # fmt: skip
-            procs.start("recorder", ["-m", "capsd", "record", *args, "--connect", endpoint])
-        time.sleep(1.0)
-        for _, name in SERVICES:
-            start_service(procs, name, configs[name])
-        for _, name, service in follow:
-            start_service(procs, name, configs[name], service=service)
-        if mission is not None:
-            procs.start(
-                "mission",
-                ["-m", "capsd", "mission", "run", str(mission), "--config",
-                 str(configs["mission"]), "--locator-config", str(configs["locator"]),
-                 "--out", str(out / "mission")],
-            )  # fmt: skip
-        with open_session(BusConfig(connect=(endpoint,))) as session:
-            watch = Watch(session, extra=follow)
-            t0 = time.monotonic()
-            try:
-                while time.monotonic() - t0 < duration_s:
-                    time.sleep(2.0)
-                    health = watch.health()
-                    print(_line(time.monotonic() - t0, watch, health), file=stream, flush=True)
-                    dead = [d for d in procs.dead() if d not in ("autopilot", "recorder")]
-                    if dead == ["mission"]:
-                        print("capsd demo: the mission ended", file=stream)
-                        break
-                    if dead:
-                        print(f"capsd demo: stopped early, exited: {dead}", file=stream)
-                        break
-            except KeyboardInterrupt:
-                interrupted = True
-            health = watch.health()
-            watch.close()
-    finally:
-        codes = procs.stop()
+    with sigterm_as_interrupt():  # a kill stops the children as Ctrl-C does
+        try:
+            procs.start("router", ["-m", "capsd", "router", "--listen", endpoint])
+            if mission is None:  # with a mission the simulator hosts the stand-in (it flies it)
+                stand_in = ["-m", "capsd.simulator.autopilot", "--port", str(mav_port)]
+                procs.start("autopilot", stand_in)
+            if record is not None:
+                # Started first and stopped last: the recording holds each service's whole life.
+                args = ["cap/**", "-o", str(record), "--exclude", "cap/*/*/sonar/frame",
+                        "--locator-config", str(configs["locator"])]  # fmt: skip
+                procs.start("recorder", ["-m", "capsd", "record", *args, "--connect", endpoint])
+            time.sleep(1.0)
+            for _, name in SERVICES:
+                start_service(procs, name, configs[name])
+            for _, name, service in follow:
+                start_service(procs, name, configs[name], service=service)
+            if mission is not None:
+                procs.start(
+                    "mission",
+                    ["-m", "capsd", "mission", "run", str(mission), "--config",
+                     str(configs["mission"]), "--locator-config", str(configs["locator"]),
+                     "--out", str(out / "mission")],
+                )  # fmt: skip
+            with open_session(BusConfig(connect=(endpoint,))) as session:
+                watch = Watch(session, extra=follow)
+                t0 = time.monotonic()
+                try:
+                    while time.monotonic() - t0 < duration_s:
+                        time.sleep(2.0)
+                        health = watch.health()
+                        print(_line(time.monotonic() - t0, watch, health), file=stream, flush=True)
+                        dead = [d for d in procs.dead() if d not in ("autopilot", "recorder")]
+                        if dead == ["mission"]:
+                            print("capsd demo: the mission ended", file=stream)
+                            break
+                        if dead:
+                            print(f"capsd demo: stopped early, exited: {dead}", file=stream)
+                            break
+                except KeyboardInterrupt:
+                    interrupted = True
+                health = watch.health()
+                watch.close()
+        finally:
+            codes = procs.stop()
     elapsed = time.monotonic() - started
     autopilot_log = logs / "autopilot.log"
     autopilot = (
@@ -267,21 +272,20 @@ def _plan_points(plan_path: Path, tank: TankName) -> list[Waypoint]:
 
 
 def _mission_start(
-    points: list[Waypoint], tank: TankName
-) -> tuple[tuple[float, float, float], tuple[float, float]]:
-    """Where the ROV starts (the plan's first waypoint) and where the ASV keeps station.
+    points: list[Waypoint], tank: TankName, asv: AsvMode
+) -> tuple[tuple[float, float, float], tuple[float, float], float | None]:
+    """Where the ROV starts (the plan's first waypoint) and where the ASV starts (and faces).
 
-    A stationary ASV stands on the -x side of the plan, as close as lets the sonar (pitched
-    30 deg down, 20 deg aperture) still see the plan's nearest point, so the farthest is in
-    view too when the plan is short enough along x; never nearer the walls than the follower
-    would put it.
+    As a pilot would place it to see the ROV's start, with the follower's station planner
+    (walls, hull, aperture). A stationary ASV stays there, turned toward the start (the
+    simulator's rule); a following one starts on the planner's heading.
     """
-    xyz = np.array([p.position_m for p in points])
-    height = float(-xyz[:, 2].max()) - 0.2  # the shallowest point, below the sonar
-    nearest = height / math.tan(math.radians(40.0)) + 1.0
-    offset = station_wall_offset_m(tank)
-    station = (max(offset, float(xyz[:, 0].min()) - nearest), float(xyz[:, 1].mean()))
-    return points[0].position_m, station
+    start = points[0].position_m
+    chosen = start_station(tank, start)
+    if chosen is None:
+        raise CapsdError(f"no ASV station in the {tank} tank sees the plan's start {start}")
+    xy, heading = chosen
+    return start, xy, heading if asv == "follow" else None
 
 
 def _flown_against_plan(points: list[Waypoint], accuracy: Accuracy) -> dict[str, Any]:

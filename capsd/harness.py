@@ -8,13 +8,14 @@ labels and polls each service's Health.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import signal
 import socket
 import subprocess
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -54,6 +55,23 @@ def free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
         sock.bind(("127.0.0.1", 0))
         return int(sock.getsockname()[1])
+
+
+@contextlib.contextmanager
+def sigterm_as_interrupt() -> Iterator[None]:
+    """Meanwhile SIGTERM raises KeyboardInterrupt: a harness stopped by a kill stops its children.
+
+    They run in sessions of their own (Ctrl-C reaches only the harness) and would be left.
+    """
+
+    def interrupt(_signum: int, _frame: object) -> None:
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 @dataclass
@@ -119,12 +137,29 @@ FOLLOW_STATION: dict[str, dict[str, float]] = {
 }
 
 
-def station_wall_offset_m(tank: TankName) -> float:
-    """How far from the walls the follower keeps the ASV's origin in this tank."""
-    from capsd.services.asv_follow.service import StationConfig
+def start_station(
+    tank: TankName, rov_m: tuple[float, float, float]
+) -> tuple[tuple[float, float], float] | None:
+    """Where the pilot would put the ASV to see the ROV at `rov_m`: the follower's own choice.
 
+    (origin xy, heading in degrees), or None when no station in this tank sees that point.
+    """
+    import numpy as np
+
+    from capsd.services.asv_follow.service import Config as FollowConfig
+    from capsd.services.asv_follow.service import StationConfig
+    from capsd.services.asv_follow.station import StationPlanner
+    from capsd.simulator.world import make_tank, tank_bounds
+
+    t = make_tank(tank)
     station = StationConfig(**FOLLOW_STATION.get(tank, {}))  # type: ignore[arg-type]
-    return station.wall_clearance_m + station.hull_radius_m + station.tracking_margin_m
+    planner = StationPlanner(FollowConfig().sonar, tank_bounds(t), station.settings())
+    centre = np.array([t.length_m / 2.0, t.width_m / 2.0])
+    chosen = planner.choose(np.array(rov_m), centre, 0.0)
+    if chosen is None:
+        return None
+    xy = (float(chosen.position_xy[0]), float(chosen.position_xy[1]))
+    return xy, math.degrees(chosen.heading_rad)
 
 
 def write_configs(
@@ -138,6 +173,7 @@ def write_configs(
     sonar_hz: float = 20.0,
     rov_start_m: tuple[float, float, float] | None = None,
     asv_station_xy: tuple[float, float] | None = None,
+    asv_station_heading_deg: float | None = None,
     asv: AsvMode = "station",
     asv_mav_port: int | None = None,
 ) -> dict[str, Path]:
@@ -184,7 +220,12 @@ def write_configs(
         if asv_mav_port is None or rov_start_m is None:
             raise ValueError("a following ASV needs its autopilot's port and a ROV flown live")
         sim["asv_mode"] = "guided"
-        sim["asv_guided"] = {"port": asv_mav_port, "mode": "GUIDED", "max_speed_m_s": 0.5}
+        sim["asv_guided"] = {
+            "port": asv_mav_port,
+            "mode": "GUIDED",
+            "max_speed_m_s": 0.5,
+            "start_heading_deg": asv_station_heading_deg,
+        }
     run = msgspec.convert({k: v for k, v in sim.items() if k != "bus"}, SimConfig)
     start = Simulation(run, horizon_s=10)
     # The person putting the ASV in the water knows roughly which way it points: 20 deg off.

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -201,3 +202,40 @@ def test_the_self_calibrated_report_states_its_targets() -> None:
     assert "| nfp/square | 0.5 / 0.48 |" in text
     assert "| 120.0 | 30.0 [28, 33] | 50.0 [47, 52] | 0.6 [0.55, 0.66] | met | NOT met |" in text
     assert "All met: no" in text
+
+
+def _processes_mentioning(text: str) -> list[str]:
+    """Command lines of live processes that mention `text` (Linux /proc)."""
+    found = []
+    for cmdline in Path("/proc").glob("[0-9]*/cmdline"):
+        try:
+            args = cmdline.read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:
+            continue  # gone meanwhile
+        if text in args:
+            found.append(args)
+    return found
+
+
+@pytest.mark.integration
+def test_a_killed_demo_stops_its_children_and_still_reports(tmp_path: Path) -> None:
+    """SIGTERM (a timeout, systemd, kill) ends the demo as Ctrl-C does: no orphans."""
+    out = tmp_path / "killed"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "capsd", "demo", "--duration", "120", "--out", str(out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        cwd=REPO,
+    )
+    assert proc.stdout is not None
+    for line in proc.stdout:  # until the first pings are counted
+        if " pings " in line and " pings     0 " not in line:
+            break
+    assert _processes_mentioning(str(out)), "the demo's services run meanwhile"
+    proc.send_signal(signal.SIGTERM)
+    rest, _ = proc.communicate(timeout=60)
+    assert proc.returncode == 0, rest[-3000:]
+    assert "stopped by user" in rest
+    assert (out / "summary.md").stat().st_size > 0
+    assert _processes_mentioning(str(out)) == []
