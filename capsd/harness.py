@@ -137,6 +137,17 @@ FOLLOW_STATION: dict[str, dict[str, float]] = {
 }
 
 
+# The sonar's mount where the default (30 deg down) does not fit the tank: in the mockup a ROV
+# 1 m deep sits mid aperture 1.4 m off, further than the ASV can keep from it 1.5 m off the
+# walls; pitched 45 deg down, 0.8 m.
+SONAR_PITCH_DEG: dict[str, float] = {"mockup": 45.0}
+
+
+def sonar_mount(tank: TankName) -> dict[str, float]:
+    """The demo's sonar mount changes for this tank (simulator and services alike)."""
+    return {"pitch_deg": SONAR_PITCH_DEG[tank]} if tank in SONAR_PITCH_DEG else {}
+
+
 def start_station(
     tank: TankName, rov_m: tuple[float, float, float]
 ) -> tuple[tuple[float, float], float] | None:
@@ -144,6 +155,7 @@ def start_station(
 
     (origin xy, heading in degrees), or None when no station in this tank sees that point.
     """
+    import msgspec
     import numpy as np
 
     from capsd.services.asv_follow.service import Config as FollowConfig
@@ -153,7 +165,8 @@ def start_station(
 
     t = make_tank(tank)
     station = StationConfig(**FOLLOW_STATION.get(tank, {}))  # type: ignore[arg-type]
-    planner = StationPlanner(FollowConfig().sonar, tank_bounds(t), station.settings())
+    sonar = msgspec.convert(sonar_mount(tank), type(FollowConfig().sonar))
+    planner = StationPlanner(sonar, tank_bounds(t), station.settings())
     centre = np.array([t.length_m / 2.0, t.width_m / 2.0])
     chosen = planner.choose(np.array(rov_m), centre, 0.0)
     if chosen is None:
@@ -207,6 +220,8 @@ def write_configs(
         "streams": {"detections_truth_noise": "off", "asv_pose_truth_noise": "off"},
         "rates": {"sonar_hz": sonar_hz},
     }
+    if sonar_mount(tank):
+        sim["sonar"] = sonar_mount(tank)
     if rov_start_m is not None:
         # The ASV keeps station (given, or on the near side of the ROV's start, where the
         # sonar's boresight, pitched 30 deg down, meets it), facing the start.
@@ -246,6 +261,7 @@ def write_configs(
             # The tank as a site would describe it: its box and fixtures (the view draws them).
             "tank": msgspec.to_builtins(tank_bounds(t)),
             "fix_key": str(fix_key),
+            **({"sonar": sonar_mount(tank)} if sonar_mount(tank) else {}),
         },
         "mav_bridge": {
             "vehicle": "rov_ap",
@@ -276,6 +292,7 @@ def write_configs(
             "tank": msgspec.to_builtins(tank_bounds(t)),
             "fix_key": str(fix_key),
             "station": FOLLOW_STATION.get(tank, {}),
+            **({"sonar": sonar_mount(tank)} if sonar_mount(tank) else {}),
         }
     paths = {}
     for name, body in configs.items():
