@@ -5,10 +5,13 @@ No chasing of noise: the station is kept while the ROV, seen from the station, s
 range band, and no mapped fixture shares its range cell (capsd.echo_cell); only then (and at
 most every `replan_after_s`) is a new one chosen, from good fixes only, for where the ROV will
 be `lead_s` later at its tracked velocity (a ROV flying a survey leg would otherwise leave
-every station as soon as it is reached). Without a good fix for `fix_timeout_s` the ASV holds
-its station; still none after `reacquire_after_s`, it takes another look at where the ROV was
-last seen, from a bearing at least 40 deg from the one that lost it (clutter behind or under
-the ROV, or its own shadow, hide it from one side only), and again every `reacquire_after_s`.
+every station as soon as it is reached). Without a good fix for `fix_timeout_s`: if the last
+one lies outside the station's view (the ROV left the aperture faster than the ASV moved), a
+station for it is chosen at once (a ROV on a mission holds where its fix was lost); else the
+ASV holds its station, and still without a fix after `reacquire_after_s` it takes another
+look at where the ROV was last seen, from a bearing at least 40 deg from the one that lost it
+(clutter behind or under the ROV, or its own shadow, hide it from one side only), and again
+every `reacquire_after_s`.
 The target sent to the autopilot is a carrot that walks from where the ASV was told to be
 towards the station, speed and acceleration limited, turning at a bounded rate; it starts where
 the ASV is when the pilot hands over (GUIDED) and nothing is sent in any other mode.
@@ -119,6 +122,21 @@ class Follower:
             not fresh
             and self.rov_m is not None
             and self.station is not None
+            and now_s - self._last_plan_s >= self.settings.replan_after_s
+            and not self._in_view_of_station(self.rov_m)
+        ):
+            # Lost where the station cannot see it (it left the aperture faster than the ASV
+            # re-stationed): a ROV on a mission holds where it was lost, so look there now.
+            self._last_plan_s = now_s
+            chosen = self.planner.choose(self.rov_m, self._carrot, self._carrot_heading)
+            if chosen is not None:
+                self.station = chosen
+                self.looks += 1
+                replanned = True
+        elif (
+            not fresh
+            and self.rov_m is not None
+            and self.station is not None
             and lost_for >= self.settings.reacquire_after_s
             and now_s - self._last_plan_s >= self.settings.reacquire_after_s
         ):
@@ -149,6 +167,11 @@ class Follower:
         if float(np.linalg.norm(v)) < self.settings.min_lead_speed_m_s:
             return self.rov_m
         return self.rov_m + v * self.settings.lead_s
+
+    def _in_view_of_station(self, rov_m: Array) -> bool:
+        assert self.station is not None
+        view = self.planner.view(self.station.position_xy, self.station.heading_rad, rov_m)
+        return self.planner.view_is_good(view)
 
     def _needs_station(self) -> bool:
         """No station yet, or the ROV seen from it is outside the dead band."""

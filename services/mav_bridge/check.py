@@ -196,13 +196,27 @@ def run_check(
             for finding in wrong:
                 link.send_param_set(target_system=target, name=finding.name, value=finding.wanted)
             after = evaluate(_read(link, target, names, timeout_s), checks)
-            still = [f for f in after if not f.ok]
             print("after --apply:", file=out)
             _print(after, out)
+            # ArduRover lists the other VISO_* only once VISO_TYPE is set: not in this read.
+            waiting = [
+                f
+                for f in after
+                if not f.ok and f.current is None and f.name.startswith("VISO_")
+                if "VISO_TYPE" in changed_at_boot
+            ]
+            still = [f for f in after if not f.ok and f not in waiting]
             if still:
                 print(f"{len(still)} parameter(s) could not be set.", file=out)
                 return 1
             print("Parameters set.", file=out)
+            if waiting:
+                listed = ", ".join(f.name for f in waiting)
+                print(
+                    f"{listed}: not listed yet (ArduRover lists them once VISO_TYPE is set); "
+                    "run this check again, with --apply if it says CHANGE.",
+                    file=out,
+                )
         pending = _reboot_pending(
             link, target, changed_at_boot, estimates_arriving, timeout_s=timeout_s, out=out
         )

@@ -114,3 +114,29 @@ def test_without_a_fix_it_holds_then_looks_again_from_another_bearing() -> None:
     assert target is not None
     assert np.allclose(target.position_xy, [12.0, 9.0])
     assert target.heading_rad == 0.5
+
+
+def test_a_rov_lost_out_of_the_stations_view_is_looked_for_at_once() -> None:
+    """The ROV ran under the ASV (too steep for the aperture) and was lost: no 6 s wait."""
+    follower = _follower(fix_timeout_s=1.0, reacquire_after_s=6.0, replan_after_s=1.0)
+    follower.on_mode("GUIDED")
+    follower.on_fix(0.0, np.array([20.0, 6.0, -3.5]))
+    follower.step(0.0)
+    first = follower.station
+    assert first is not None
+    # The last good fix: 1.5 m nearer the station than the ROV was, then nothing.
+    toward = (first.position_xy - np.array([20.0, 6.0])) / np.linalg.norm(
+        first.position_xy - np.array([20.0, 6.0])
+    )
+    last = np.array([*(np.array([20.0, 6.0]) + 1.5 * toward), -3.5])
+    assert not follower._in_view_of_station(last)
+    follower.on_fix(0.5, last)
+    follower.step(0.5)  # within the replan interval: the station stays
+    assert follower.station is first
+    follower.step(1.6)  # the fix timed out and a second passed since the last plan
+    second = follower.station
+    assert second is not None
+    assert second is not first
+    assert follower.looks == 1
+    view = follower.planner.view(second.position_xy, second.heading_rad, last)
+    assert follower.planner.view_is_good(view)
