@@ -284,6 +284,8 @@ def write_configs(
             "tank": {**tank_box, "depth_m": t.depth_m},
             "mission_commands": "accept",
             "geofence_clearance_m": 1.0,
+            # ArduRover's GUIDED takes targets only once its EKF has an origin.
+            "ekf_origin": {"lat_deg": 54.42, "lon_deg": -3.5, "alt_m": 0.0},
             # asv_pose runs at the IMU's rate; ArduRover's EKF takes 20 Hz of poses at most.
             "gate": {"max_rate_hz": 20.0},
         }

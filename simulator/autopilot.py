@@ -27,6 +27,7 @@ from capsd.protocols.mavlink import (
     MAV_CMD_DO_SET_MODE,
     MAV_CMD_PREFLIGHT_CALIBRATION,
     MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN,
+    MAV_CMD_REQUEST_MESSAGE,
     MAV_CMD_SET_MESSAGE_INTERVAL,
     MAV_RESULT_ACCEPTED,
     MAV_RESULT_DENIED,
@@ -39,6 +40,7 @@ from capsd.protocols.mavlink import (
     GpsInput,
     Heartbeat,
     MavLink,
+    OriginReport,
     ParamRequest,
     ParamSet,
     PositionTarget,
@@ -75,6 +77,8 @@ CONFIGURED_PARAMS: dict[str, float] = DEFAULT_PARAMS | {
 # Read by ArduPilot at boot only (its parameter documentation: RebootRequired).
 BOOT_PARAMS = ("VISO_TYPE", "GPS1_TYPE")
 REBOOT_S = 1.0  # how long a reboot keeps the link down
+# ArduPilot drops an EKF origin sent before its EKF has started (this long after boot here).
+EKF_START_S = 1.5
 VISO_TIMEOUT_S = 0.3  # AP_VisualOdom: healthy with an estimate this recent
 
 RHO_G = 1000.0 * 9.80665
@@ -112,6 +116,7 @@ class Recorded:
     heartbeats: int = 0
     position_targets: list[tuple[float, PositionTarget]] = field(default_factory=list)
     targets_refused: int = 0  # position targets while not in GUIDED (ArduSub ignores them)
+    targets_without_origin: int = 0  # ArduRover ignores GUIDED targets without an EKF origin
     modes: list[tuple[float, str, bool]] = field(default_factory=list)  # (when, asked, taken)
 
 
@@ -165,6 +170,7 @@ class AutopilotStandIn:
         self._booted = time.monotonic()
         self._paused = threading.Event()
         self._reboot_due = threading.Event()
+        self.origin: OriginReport | None = None  # the EKF origin, once one was taken
         self.boots = 1
         # What the running firmware read at boot: parameters changed since wait for a reboot.
         self.boot_params = {name: self.params[name] for name in BOOT_PARAMS if name in self.params}
@@ -204,6 +210,7 @@ class AutopilotStandIn:
 
     def _boot(self) -> None:
         self._booted = time.monotonic()
+        self.origin = None
         self.boots += 1
         self.boot_params = {name: self.params[name] for name in BOOT_PARAMS if name in self.params}
         with self.lock:
@@ -324,10 +331,14 @@ class AutopilotStandIn:
                 self.recorded.statustexts.append(message)
             elif isinstance(message, GlobalOrigin):
                 self.recorded.origins.append(message)
+                if self.origin is None and time.monotonic() - self._booted >= EKF_START_S:
+                    self.origin = OriginReport(message.lat_e7, message.lon_e7, message.alt_mm)
             elif isinstance(message, Heartbeat):
                 self.recorded.heartbeats += 1
             elif isinstance(message, PositionTarget):
-                if self.mode == "GUIDED":
+                if self.autopilot == "ardurover" and self.origin is None:
+                    self.recorded.targets_without_origin += 1
+                elif self.mode == "GUIDED":
                     self.recorded.position_targets.append((now, message))
                     taken = message
                 else:
@@ -343,6 +354,9 @@ class AutopilotStandIn:
         command = message.command if isinstance(message, CommandLong) else None
         if isinstance(message, CommandLong) and command == MAV_CMD_DO_SET_MODE:
             link.send_command_ack(command=message.command, result=self._set_mode(message, now))
+        elif isinstance(message, CommandLong) and command == MAV_CMD_REQUEST_MESSAGE:
+            if int(message.params[0]) == message_id("GPS_GLOBAL_ORIGIN") and self.origin:
+                link.send_origin_report(self.origin)
         elif isinstance(message, CommandLong) and command == MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN:
             # ArduPilot refuses to reboot an armed vehicle.
             rebooting = message.params[0] == 1 and not self.armed

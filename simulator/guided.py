@@ -154,8 +154,9 @@ class AsvLimits:
 class GuidedAsv:
     """The ASV under ArduRover: drive with `set_mode`, `set_target`, `on_estimate`.
 
-    In GUIDED with a target it translates straight to it (omni frame: any direction, speed and
-    acceleration limited) while turning to the target's heading (rate limited); in GUIDED
+    In GUIDED with a position target it translates straight to it (omni frame: any direction,
+    speed and acceleration limited) keeping its heading, as ArduRover ignores a position
+    target's yaw; a heading-only target stops it and turns it (rate limited); in GUIDED
     without a target, LOITER and HOLD it keeps where it believed it was when the mode began;
     otherwise (no pilot in the simulation) it drifts to a stop. Like the ROV it steers on what
     its EKF believes: the truth plus the error of the newest estimate (our pose of it). Waves
@@ -202,11 +203,26 @@ class GuidedAsv:
                 self._target = None
             self._mode = mode
 
-    def set_target(self, target_xy: Array, heading_rad: float | None) -> None:
-        """A GUIDED target in W (and heading, counter-clockwise from W's x); else ignored."""
+    def set_target(self, target_xy: Array, heading_rad: float | None = None) -> None:
+        """A GUIDED position target in W; else ignored. As ArduRover, it keeps its heading.
+
+        `heading_rad` (counter-clockwise from W's x) is ArduRover's position-target yaw, which
+        its GUIDED ignores: so does this one (turn with `set_heading`).
+        """
+        del heading_rad
         with self._lock:
             if self._mode == "GUIDED":
-                self._target = (np.array(target_xy[:2], dtype=np.float64), heading_rad)
+                self._target = (np.array(target_xy[:2], dtype=np.float64), None)
+
+    def set_heading(self, heading_rad: float) -> None:
+        """A GUIDED heading alone: stop where it believes it is and turn in place to it."""
+        with self._lock:
+            if self._mode == "GUIDED":
+                believed = self._p + self._error
+                goal = self._target[0] if self._target is not None else believed
+                # Already stopping at its position target: stay on it.
+                here = goal if float(np.linalg.norm(goal - believed)) < 0.5 else believed
+                self._target = (np.array(here, dtype=np.float64), heading_rad)
 
     def on_estimate(self, t_s: float, estimate_xy: Array) -> None:
         """An external position estimate of the ASV measured at sim time `t_s`."""

@@ -160,12 +160,13 @@ def hosted_asv_autopilot(config: Config, asv: GuidedAsv, start_ns: int) -> Autop
         return VehicleState(roll, pitch, yaw, 0.0, float(north), float(east))
 
     def on_target(target: PositionTarget) -> None:
-        xyz = ned.position_to_tank(np.array([target.north_m, target.east_m, target.down_m]))
-        heading = None
-        if target.yaw_rad is not None:
-            r_w_b = ned.attitude_to_tank(0.0, 0.0, target.yaw_rad)
-            heading = math.atan2(float(r_w_b[1, 0]), float(r_w_b[0, 0]))
-        asv.set_target(xyz, heading)
+        if target.position_ignored:
+            if target.yaw_rad is not None:
+                r_w_b = ned.attitude_to_tank(0.0, 0.0, target.yaw_rad)
+                asv.set_heading(math.atan2(float(r_w_b[1, 0]), float(r_w_b[0, 0])))
+            return
+        ned_m = np.array([target.north_m, target.east_m, target.down_m])
+        asv.set_target(ned.position_to_tank(ned_m))
 
     def on_estimate(estimate: VisionPositionEstimate) -> None:
         asv.on_estimate(

@@ -28,6 +28,7 @@ MAV_CMD_SET_MESSAGE_INTERVAL = 511
 MAV_CMD_PREFLIGHT_CALIBRATION = 241
 MAV_CMD_DO_SET_MODE = 176
 MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN = 246
+MAV_CMD_REQUEST_MESSAGE = 512
 # SYS_STATUS sensor bit of external position (ArduPilot: VISO_TYPE set; healthy once the
 # visual-odometry backend made at boot has had an estimate within 300 ms).
 MAV_SYS_STATUS_SENSOR_VISION_POSITION = int(mavutil.mavlink.MAV_SYS_STATUS_SENSOR_VISION_POSITION)
@@ -39,6 +40,10 @@ POSITION_ONLY_MASK = 0b0000_1101_1111_1000
 # ... and with the yaw (bit 10 clear): ArduRover's GUIDED turns an omni or boat frame to it.
 _YAW_IGNORE = 0b0100_0000_0000
 POSITION_YAW_MASK = POSITION_ONLY_MASK & ~_YAW_IGNORE
+# ... a heading alone (position, velocity, acceleration and yaw rate ignored): ArduRover's GUIDED
+# ignores the yaw of a position target; this one turns the vehicle in place to the heading.
+_POSITION_IGNORE = 0b0000_0000_0111
+HEADING_ONLY_MASK = 0b1001_1111_1111
 # Whose custom modes a HEARTBEAT carries: the ROV's ArduSub, the ASV's ArduRover (boat/omni).
 Autopilot = Literal["ardusub", "ardurover"]
 MAV_RESULT_ACCEPTED = 0
@@ -190,6 +195,15 @@ class GlobalOrigin:
 
 
 @dataclass(frozen=True)
+class OriginReport:
+    """GPS_GLOBAL_ORIGIN: the EKF origin the autopilot uses (it has one)."""
+
+    lat_e7: int
+    lon_e7: int
+    alt_mm: int
+
+
+@dataclass(frozen=True)
 class ParamSet:
     name: str
     value: float
@@ -213,12 +227,13 @@ class PositionTarget:
     east_m: float
     down_m: float
     yaw_rad: float | None = None  # None when the type mask says to ignore it
+    position_ignored: bool = False  # a heading-only target: north/east/down mean nothing
 
 
 Message = (
     Heartbeat | Attitude | ScaledPressure | SystemTime | EkfStatus | SysStatus | ParamValue
     | CommandAck | CommandLong | StatusText | VisionPositionEstimate | GpsInput | GlobalOrigin
-    | ParamSet | ParamRequest | PositionTarget
+    | OriginReport | ParamSet | ParamRequest | PositionTarget
 )  # fmt: skip
 
 
@@ -306,6 +321,8 @@ def _convert(msg: Any) -> Message | None:
         return GpsInput(msg.time_usec, msg.lat, msg.lon, msg.alt, msg.horiz_accuracy, msg.fix_type)
     if kind == "SET_GPS_GLOBAL_ORIGIN":
         return GlobalOrigin(msg.latitude, msg.longitude, msg.altitude)
+    if kind == "GPS_GLOBAL_ORIGIN":
+        return OriginReport(msg.latitude, msg.longitude, msg.altitude)
     if kind == "PARAM_SET":
         return ParamSet(_text(msg.param_id).rstrip("\0"), float(msg.param_value))
     if kind == "PARAM_REQUEST_READ":
@@ -314,8 +331,9 @@ def _convert(msg: Any) -> Message | None:
         return ParamRequest(None)
     if kind == "SET_POSITION_TARGET_LOCAL_NED":
         yaw = None if msg.type_mask & _YAW_IGNORE else float(msg.yaw)
+        ignored = msg.type_mask & _POSITION_IGNORE == _POSITION_IGNORE
         return PositionTarget(
-            msg.time_boot_ms, msg.coordinate_frame, msg.type_mask, msg.x, msg.y, msg.z, yaw
+            msg.time_boot_ms, msg.coordinate_frame, msg.type_mask, msg.x, msg.y, msg.z, yaw, ignored
         )
     return None
 
@@ -507,6 +525,17 @@ class MavLink:
             target_system, 1, MAV_CMD_PREFLIGHT_CALIBRATION, 0, 0, 0, 1, 0, 0, 0, 0
         )
 
+    def send_request_message(self, *, target_system: int, message_id: int) -> None:
+        """MAV_CMD_REQUEST_MESSAGE: send `message_id` once now."""
+        self._mav.command_long_send(
+            target_system, 1, MAV_CMD_REQUEST_MESSAGE, 0, message_id, 0, 0, 0, 0, 0, 0
+        )
+
+    def send_origin_report(self, origin: OriginReport) -> None:
+        self._mav.gps_global_origin_send(
+            origin.lat_e7, origin.lon_e7, origin.alt_mm, int(time.time() * 1e6)
+        )
+
     def send_reboot(self, *, target_system: int) -> None:
         """MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN: reboot the autopilot (ArduPilot: only disarmed)."""
         self._mav.command_long_send(
@@ -558,6 +587,13 @@ class MavLink:
             0.0 if yaw_rad is None else float(yaw_rad),
             0.0,
         )
+
+    def send_heading_target(self, *, target_system: int, time_boot_ms: int, yaw_rad: float) -> None:
+        """SET_POSITION_TARGET_LOCAL_NED with a heading alone (NED yaw): turn in place to it."""
+        self._mav.set_position_target_local_ned_send(
+            time_boot_ms & 0xFFFFFFFF, target_system, 1, MAV_FRAME_LOCAL_NED, HEADING_ONLY_MASK,
+            0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, float(yaw_rad), 0.0,
+        )  # fmt: skip
 
     def send_set_gps_global_origin(
         self, *, target_system: int, lat_e7: int, lon_e7: int, alt_mm: int

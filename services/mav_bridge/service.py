@@ -38,7 +38,7 @@ import numpy as np
 from capsd import topics
 from capsd.config import ConfigSection, ServiceConfig
 from capsd.errors import ConfigError
-from capsd.geometry import euler_zyx_to_matrix, matrix_to_quat, quat_to_matrix
+from capsd.geometry import Array, euler_zyx_to_matrix, matrix_to_quat, quat_to_matrix
 from capsd.keys import check_name
 from capsd.mailbox import Mailbox
 from capsd.ned import TankToNed, upper_triangle
@@ -56,6 +56,7 @@ from capsd.protocols.mavlink import (
     EkfStatus,
     Heartbeat,
     MavLink,
+    OriginReport,
     ParamValue,
     ScaledPressure,
     SysStatus,
@@ -192,6 +193,9 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     mission_commands: Literal["accept", "refuse"] = "refuse"
     # Targets closer than this to a wall, the floor or the surface are refused (the geofence).
     geofence_clearance_m: Annotated[float, msgspec.Meta(ge=0.0, le=100.0)] = 0.5
+    # Role asv: within this of a goto's position (by the last pose sent) the heading goes
+    # alone, as ArduRover's GUIDED ignores the yaw of a position target.
+    heading_only_within_m: Annotated[float, msgspec.Meta(ge=0.0, le=10.0)] = 0.3
     # A command older than this on arrival is refused (a stalled link replays nothing).
     max_command_age_s: Annotated[float, msgspec.Meta(gt=0.0, le=10.0)] = 1.0
 
@@ -203,6 +207,11 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
             raise ValueError(f"`locator_vehicle`: {exc}") from None
         if self.output == "gps_input" and self.ekf_origin is None:
             raise ValueError("`ekf_origin`: GPS_INPUT output needs the EKF origin (lat/lon)")
+        if self.role == "asv" and self.ekf_origin is None:
+            raise ValueError(
+                "`ekf_origin`: role asv needs the EKF origin (lat/lon): ArduRover's GUIDED "
+                "ignores every target until its EKF has one"
+            )
         if self.mission_commands == "accept" and self.tank is None:
             raise ValueError("`mission_commands: accept` needs `tank`: the geofence for targets")
         if self.role == "asv" and self.output == "gps_input":
@@ -259,10 +268,13 @@ class Bridge:
         self._ekf_low_since: float | None = None
         self._ekf_disagrees = False
         self._configured_boot = 0
+        self.origin_set = False  # the autopilot reported an EKF origin (this boot)
+        self._origin_sent = -math.inf
         self._last_param_request = 0.0
         self._last_sent_mono: float | None = None
         self.uptake = EstimateUptake()
         self._ignored_told = False
+        self._asv_at: Array | None = None  # role asv: where the last pose sent put the ASV (W)
         self._outage_reasons: Counter[str] = Counter()
         self._announced: str | None = None
         self._last_statustext: dict[str, float] = {}
@@ -482,17 +494,24 @@ class Bridge:
                 self.link.send_set_message_interval(
                     target_system=target, message_id=message_id(name), rate_hz=hz
                 )
-            if cfg.ekf_origin is not None:
-                o = cfg.ekf_origin
-                self.link.send_set_gps_global_origin(
-                    target_system=target,
-                    lat_e7=round(o.lat_deg * 1e7),
-                    lon_e7=round(o.lon_deg * 1e7),
-                    alt_mm=round(o.alt_m * 1000),
-                )
-                self.counts["origin_sent"] += 1
+            self.origin_set = False
             self.runner.set_state("ok")
             logger.info("autopilot configured", extra={"fields": {"boot": self.clock.boots}})
+        # ArduPilot drops an origin sent before its EKF has started (and ArduRover's GUIDED then
+        # ignores every target): send it until the autopilot reports one.
+        if cfg.ekf_origin is not None and not self.origin_set and now - self._origin_sent >= 2.0:
+            self._origin_sent = now
+            o = cfg.ekf_origin
+            self.link.send_set_gps_global_origin(
+                target_system=target,
+                lat_e7=round(o.lat_deg * 1e7),
+                lon_e7=round(o.lon_deg * 1e7),
+                alt_mm=round(o.alt_m * 1000),
+            )
+            self.link.send_request_message(
+                target_system=target, message_id=message_id("GPS_GLOBAL_ORIGIN")
+            )
+            self.counts["origin_sent"] += 1
         if cfg.role == "asv":
             return
         missing = [
@@ -561,6 +580,13 @@ class Bridge:
             self._publish_depth(message)
         elif isinstance(message, SystemTime):
             self._observe(message.time_boot_ms, arrival_ns)
+        elif isinstance(message, OriginReport):
+            if not self.origin_set:
+                self.origin_set = True
+                logger.info(
+                    "EKF origin set",
+                    extra={"fields": {"lat_e7": message.lat_e7, "lon_e7": message.lon_e7}},
+                )
         elif isinstance(message, SysStatus):
             self.uptake.status(
                 message.sensor(MAV_SYS_STATUS_SENSOR_VISION_POSITION), time.monotonic()
@@ -683,13 +709,25 @@ class Bridge:
         if command.heading_rad is not None:
             heading = euler_zyx_to_matrix(command.heading_rad, 0.0, 0.0)
             yaw_ned = self.ned.attitude_to_ned(heading)[2]
-        self.link.send_position_target(
-            target_system=target,
-            time_boot_ms=self.clock.last_boot_ms(),
-            ned_m=(float(ned[0]), float(ned[1]), float(ned[2])),
-            yaw_rad=yaw_ned,
+        arrived = (
+            self._asv_at is not None
+            and float(np.linalg.norm(self._asv_at[:2] - np.array(command.position_m[:2])))
+            <= self.config.heading_only_within_m
         )
-        self.counts["commands_sent_target"] += 1
+        if self.config.role == "asv" and yaw_ned is not None and arrived:
+            # ArduRover's GUIDED ignores a position target's yaw: at the station, turn to it.
+            self.link.send_heading_target(
+                target_system=target, time_boot_ms=self.clock.last_boot_ms(), yaw_rad=yaw_ned
+            )
+            self.counts["commands_sent_heading"] += 1
+        else:
+            self.link.send_position_target(
+                target_system=target,
+                time_boot_ms=self.clock.last_boot_ms(),
+                ned_m=(float(ned[0]), float(ned[1]), float(ned[2])),
+                yaw_rad=yaw_ned,
+            )
+            self.counts["commands_sent_target"] += 1
         # Every command is logged; the mission's twice-a-second repeats at debug level.
         logger.log(
             logging.DEBUG if command.reason == "repeat" else logging.INFO,
@@ -742,6 +780,7 @@ class Bridge:
             self.end_to_end_latency.record_ns(sent_ns - fix.stamp_ns)
             self._last_sent_mono = time.monotonic()
             self.uptake.sent(self._last_sent_mono)
+            self._asv_at = decision.position_w if self.config.role == "asv" else None
             self._outage_reasons.clear()
 
     def _send(self, passed: Passed, attitude: Attitude | None) -> None:

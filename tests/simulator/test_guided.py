@@ -68,3 +68,29 @@ def test_without_estimates_its_belief_drifts_and_so_does_the_vehicle() -> None:
     moved = rov.state(33.0).position_m - still
     assert moved[0] == pytest.approx(-0.30, abs=0.05)
     assert abs(moved[1]) < 1e-6
+
+
+def test_the_asv_keeps_its_heading_on_a_position_target_and_turns_on_a_heading_alone() -> None:
+    """As ArduRover's GUIDED: a position target's yaw is ignored; a heading-only one turns it."""
+    from capsd.geometry import matrix_to_euler_zyx
+    from capsd.simulator.guided import GuidedAsv
+    from capsd.simulator.world import Waves
+
+    calm = Waves(heave_m=0.0, roll_deg=0.0, pitch_deg=0.0)
+    asv = GuidedAsv((5.0, 5.0), 0.0, waves=calm, mode="GUIDED")
+
+    def fly(t0: float, t1: float) -> tuple[np.ndarray, np.ndarray]:
+        """Exact position estimates every 0.2 s (no dead reckoning) until `t1`."""
+        for t in np.arange(t0, t1, 0.2):
+            _, xyz = asv.pose(float(t))
+            asv.on_estimate(float(t), xyz[:2])
+        return asv.pose(t1)
+
+    asv.set_target(np.array([7.0, 5.0]), 1.0)  # the yaw ArduRover ignores
+    rotation, position = fly(0.0, 20.0)
+    assert position[:2] == pytest.approx([7.0, 5.0], abs=0.05)
+    assert matrix_to_euler_zyx(rotation)[0] == pytest.approx(0.0, abs=1e-6)
+    asv.set_heading(1.0)
+    rotation, position = fly(20.0, 40.0)
+    assert matrix_to_euler_zyx(rotation)[0] == pytest.approx(1.0, abs=0.02)
+    assert position[:2] == pytest.approx([7.0, 5.0], abs=0.05)  # turned in place

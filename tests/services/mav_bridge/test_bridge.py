@@ -193,8 +193,8 @@ def test_estimates_arrive_with_exact_fields(
     usecs = [e.usec for e in got]
     assert usecs == sorted(usecs)
     assert len(set(usecs)) == len(usecs)
-    assert autopilot.recorded.origins, "the EKF origin is set once per boot"
-    origin = autopilot.recorded.origins[0]
+    wait_for(lambda: autopilot.origin is not None, timeout_s=10, what="the EKF origin taken")
+    origin = autopilot.recorded.origins[-1]
     assert (origin.lat_e7, origin.lon_e7) == (544_200_000, -35_000_000)
 
 
@@ -750,6 +750,7 @@ def test_the_asv_role_feeds_its_pose_and_passes_follow_targets_only_in_guided(
             "tank:\n  length_m: 28.0\n  width_m: 16.0\n  depth_m: 8.0\n"
             f"mavlink:\n  connect: tcp:127.0.0.1:{rover.port}\n"
             f"ned:\n  heading_deg: {heading_deg}\n  origin_ned_m: [0.0, 0.0, 0.0]\n"
+            "ekf_origin:\n  lat_deg: 54.42\n  lon_deg: -3.5\n  alt_m: 0.0\n"
         )
         spawn("run", "mav_bridge", "--config", str(config))
         key = SiteKey.load(_key_path(tmp_path), config_key="fix_key")
@@ -825,11 +826,26 @@ def test_the_asv_role_feeds_its_pose_and_passes_follow_targets_only_in_guided(
             return bool(rover.recorded.position_targets)
 
         wait_for(target_arrived, timeout_s=10, what="a follow target at ArduRover")
+        assert rover.origin is not None  # without one ArduRover would ignore every target
         target = rover.recorded.position_targets[-1][1]
         assert (target.north_m, target.east_m) == pytest.approx(
             tuple(ned.position(np.array([10.0, 8.0, 0.0]))[:2]), abs=1e-4
         )
         assert target.yaw_rad == pytest.approx(ned.attitude_to_ned(r_w_b)[2], abs=1e-5)
+        assert not target.position_ignored  # 1 m to go: a position target
+        # At the station (the pose 0.1 m from the goto): the heading alone, which ArduRover's
+        # GUIDED turns to (it ignores a position target's yaw).
+        before = len(rover.recorded.position_targets)
+
+        def heading_arrived() -> bool:
+            put_pose()
+            put_command("goto", (9.1, 8.0, 0.0))
+            time.sleep(0.1)
+            return any(t.position_ignored for _, t in rover.recorded.position_targets[before:])
+
+        wait_for(heading_arrived, timeout_s=10, what="a heading-only target at the station")
+        turn = next(t for _, t in rover.recorded.position_targets[before:] if t.position_ignored)
+        assert turn.yaw_rad == pytest.approx(ned.attitude_to_ned(r_w_b)[2], abs=1e-5)
         # Fenced out (0.5 m from a wall, the fence is 1 m): refused.
         before = len(rover.recorded.position_targets)
         for _ in range(5):

@@ -1,4 +1,4 @@
-"""EstimateUptake: estimates sent for a while, SYS_STATUS never healthy: the autopilot drops them."""
+"""EstimateUptake: estimates sent a while, SYS_STATUS never healthy: the autopilot drops them."""
 
 from __future__ import annotations
 
