@@ -30,6 +30,8 @@ from capsd.geometry import matrix_to_euler_zyx
 OUTLIER_SIGMAS = 5.0
 # The median distance of a 3-D Gaussian error, in per-axis sigmas.
 _MEDIAN_DISTANCE_SIGMAS = 1.5382
+# A normal law's sigma over its median absolute deviation.
+_MAD_SIGMAS = 1.4826
 # Never call a residual an outlier below this (a perfect reference and fixes would make
 # the robust sigma ~0 and every point an outlier).
 OUTLIER_FLOOR_M = 0.01
@@ -105,6 +107,9 @@ class RobustFit:
     inliers: np.ndarray  # bool: the pairs that carried weight
     sigma_m: float  # the robust per-axis residual scale (from the median distance)
     independent: float  # how many independent pairs the inliers are worth (autocorrelation)
+    # The largest axis's robust scale (MAD): fixes err more across than in depth (the pressure
+    # sensor), so the 3-D median understates the horizontal scatter.
+    worst_axis_sigma_m: float = 0.0
 
 
 def robust_fit(
@@ -124,7 +129,12 @@ def robust_fit(
     vectors = transform.apply(source) - target
     residuals = np.linalg.norm(vectors, axis=1)
     sigma = float(np.median(residuals[inliers])) / _MEDIAN_DISTANCE_SIGMAS
-    return RobustFit(transform, residuals, inliers, sigma, independent_count(vectors[inliers]))
+    kept = vectors[inliers]
+    mad = np.median(np.abs(kept - np.median(kept, axis=0)), axis=0)
+    worst = float(np.max(mad)) * _MAD_SIGMAS
+    return RobustFit(
+        transform, residuals, inliers, sigma, independent_count(kept), max(worst, sigma)
+    )
 
 
 def independent_count(series: np.ndarray, *, max_lag: int = 200) -> float:
@@ -226,12 +236,17 @@ class Alignment:
         return math.degrees(self.fit.sigma_m / (lever * math.sqrt(n))) if lever > 0 else math.inf
 
     def offset_sigma_ms(self) -> float:
-        """The clock offset's uncertainty: scatter over speed, approximately."""
+        """The clock offset's uncertainty: the worst axis's scatter over speed, approximately.
+
+        An offset moves every pair along the ROV's motion, mostly horizontal, where the fixes
+        scatter most: the worst axis's scale, not the 3-D average.
+        """
         if self.offset_given:
             return 0.0
         n = self.fit.independent
         speed = self.speed_rms_m_s
-        return 1000 * self.fit.sigma_m / (speed * math.sqrt(n)) if speed > 0 else math.inf
+        sigma = self.fit.worst_axis_sigma_m
+        return 1000 * sigma / (speed * math.sqrt(n)) if speed > 0 else math.inf
 
     def problems(self) -> list[str]:
         """Why the alignment cannot be trusted (empty when it can)."""
