@@ -220,8 +220,9 @@ def write_configs(
         "streams": {"detections_truth_noise": "off", "asv_pose_truth_noise": "off"},
         "rates": {"sonar_hz": sonar_hz},
     }
-    if sonar_mount(tank):
-        sim["sonar"] = sonar_mount(tank)
+    mount = sonar_mount(tank)  # the same sonar for the simulator and the services
+    if mount:
+        sim["sonar"] = mount
     if rov_start_m is not None:
         # The ASV keeps station (given, or on the near side of the ROV's start, where the
         # sonar's boresight, pitched 30 deg down, meets it), facing the start.
@@ -261,7 +262,7 @@ def write_configs(
             # The tank as a site would describe it: its box and fixtures (the view draws them).
             "tank": msgspec.to_builtins(tank_bounds(t)),
             "fix_key": str(fix_key),
-            **({"sonar": sonar_mount(tank)} if sonar_mount(tank) else {}),
+            **({"sonar": mount} if mount else {}),
         },
         "mav_bridge": {
             "vehicle": "rov_ap",
@@ -294,7 +295,7 @@ def write_configs(
             "tank": msgspec.to_builtins(tank_bounds(t)),
             "fix_key": str(fix_key),
             "station": FOLLOW_STATION.get(tank, {}),
-            **({"sonar": sonar_mount(tank)} if sonar_mount(tank) else {}),
+            **({"sonar": mount} if mount else {}),
         }
     paths = {}
     for name, body in configs.items():

@@ -173,7 +173,7 @@ class AutopilotStandIn:
         self.origin: OriginReport | None = None  # the EKF origin, once one was taken
         self.boots = 1
         # What the running firmware read at boot: parameters changed since wait for a reboot.
-        self.boot_params = {name: self.params[name] for name in BOOT_PARAMS if name in self.params}
+        self.boot_params = self._read_at_boot()
 
     def __enter__(self) -> Self:
         ports = [self.port] + ([] if self.gcs_port is None else [self.gcs_port])
@@ -208,11 +208,14 @@ class AutopilotStandIn:
         """Whether the firmware has an external-position backend (VISO_TYPE at boot)."""
         return self.boot_params.get("VISO_TYPE", 0.0) != 0.0
 
+    def _read_at_boot(self) -> dict[str, float]:
+        return {name: self.params[name] for name in BOOT_PARAMS if name in self.params}
+
     def _boot(self) -> None:
         self._booted = time.monotonic()
         self.origin = None
         self.boots += 1
-        self.boot_params = {name: self.params[name] for name in BOOT_PARAMS if name in self.params}
+        self.boot_params = self._read_at_boot()
         with self.lock:
             self._innovations.clear()
 
@@ -284,8 +287,9 @@ class AutopilotStandIn:
         vision = MAV_SYS_STATUS_SENSOR_VISION_POSITION
         present = vision if self.params.get("VISO_TYPE", 0.0) != 0.0 else 0
         with self.lock:
-            used = [t for t, _ in self.recorded.estimates[-1:]] if self.takes_estimates else []
-        healthy = present if used and time.time() - used[0] < VISO_TIMEOUT_S else 0
+            last = self.recorded.estimates[-1][0] if self.recorded.estimates else None
+        used = self.takes_estimates and last is not None and time.time() - last < VISO_TIMEOUT_S
+        healthy = present if used else 0
         return SysStatus(present=present, enabled=present, health=healthy)
 
     def pressure_pa(self, state: VehicleState) -> float:

@@ -203,13 +203,12 @@ class GuidedAsv:
                 self._target = None
             self._mode = mode
 
-    def set_target(self, target_xy: Array, heading_rad: float | None = None) -> None:
+    def set_target(self, target_xy: Array) -> None:
         """A GUIDED position target in W; else ignored. As ArduRover, it keeps its heading.
 
-        `heading_rad` (counter-clockwise from W's x) is ArduRover's position-target yaw, which
-        its GUIDED ignores: so does this one (turn with `set_heading`).
+        ArduRover's GUIDED ignores a position target's yaw: so does this one (turn with
+        `set_heading`).
         """
-        del heading_rad
         with self._lock:
             if self._mode == "GUIDED":
                 self._target = (np.array(target_xy[:2], dtype=np.float64), None)

@@ -86,7 +86,7 @@ def test_the_asv_keeps_its_heading_on_a_position_target_and_turns_on_a_heading_a
             asv.on_estimate(float(t), xyz[:2])
         return asv.pose(t1)
 
-    asv.set_target(np.array([7.0, 5.0]), 1.0)  # the yaw ArduRover ignores
+    asv.set_target(np.array([7.0, 5.0]))  # a position target: no yaw reaches the ASV
     rotation, position = fly(0.0, 20.0)
     assert position[:2] == pytest.approx([7.0, 5.0], abs=0.05)
     assert matrix_to_euler_zyx(rotation)[0] == pytest.approx(0.0, abs=1e-6)

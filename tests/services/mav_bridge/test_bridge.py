@@ -72,6 +72,20 @@ def _start_bridge(
     return spawn("run", "mav_bridge", "--config", str(config))
 
 
+def _assert_told_and_degraded(
+    autopilot: AutopilotStandIn, client: zenoh.Session, *, told: str, reason: str
+) -> None:
+    """The pilot got a STATUSTEXT containing `told`; the bridge's health names `reason`."""
+    wait_for(
+        lambda: any(told in s.text for s in autopilot.recorded.statustexts),
+        timeout_s=15,
+        what=f"the pilot told '{told}'",
+    )
+    health = _health(client)
+    assert health.state == "degraded"
+    assert reason in (health.state_reason or "")
+
+
 def _key_path(tmp_path: Path) -> Path:
     """The site's fix key for this test (made once, owner-only)."""
     path = tmp_path / "fix.key"
@@ -430,14 +444,9 @@ def test_mav_check_applies_and_tracks_a_pending_reboot_through_the_autopilot(
         try:
             wait_for(lambda: len(fresh.recorded.estimates) > 10, timeout_s=15, what="estimates")
             # The bridge sees it too: health degraded, the pilot told once.
-            wait_for(
-                lambda: any("ignores fixes" in t.text for t in fresh.recorded.statustexts),
-                timeout_s=15,
-                what="the pilot told the autopilot ignores the fixes",
+            _assert_told_and_degraded(
+                fresh, client, told="ignores fixes", reason="does not use our estimates"
             )
-            health = _health(client)
-            assert health.state == "degraded"
-            assert "does not use our estimates" in (health.state_reason or "")
             # A later run, no memory of the first: estimates arrive, the firmware ignores them.
             pending = check()
             assert pending.returncode == 3, pending.stdout
@@ -665,14 +674,7 @@ def test_a_vehicle_booted_under_water_is_noticed_and_zeroed(
         params=CONFIGURED_PARAMS,
     ) as autopilot:
         bridge = _start_bridge(spawn, tmp_path, endpoint, autopilot, heading_deg=0.0)
-        wait_for(
-            lambda: any("zero-depth" in s.text for s in autopilot.recorded.statustexts),
-            timeout_s=15,
-            what="the pilot told the depth reads above the surface",
-        )
-        health = _health(client)
-        assert health.state == "degraded"
-        assert "zero-depth" in (health.state_reason or "")
+        _assert_told_and_degraded(autopilot, client, told="zero-depth", reason="zero-depth")
         # The stand-in serves one client at a time (BlueOS's MAVLink router serves many):
         # the bridge steps aside while a person runs the tool, then comes back.
         code, _ = bridge.terminate()
