@@ -2,7 +2,8 @@
 
 It answers on a TCP port: after a SimpleFire it streams SimplePingResult messages (given bytes,
 or built from images), optionally in random-size pieces, with one corrupted message, or
-dropping the connection after N pings. It can send a status datagram to a loopback port.
+dropping the connection after N pings; `prefix` bytes (a hostile peer's) go first on each
+connection. It can send a status datagram to a loopback port.
 Only 127.0.0.1 is ever used.
 """
 
@@ -31,6 +32,7 @@ class FakeOculus:
         split: bool = True,
         corrupt_every: int = 0,
         drop_after: int = 0,
+        prefix: Sequence[bytes] = (),
         seed: int = 0,
     ):
         self.messages = list(messages)
@@ -38,6 +40,8 @@ class FakeOculus:
         self.split = split
         self.corrupt_every = corrupt_every
         self.drop_after = drop_after
+        self.prefix = list(prefix)
+        self.prefix_sent_at: float | None = None  # time.monotonic() when the prefix was out
         self.rng = np.random.default_rng(seed)
         self.fires: list[bytes] = []
         self.connections = 0
@@ -88,6 +92,12 @@ class FakeOculus:
         except (OSError, struct.error):
             return
         conn.settimeout(0.0)
+        try:
+            for junk in self.prefix:
+                self._send(conn, junk)
+        except OSError:
+            return
+        self.prefix_sent_at = time.monotonic()
         sent = 0
         period = 1.0 / self.rate_hz
         while not self._stop.is_set():

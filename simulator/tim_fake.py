@@ -4,7 +4,8 @@ It answers `sEN LMDscandata 1` with `sEA LMDscandata 1` and then streams `sSN LM
 telegrams at `rate_hz`; `sRN LMDscandata` gets one `sRA`. The scans come from a callback
 (scan index -> ranges in mm), in random-size TCP pieces; optionally one telegram in
 `corrupt_every` is garbled, and after `cut_after` telegrams the connection is cut in the middle
-of a telegram (the client must reconnect). Only 127.0.0.1 is ever used.
+of a telegram (the client must reconnect); `prefix` bytes (a hostile peer's) go first once
+streaming starts. Only 127.0.0.1 is ever used.
 """
 
 from __future__ import annotations
@@ -35,12 +36,15 @@ class FakeTim:
         rate_hz: float = 15.0,
         corrupt_every: int = 0,
         cut_after: int = 0,
+        prefix: bytes = b"",
         seed: int = 0,
     ):
         self.scan_mm = scan_mm
         self.rate_hz = rate_hz
         self.corrupt_every = corrupt_every
         self.cut_after = cut_after
+        self.prefix = prefix
+        self.prefix_sent_at: float | None = None  # time.monotonic() when the prefix was out
         self.rng = np.random.default_rng(seed)
         self.requests: list[str] = []
         self.connections = 0
@@ -110,6 +114,10 @@ class FakeTim:
                 if item == "sEN LMDscandata 1":
                     conn.sendall(telegram("sEA LMDscandata 1"))
                     streaming = True
+                    if self.prefix:
+                        self._send_in_pieces(conn, self.prefix)
+                        self.prefix_sent_at = time.monotonic()
+                        next_scan = time.monotonic()
                 elif item == "sEN LMDscandata 0":
                     conn.sendall(telegram("sEA LMDscandata 0"))
                     streaming = False

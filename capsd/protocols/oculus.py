@@ -39,6 +39,9 @@ RESULT_V2 = struct.Struct("<IIddddddddBdHH4IIII")  # after a v2 fire: 202 in all
 STATUS = struct.Struct("<HHHHHIH I I I I")  # header + deviceId, deviceType, partNumber, status
 
 MAX_PAYLOAD = 16 * 1024 * 1024  # a 512 x 4000 x 4-byte ping is 8 MB: anything larger is noise
+# Other messages an Oculus may put on the data link (user config, logs, dummy) are small; a
+# header announcing more is taken for noise, so that it cannot swallow the pings behind it.
+MAX_OTHER_PAYLOAD = 64 * 1024
 
 PingRate = Literal["normal", "high", "highest", "low", "lowest", "standby"]
 _PING_RATE = {"normal": 0, "high": 1, "highest": 2, "low": 3, "lowest": 4, "standby": 5}
@@ -301,7 +304,20 @@ class PingStream:
             if payload_size > MAX_PAYLOAD:
                 yield self._resync(f"payload size {payload_size} is implausible")
                 continue
+            if msg_id != MSG_SIMPLE_PING_RESULT and payload_size > MAX_OTHER_PAYLOAD:
+                yield self._resync(f"message {msg_id:#x} of {payload_size} bytes is implausible")
+                continue
             total = HEADER.size + payload_size
+            if msg_id == MSG_SIMPLE_PING_RESULT:
+                # Check the ping's own header as soon as it is here, before waiting for the
+                # rest: a bogus header must not make the stream wait for (and then discard)
+                # megabytes of good pings.
+                problem = _ping_head_problem(self._buffer, total)
+                if problem is None and len(self._buffer) < total:
+                    return  # the head is not here yet, or it is sound and the rest is coming
+                if problem:
+                    yield self._resync(problem)
+                    continue
             if len(self._buffer) < total:
                 return
             message = bytes(self._buffer[:total])
@@ -323,6 +339,34 @@ class PingStream:
         self.skipped_bytes += 2
         del self._buffer[:2]
         return ProtocolError(reason)
+
+
+def _ping_head_problem(buffer: bytearray, total: int) -> str | None:
+    """Why a SimplePingResult whose header is at the start of `buffer` cannot be one.
+
+    None when it may be one, or when its fixed header has not all arrived yet. Only the
+    sizes are checked here; `parse_ping` checks the rest once the whole message is in.
+    """
+    msg_version = HEADER.unpack_from(buffer)[4]
+    if msg_version in (0, 1):
+        head, result, beams_field = HEADER.size + FIRE_V1.size, RESULT_V1, 10
+    elif msg_version == 2:
+        head, result, beams_field = HEADER.size + FIRE_V2.size, RESULT_V2, 13
+    else:
+        return f"SimplePingResult version {msg_version} is unknown"
+    version = 2 if msg_version == 2 else 1
+    if total < head + result.size:
+        return f"{total} bytes: shorter than a v{version} SimplePingResult header"
+    if len(buffer) < head + result.size:
+        return None
+    fields = result.unpack_from(buffer, head)
+    n_beams = fields[beams_field]
+    image_offset, image_size, message_size = fields[-3:]
+    if message_size not in (0, total):
+        return f"messageSize {message_size} disagrees with the header's {total} bytes"
+    if image_offset + image_size > total or image_offset < head + result.size + 2 * n_beams:
+        return "bearing table or image outside the message"
+    return None
 
 
 def parse_status(datagram: bytes) -> tuple[int, int] | None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import itertools
 from typing import Literal
 
 import numpy as np
@@ -189,6 +190,34 @@ def test_a_short_ping_result_does_not_wedge_the_stream() -> None:
     pings, errors = _pings(PingStream(), [short + ONE])
     assert [p.ping_id for p in pings] == [parse_ping(ONE).ping_id]
     assert errors
+
+
+_BOGUS_HEADERS = st.lists(
+    st.one_of(
+        # a ping result of any version and size: its own header gives it away at once
+        st.tuples(st.just(0x23), st.integers(0, 3), st.integers(0, 2**32 - 1)),
+        # any other message announcing more than the small ones an Oculus sends
+        st.tuples(st.integers(0, 2**16 - 1), st.integers(0, 3), st.integers(65_537, 2**32 - 1)),
+    ),
+    max_size=40,
+)
+
+
+@settings(max_examples=200, deadline=None)
+@given(_BOGUS_HEADERS, st.lists(st.integers(1, len(THREE)), max_size=6))
+def test_bogus_headers_never_swallow_the_pings_behind_them(
+    headers: list[tuple[int, int, int]], cuts: list[int]
+) -> None:
+    junk = b"".join(HEADER.pack(0x4F53, 0, 0, m, v, size, 0) for m, v, size in headers)
+    stream = junk + THREE
+    bounds = [0, *sorted(len(junk) + c for c in cuts), len(stream)]
+    pings, errors = _pings(PingStream(), [stream[a:b] for a, b in itertools.pairwise(bounds)])
+    assert [p.ping_id for p in pings] == [parse_ping(m).ping_id for m in _split_three()]
+    assert len(errors) >= len(headers)
+
+
+def _split_three() -> list[bytes]:
+    return [THREE[i * len(ONE) : (i + 1) * len(ONE)] for i in range(3)]
 
 
 def _patched(**fields: float) -> bytes:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import math
 import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -171,4 +172,34 @@ def test_client_streams_reconnects_after_a_cut_and_counts_garbage(
     assert health is not None
     assert health.counters["bad_telegrams"] >= 1  # the garbled ones, counted not published
     assert health.counters["reconnects"] >= 1
+    sub.undeclare()
+
+
+@pytest.mark.integration
+def test_hostile_bytes_cost_less_than_a_second_and_a_few_log_lines(
+    spawn: Callable[..., Proc], router: Proc, endpoint: str, client: zenoh.Session, tmp_path: Path
+) -> None:
+    arrived: list[float] = []
+    sub = client.declare_subscriber(
+        topics.ASV_SCAN.key("tank", "asv"), lambda _s: arrived.append(time.monotonic())
+    )
+    # 64,000 telegram starts, then a telegram whose numbers are 400 hex digits wide.
+    hostile = b"\x02" * 64_000 + telegram("sSN LMDscandata " + " ".join(["F" * 400] * 30))
+    with FakeTim(_tank_scan_mm, rate_hz=15.0, prefix=hostile) as tim:
+        config = tmp_path / "tim.yaml"
+        config.write_text(f"address: 127.0.0.1\nport: {tim.port}\nreconnect_s: 0.2\n")
+        proc = spawn("run", "tim5xx", "--config", str(config), "--connect", endpoint)
+        wait_for(lambda: len(arrived) >= 15, timeout_s=30, what="15 scans after the hostile bytes")
+        assert tim.prefix_sent_at is not None
+        assert arrived[0] - tim.prefix_sent_at < 1.0
+        assert tim.connections == 1
+        health = query_health(client, site="tank", vehicle="asv", service="tim5xx", timeout_s=2)
+    assert health is not None
+    assert health.counters["bad_telegrams"] >= 1, health.counters
+    errors = [
+        line
+        for line in proc.output().splitlines()
+        if "level=error" in line or "level=warning" in line
+    ]
+    assert len(errors) <= 4, errors
     sub.undeclare()

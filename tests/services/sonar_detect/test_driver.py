@@ -15,7 +15,7 @@ from capsd import topics
 from capsd.codec import Codec
 from capsd.health import query_health
 from capsd.payloads import Health, SonarFrame
-from capsd.protocols.oculus import parse_ping
+from capsd.protocols.oculus import HEADER, MSG_SIMPLE_PING_RESULT, OCULUS_ID, parse_ping
 from capsd.simulator.oculus_fake import FakeOculus
 from tests.conftest import OCULUS_FIXTURES, Proc, free_port, wait_for
 
@@ -30,9 +30,11 @@ class Frames:
     def __init__(self, client: zenoh.Session):
         self.codec = Codec(SonarFrame)
         self.got: list[SonarFrame] = []
+        self.arrived: list[float] = []  # time.monotonic() of each
         self.sub = client.declare_subscriber(topics.SONAR_FRAME.key("tank", "asv"), self._on)
 
     def _on(self, sample: zenoh.Sample) -> None:
+        self.arrived.append(time.monotonic())
         self.got.append(
             self.codec.decode(
                 sample.payload.to_bytes(),
@@ -97,6 +99,43 @@ def test_frames_from_a_split_and_corrupted_stream(
     assert image.shape == (703, 256)
     stamps = [f.stamp_ns for f in frames.got]
     assert stamps == sorted(stamps)
+    frames.sub.undeclare()
+
+
+def _hostile_prefix() -> list[bytes]:
+    """What a hostile peer on the sonar's link sends before the real pings resume."""
+    rng = np.random.default_rng(7)
+    # A ping-result header announcing 10 bytes: the ping's structs would read past it.
+    short = HEADER.pack(OCULUS_ID, 0, 0, MSG_SIMPLE_PING_RESULT, 0, 10, 0) + bytes(10)
+    # 100 KB of headers: the Oculus id every 16 bytes, any message id, any payload size.
+    headers = b"".join(
+        HEADER.pack(OCULUS_ID, 0, 0, int(rng.integers(0, 2**16)), 0, int(rng.integers(0, 2**32)), 0)
+        for _ in range(6400)
+    )
+    # Ping-result headers with sizes a ping could have: each must not swallow good pings.
+    plausible = b"".join(
+        HEADER.pack(OCULUS_ID, 0, 0, MSG_SIMPLE_PING_RESULT, int(v), int(size), 0)
+        for v, size in zip(rng.integers(0, 3, 500), rng.integers(200, 8_000_000, 500), strict=True)
+    )
+    return [short, headers, plausible]
+
+
+def test_hostile_bytes_cost_less_than_a_second_and_a_few_log_lines(
+    spawn: Callable[..., Proc], client: zenoh.Session, endpoint: str, tmp_path: Path
+) -> None:
+    frames = Frames(client)
+    with FakeOculus(PINGS, rate_hz=40.0, split=True, prefix=_hostile_prefix()) as sonar:
+        driver = _driver(spawn, tmp_path, endpoint, address="127.0.0.1", port=sonar.port)
+        wait_for(lambda: len(frames.got) >= 40, timeout_s=20, what="40 frames")
+        health = _health(client)
+        assert sonar.prefix_sent_at is not None
+        # Valid pings resume right after the prefix: the first frame within 1 s of them.
+        assert frames.arrived[0] - sonar.prefix_sent_at < 1.0
+        assert sonar.connections == 1  # no stall, no reconnect
+    assert health.counters.get("protocol_errors", 0) >= 6000
+    errors = [line for line in driver.output().splitlines() if "level=error" in line]
+    assert len(errors) <= 3, errors  # rate-limited: one line a second per kind at most
+    assert all(f.ping_id in {parse_ping(m).ping_id for m in PINGS} for f in frames.got)
     frames.sub.undeclare()
 
 
