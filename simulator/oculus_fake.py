@@ -3,8 +3,11 @@
 It answers on a TCP port: after a SimpleFire it streams SimplePingResult messages (given bytes,
 or built from images), optionally in random-size pieces, with one corrupted message, or
 dropping the connection after N pings; `prefix` bytes (a hostile peer's) go first on each
-connection. It can send a status datagram to a loopback port.
-Only 127.0.0.1 is ever used.
+connection. With `live_clock`, pings are taken on a fixed schedule whatever the link does (a
+held-up link gets them in a burst, as from a sonar's send queue), numbered 0, 1, ... and
+carrying the take time in pingStartTime as the fixtures' M1200d does (nanoseconds in a u32;
+a double of seconds in v2); `taken_ns[ping_id]` is each one's take time on our clock. It can
+send a status datagram to a loopback port. Only 127.0.0.1 is ever used.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ from typing import Self
 
 import numpy as np
 
-from capsd.protocols.oculus import HEADER, MSG_SIMPLE_FIRE, OCULUS_ID, STATUS
+from capsd.protocols.oculus import FIRE_V1, FIRE_V2, HEADER, MSG_SIMPLE_FIRE, OCULUS_ID, STATUS
 
 
 class FakeOculus:
@@ -33,6 +36,7 @@ class FakeOculus:
         corrupt_every: int = 0,
         drop_after: int = 0,
         prefix: Sequence[bytes] = (),
+        live_clock: bool = False,
         seed: int = 0,
     ):
         self.messages = list(messages)
@@ -42,6 +46,8 @@ class FakeOculus:
         self.drop_after = drop_after
         self.prefix = list(prefix)
         self.prefix_sent_at: float | None = None  # time.monotonic() when the prefix was out
+        self.live_clock = live_clock
+        self.taken_ns: dict[int, int] = {}
         self.rng = np.random.default_rng(seed)
         self.fires: list[bytes] = []
         self.connections = 0
@@ -100,8 +106,15 @@ class FakeOculus:
         self.prefix_sent_at = time.monotonic()
         sent = 0
         period = 1.0 / self.rate_hz
+        start, start_ns = time.monotonic(), time.time_ns()
         while not self._stop.is_set():
             message = self.messages[sent % len(self.messages)]
+            if self.live_clock:
+                due = start + sent * period
+                time.sleep(max(0.0, due - time.monotonic()))
+                since_ns = int((due - start) * 1e9)
+                self.taken_ns[sent] = start_ns + since_ns
+                message = _with_clock(message, ping_id=sent, since_ns=since_ns)
             if self.corrupt_every and sent % self.corrupt_every == self.corrupt_every - 1:
                 damaged = bytearray(message)
                 damaged[200:260] = b"\xff" * 60  # a broken bearing table
@@ -113,7 +126,8 @@ class FakeOculus:
             sent += 1
             if self.drop_after and sent >= self.drop_after:
                 return
-            time.sleep(period)
+            if not self.live_clock:
+                time.sleep(period)
 
     def _send(self, conn: socket.socket, message: bytes) -> None:
         conn.setblocking(True)
@@ -125,3 +139,17 @@ class FakeOculus:
             size = int(self.rng.integers(1, 4096))
             conn.sendall(message[at : at + size])
             at += size
+
+
+def _with_clock(message: bytes, *, ping_id: int, since_ns: int) -> bytes:
+    """A SimplePingResult renumbered, its pingStartTime set as the sonar's clock would."""
+    out = bytearray(message)
+    if HEADER.unpack_from(message)[4] == 2:
+        at = HEADER.size + FIRE_V2.size
+        struct.pack_into("<I", out, at, ping_id)
+        struct.pack_into("<d", out, at + 72, since_ns / 1e9)
+    else:
+        at = HEADER.size + FIRE_V1.size
+        struct.pack_into("<I", out, at, ping_id)
+        struct.pack_into("<I", out, at + 40, since_ns % 2**32)
+    return bytes(out)

@@ -6,12 +6,13 @@ SimplePingResult as a SonarFrame: azimuths from the sonar's own bearing table, t
 theta (port positive) by the mount (upright: theta = -bearing). A stream that ends, errs or
 stalls is reconnected; every problem is counted in Health.
 
-Stamps: the Oculus's pingStartTime is on its own clock, so the ping's instant is taken as the
-arrival of the message minus the two-way travel time to the configured range (the sonar can
-send only after that) minus a calibrated `latency_offset_s` (processing and transfer). Its
-units are undocumented and it wraps (32 bits, ~62.5 M ticks between pings at ~16 Hz in the
-fixtures), so it is not used. When several pings arrive in one read (a backlog: the driver
-was slow), only the newest is published; the older ones would be stamped late.
+Stamps: a ping's instant is when it would have arrived over a link that keeps up (the
+sonar's own pingStartTime mapped onto our clock by `sonar_clock.SonarClock`, which learns the
+counter's unknown unit and wrap from the stream; arrival time until it has), minus the two-way
+travel time to the configured range (the sonar can send only after that) minus a calibrated
+`latency_offset_s` (processing and transfer). A ping that arrives late (a stall) keeps the
+time it was taken and is counted (`late_pings`). When several pings arrive in one read (a
+backlog: the driver was slow), only the newest is published.
 With `address: auto`, the first status broadcast's sender is pinned for the process's life.
 32-bit samples are scaled to 16 bits (the top 16); per-row gain prefixes are dropped.
 """
@@ -44,6 +45,7 @@ from capsd.protocols.oculus import (
     simple_fire,
 )
 from capsd.runner import Publisher, ServiceRunner
+from capsd.services.sonar_detect.sonar_clock import LATE_S, SonarClock
 
 logger = logging.getLogger(__name__)
 
@@ -152,6 +154,7 @@ class Driver:
         self.counts: Counter[str] = Counter()
         self.sock: socket.socket | None = None
         self.stream = PingStream()
+        self.clock: SonarClock | None = None  # per connection, made by the first ping's version
         self.address: str | None = None if config.address == "auto" else config.address
         self._last_attempt = 0.0
         self._last_ping = 0.0
@@ -189,6 +192,7 @@ class Driver:
         if chunk:
             arrival = time.time_ns()
             newest: Ping | None = None
+            in_this_read = 0
             for item in self.stream.feed(chunk):
                 if isinstance(item, ProtocolError):
                     self.counts["protocol_errors"] += 1
@@ -201,16 +205,28 @@ class Driver:
                     # with this arrival; older ones would be stamped later than they were taken.
                     self.counts["backlog_dropped"] += 1
                 newest = item
+                in_this_read += 1
             if newest is not None:
                 self._last_ping = now
+                taken_ns = self._taken_ns(newest, arrival, alone=in_this_read == 1)
                 travel = 2.0 * newest.range_m / (newest.sound_speed_m_s or 1480.0)
-                stamp = arrival - int((travel + self.config.latency_offset_s) * 1e9)
+                stamp = taken_ns - int((travel + self.config.latency_offset_s) * 1e9)
                 self.frames.put(
                     to_frame(newest, config=self.config, stamp_ns=stamp, seq=self.frames.next_seq())
                 )
                 self.counts["pings"] += 1
         if now - self._last_ping > self.config.stall_timeout_s:
             self._drop(f"no ping for {self.config.stall_timeout_s:g} s")
+
+    def _taken_ns(self, ping: Ping, arrival_ns: int, *, alone: bool) -> int:
+        """When the ping would have arrived over a link that keeps up (our clock)."""
+        if self.clock is None:
+            # v1 sends a 32-bit counter (it wraps); v2 a double.
+            self.clock = SonarClock(modulus=2.0**32 if ping.version == 1 else None)
+        stamp = self.clock.stamp(ping.ping_start_time, arrival_ns, alone=alone)
+        if stamp.late_s > LATE_S:
+            self.counts["late_pings"] += 1
+        return stamp.taken_ns
 
     def _discover(self) -> None:
         if self._status is None:
@@ -246,6 +262,7 @@ class Driver:
         sock.settimeout(0.05)
         self.sock = sock
         self.stream = PingStream()
+        self.clock = None  # the sonar may have restarted: its counter is learnt again
         self._last_ping = now
         self._fire(now)
         self.runner.set_state("ok")
@@ -273,6 +290,9 @@ class Driver:
         merged = dict(self.counts)
         merged["resyncs"] = self.stream.resyncs
         merged["skipped_bytes"] = self.stream.skipped_bytes
+        if self.clock is not None:
+            merged["sonar_clock_learnt"] = int(self.clock.learnt)
+            merged["sonar_clock_resets"] = self.clock.resets
         return merged
 
 

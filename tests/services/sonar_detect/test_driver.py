@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import os
+import signal
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -136,6 +138,31 @@ def test_hostile_bytes_cost_less_than_a_second_and_a_few_log_lines(
     errors = [line for line in driver.output().splitlines() if "level=error" in line]
     assert len(errors) <= 3, errors  # rate-limited: one line a second per kind at most
     assert all(f.ping_id in {parse_ping(m).ping_id for m in PINGS} for f in frames.got)
+    frames.sub.undeclare()
+
+
+def test_pings_held_up_by_a_stalled_driver_keep_the_time_they_were_taken(
+    spawn: Callable[..., Proc], client: zenoh.Session, endpoint: str, tmp_path: Path
+) -> None:
+    frames = Frames(client)
+    with FakeOculus(PINGS, rate_hz=20.0, split=False, live_clock=True) as sonar:
+        driver = _driver(spawn, tmp_path, endpoint, address="127.0.0.1", port=sonar.port)
+        # 5 s of pings: the driver learns the sonar's counter (3 s of pings that came alone).
+        wait_for(lambda: len(frames.got) >= 100, timeout_s=30, what="100 frames")
+        os.kill(driver.popen.pid, signal.SIGSTOP)  # the driver starved: 2 s of pings queue up
+        time.sleep(2.0)
+        os.kill(driver.popen.pid, signal.SIGCONT)
+        before = len(frames.got)
+        wait_for(lambda: len(frames.got) >= before + 40, timeout_s=20, what="frames after")
+        health = _health(client)
+    travel_ns = int(2.0 * 2.0 / 1480.0 * 1e9)  # 2 m range
+    after = frames.got[before:]
+    errors_s = [(f.stamp_ns + travel_ns - sonar.taken_ns[f.ping_id]) / 1e9 for f in after]
+    # On arrival the first frames after the stall would be stamped up to 2 s late.
+    assert max(abs(e) for e in errors_s) < 0.05, errors_s[:10]
+    assert health.counters.get("late_pings", 0) >= 1
+    assert health.counters.get("sonar_clock_learnt") == 1
+    assert health.counters.get("reconnects", 0) == 0
     frames.sub.undeclare()
 
 
