@@ -35,7 +35,7 @@ def certs(tmp_path: Path) -> Path:
 
 
 @pytest.fixture
-def secure_router(spawn: Callable[..., Proc], certs: Path, tmp_path: Path) -> str:
+def secure_router_proc(spawn: Callable[..., Proc], certs: Path, tmp_path: Path) -> tuple[str, Proc]:
     """The shipped router.secure.yaml with this test's certificates and a free port."""
     config = yaml.safe_load((SECURITY / "router.secure.yaml").read_text())
     port = free_port()
@@ -52,7 +52,12 @@ def secure_router(spawn: Callable[..., Proc], certs: Path, tmp_path: Path) -> st
     endpoint = f"tls/localhost:{port}"
     time.sleep(1.5)
     assert proc.popen.poll() is None, proc.output()
-    return endpoint
+    return endpoint, proc
+
+
+@pytest.fixture
+def secure_router(secure_router_proc: tuple[str, Proc]) -> str:
+    return secure_router_proc[0]
 
 
 def _bus(endpoint: str, certs: Path, identity: str) -> BusConfig:
@@ -156,3 +161,71 @@ def test_certificate_recipe_names_hosts_and_limits_client_certificates(tmp_path:
     key = out / "fix.key"
     assert key.stat().st_mode & 0o077 == 0
     assert len(bytes.fromhex(key.read_text().strip())) == 32
+
+
+def _peak_rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024
+    raise AssertionError(f"no VmHWM for {pid}")
+
+
+def _attacker(endpoint: str, certs: Path | None, identity: str = "capsd-laptop") -> zenoh.Session:
+    """A client configured by the attacker: zenoh's defaults (1 GiB messages), no capsd code."""
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", f'["{endpoint}"]')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    if certs is not None:
+        conf.insert_json5("transport/link/tls/root_ca_certificate", f'"{certs / "ca.pem"}"')
+        conf.insert_json5("transport/link/tls/connect_certificate", f'"{certs / identity}.pem"')
+        conf.insert_json5("transport/link/tls/connect_private_key", f'"{certs / identity}.key"')
+        conf.insert_json5("transport/link/tls/enable_mtls", "true")
+    return zenoh.open(conf)
+
+
+def test_a_huge_denied_put_costs_the_router_nothing(
+    secure_router_proc: tuple[str, Proc], certs: Path
+) -> None:
+    secure_router, router = secure_router_proc
+    router_pid = router.popen.pid
+    before_mb = _peak_rss_mb(router_pid)
+    with _attacker(secure_router, certs) as laptop:
+        laptop.put(FIX, bytes(300 * 1024 * 1024))  # read-only, and 150 x the message limit
+        time.sleep(2.0)
+    # (Measured before the message limit: 41 -> 328 MB; the unit's MemoryMax is 256M.)
+    assert _peak_rss_mb(router_pid) - before_mb < 30.0
+    with (
+        open_session(_bus(secure_router, certs, "capsd-rov")) as bridge,
+        open_session(_bus(secure_router, certs, "capsd-locator")) as locator,
+    ):
+        at_bridge = Inbox(bridge, FIX)
+        wait_for(
+            lambda: locator.put(FIX, b"locator") or b"locator" in at_bridge.payloads(),
+            timeout_s=10,
+            what="the site still working",
+        )
+
+
+def test_an_oversized_put_through_an_open_router_never_reaches_a_service(
+    spawn: Callable[..., Proc], tmp_path: Path
+) -> None:
+    # BlueOS's router has zenoh's defaults: it forwards a 100 MB put. A capsd session (here
+    # `capsd tap`, opened by the same code as every service) refuses it on arrival.
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"router"')
+    conf.insert_json5("listen/endpoints", f'["{endpoint}"]')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    with zenoh.open(conf):
+        tap = spawn("tap", "cap/**", "--connect", endpoint)
+        time.sleep(2.0)
+        before_mb = _peak_rss_mb(tap.popen.pid)
+        with _attacker(endpoint, None) as attacker:
+            attacker.put("cap/tank/asv/sonar/frame", bytes(100 * 1024 * 1024))
+            time.sleep(2.0)
+            attacker.put("cap/tank/asv/sonar/frame", b"after")
+            wait_for(lambda: "cap/tank/asv/sonar/frame" in tap.output(), timeout_s=10, what="tap")
+        assert _peak_rss_mb(tap.popen.pid) - before_mb < 30.0
+        assert tap.popen.poll() is None
+        assert tap.output().count("cap/tank/asv/sonar/frame") == 1  # the small one only
