@@ -36,14 +36,29 @@ case "$ROLE" in
   *) echo "install.sh: role must be asv, rov or topside, not '$ROLE'" >&2; exit 2 ;;
 esac
 REPO=$(cd "$(dirname "$0")/.." && pwd)
-PY=${PYTHON:-python3.11}
-command -v "$PY" >/dev/null 2>&1 || PY=python3
+# A system Python by default: the service user must be able to run what the venv links to
+# (a pyenv or conda Python under an admin's home is not readable by it).
+if [ -n "${PYTHON:-}" ]; then PY=$PYTHON
+elif [ -x /usr/bin/python3.11 ]; then PY=/usr/bin/python3.11
+elif command -v python3.11 >/dev/null 2>&1; then PY=python3.11
+else PY=python3
+fi
 echo "installing CAP-SD ($ROLE) into $PREFIX/venv"
 mkdir -p "$PREFIX" "$ETC" "$UNIT_DIR"
 [ -x "$PREFIX/venv/bin/python" ] || "$PY" -m venv "$PREFIX/venv"
 "$PREFIX/venv/bin/python" -m pip install --quiet --disable-pip-version-check "$REPO[$EXTRAS]"
 if [ "$MAKE_USER" = 1 ] && ! id capsd >/dev/null 2>&1; then
   useradd --system --no-create-home --shell /usr/sbin/nologin capsd
+fi
+if [ "$MAKE_USER" = 1 ] && [ "$(id -u)" = 0 ] && command -v runuser >/dev/null 2>&1; then
+  # The units run as capsd: it must reach the venv and the Python the venv links to.
+  if ! (cd / && runuser -u capsd -- "$PREFIX/venv/bin/python" -c "import capsd") 2>/dev/null; then
+    echo "install.sh: the service user capsd cannot run $PREFIX/venv/bin/python" \
+      "(-> $(readlink -f "$PREFIX/venv/bin/python")): a directory on the way is not open to" \
+      "it, or the venv was made from a Python under someone's home; e.g." \
+      "rm -r $PREFIX/venv; PYTHON=/usr/bin/python3.11 $0 $ROLE ..." >&2
+    exit 1
+  fi
 fi
 for unit in $UNITS; do
   service=${unit//-/_}
@@ -75,8 +90,11 @@ if [ -n "$CERTS" ]; then
   done
   echo "certificates: $IDENTITIES${SECRETS:+ and $SECRETS} in $ETC/certs (keys 0400, $owner)"
 fi
-if [ "$ENABLE" = 1 ] && command -v systemctl >/dev/null 2>&1; then
+if [ "$ENABLE" = 1 ] && [ -d /run/systemd/system ]; then
   systemctl daemon-reload
   for unit in $UNITS; do systemctl enable "capsd-$unit.service"; done
+elif [ "$ENABLE" = 1 ]; then
+  # A container or a machine booted without systemd: systemctl exists but cannot enable.
+  echo "systemd is not running here: units written but not enabled (their ExecStart lines run them)"
 fi
 echo "done: units $(printf 'capsd-%s ' $UNITS)in $UNIT_DIR, configs in $ETC"
