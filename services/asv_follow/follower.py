@@ -112,7 +112,15 @@ class Follower:
         ):
             assert self.rov_m is not None
             self._last_plan_s = now_s
-            chosen = self.planner.choose(self._ahead(), self._carrot, self._carrot_heading)
+            chosen = self.planner.choose(
+                self._ahead(),
+                self._carrot,
+                self._carrot_heading,
+                rov_velocity_m_s=self._horizontal_velocity(),
+                current_bearing_rad=(
+                    None if self.station is None else self.planner.bearing(self.station)
+                ),
+            )
             if chosen is not None:
                 self.station = chosen
                 self.replans += 1
@@ -159,14 +167,17 @@ class Follower:
         self._walk(dt)
         return Target(self._carrot.copy(), self._carrot_heading, state, replanned)
 
+    def _horizontal_velocity(self) -> Array | None:
+        """The ROV's tracked horizontal velocity; None while it hovers (or it is noise)."""
+        v = self.rov_velocity.copy()
+        v[2] = 0.0
+        return None if float(np.linalg.norm(v)) < self.settings.min_lead_speed_m_s else v
+
     def _ahead(self) -> Array:
         """Where the ROV will be `lead_s` from now, at its horizontal tracked velocity."""
         assert self.rov_m is not None
-        v = self.rov_velocity.copy()
-        v[2] = 0.0
-        if float(np.linalg.norm(v)) < self.settings.min_lead_speed_m_s:
-            return self.rov_m
-        return self.rov_m + v * self.settings.lead_s
+        v = self._horizontal_velocity()
+        return self.rov_m if v is None else self.rov_m + v * self.settings.lead_s
 
     def _in_view_of_station(self, rov_m: Array) -> bool:
         assert self.station is not None

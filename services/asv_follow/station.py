@@ -10,7 +10,12 @@ A station keeps the ASV's hull `wall_clearance_m` from every wall and out of kee
 (fixtures reaching the surface, and the site's own), and its depth conditioning (metres of
 horizontal fix error per metre of depth error, tan of the depression) stays bounded. Of the
 feasible stations the cheapest wins: elevation off the target, distance from where the ASV is
-now, turning, and masking, each weighted. Masking: a 2D sonar image cannot tell echoes apart
+now, turning, masking, drift and switching, each weighted. Drift: how fast the ROV, at its
+tracked velocity, would leave the view's elevation (a ROV flying towards or away from the sonar
+changes its depression; one flying across it hardly does), so a ROV on a survey leg is watched
+from abeam and its station lasts. Switching: a station looking from another bearing than the
+current one costs by the degree, so two near-equal stations on either side of the ROV do not
+take turns. Masking: a 2D sonar image cannot tell echoes apart
 that share a range and bearing at any elevation, so a ROV whose range cell (at its bearing,
 over the whole vertical aperture) also holds a mapped fixture, the floor or a wall is hidden
 in that echo (a ROV passing over a rack, seen along it); such views cost `mask_cost_per_deg`
@@ -52,6 +57,10 @@ class StationSettings:
     turn_cost_per_deg: float = 0.02
     mask_cost_per_deg: float = 20.0
     mask_margin_m: float = 0.3  # range half-width of the ROV's cell, and fixtures' growth
+    # Per degree a second that the ROV's motion moves its elevation in the view, and per
+    # degree of bearing away from the current station's.
+    drift_cost_per_deg_s: float = 4.0
+    switch_cost_per_deg: float = 0.03
 
 
 @dataclass(frozen=True)
@@ -165,6 +174,10 @@ class StationPlanner:
 
     # ------------------------------------------------------------------ choice
 
+    def bearing(self, station: Station) -> float:
+        """The bearing (in W) along which `station` looks at its ROV."""
+        return wrap_angle(station.heading_rad + self.mount_yaw + station.view.azimuth_rad)
+
     def choose(
         self,
         rov_m: Array,
@@ -173,11 +186,15 @@ class StationPlanner:
         *,
         avoid_bearing_rad: float | None = None,
         avoid_within_rad: float = math.radians(40.0),
+        rov_velocity_m_s: Array | None = None,
+        current_bearing_rad: float | None = None,
     ) -> Station | None:
         """The cheapest feasible station for the ROV at `rov_m`, the ASV now at `asv_xy`.
 
         `avoid_bearing_rad`: no station looking along a bearing within `avoid_within_rad` of
-        it (another look at a ROV the sonar lost from there).
+        it (another look at a ROV the sonar lost from there). `rov_velocity_m_s`: the ROV's
+        tracked velocity (drift cost); `current_bearing_rad`: the bearing the current station
+        looks along (switching cost).
         """
         s = self.settings
         drop = self.sonar_z - float(rov_m[2])
@@ -211,6 +228,17 @@ class StationPlanner:
                     + s.move_cost_per_m * float(np.linalg.norm(origin - asv_xy[:2]))
                     + s.turn_cost_per_deg * math.degrees(abs(wrap_angle(heading - heading_rad)))
                 )
+                if rov_velocity_m_s is not None:
+                    # d(elevation)/dt = drop / range^2 * (the ROV's speed away from the sonar)
+                    away = float(
+                        rov_velocity_m_s[0] * math.cos(bearing)
+                        + rov_velocity_m_s[1] * math.sin(bearing)
+                    )
+                    rate = drop / view.range_m**2 * away
+                    cost += s.drift_cost_per_deg_s * math.degrees(abs(rate))
+                if current_bearing_rad is not None:
+                    turned = abs(wrap_angle(float(bearing) - current_bearing_rad))
+                    cost += s.switch_cost_per_deg * math.degrees(turned)
                 if best is not None and cost >= best[0]:
                     continue  # masking only adds: no need to look
                 if self.masked(origin, heading, rov_m):

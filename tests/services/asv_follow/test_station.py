@@ -8,7 +8,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from capsd.geometry import Transform
+from capsd.geometry import Transform, wrap_angle
 from capsd.mounts import SonarMountConfig
 from capsd.services.asv_follow.station import StationPlanner, StationSettings
 from capsd.sonar_geometry import to_polar
@@ -74,6 +74,33 @@ def test_the_ideal_station_when_nothing_is_in_the_way() -> None:
     # The nearest such station to the ASV: on its side of the ROV, facing +x.
     assert station.position_xy[0] < rov[0]
     assert abs(station.heading_rad) < math.radians(5.0)
+
+
+@settings(max_examples=30, deadline=None)
+@given(direction=st.floats(-math.pi, math.pi), speed=st.floats(0.1, 0.5))
+def test_a_moving_rov_is_watched_from_abeam(direction: float, speed: float) -> None:
+    """Seen from ahead or behind, its depression changes as it flies; from abeam it hardly does."""
+    planner = _planner()
+    rov = np.array([14.0, 8.0, -3.0])
+    velocity = speed * np.array([math.cos(direction), math.sin(direction), 0.0])
+    station = planner.choose(rov, np.array([14.0, 8.0]), 0.0, rov_velocity_m_s=velocity)
+    assert station is not None
+    across = abs(wrap_angle(planner.bearing(station) - direction))
+    assert abs(across - math.pi / 2) < math.radians(20.0)
+    # Without its velocity the planner has no reason to prefer any side (the ASV is over it).
+    still = planner.choose(rov, np.array([14.0, 8.0]), 0.0)
+    assert still is not None
+
+
+def test_two_equal_stations_do_not_take_turns() -> None:
+    """A ROV midway between two equally good sides keeps the side it is watched from."""
+    planner = _planner()
+    rov = np.array([14.0, 8.0, -3.0])
+    asv = np.array([14.0, 8.0])  # over the ROV: every bearing as near as the others
+    for side in (math.pi / 2, -math.pi / 2):
+        station = planner.choose(rov, asv, 0.0, current_bearing_rad=side)
+        assert station is not None
+        assert abs(wrap_angle(planner.bearing(station) - side)) < math.radians(10.0)
 
 
 def test_keep_out_boxes_and_surface_fixtures_are_avoided() -> None:
