@@ -12,7 +12,8 @@ from collections.abc import Sequence
 from capsd.cli import bench, bus, calibrate, demo, docs, mav, mission, recording, sim, train
 from capsd.cli.bus import RouterConfig
 from capsd.cli.common import fail
-from capsd.launch import EXIT_CONFIG, EXIT_OK
+from capsd.errors import CapsdError, ConfigError
+from capsd.launch import EXIT_CONFIG, EXIT_FAILURE, EXIT_OK
 
 __all__ = ["RouterConfig", "build_parser", "main"]
 
@@ -40,6 +41,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         # stdout at nothing so the interpreter's final flush does not complain either.
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_OK
+    except ConfigError as exc:
+        return fail(f"capsd {args.command}: {exc}", EXIT_CONFIG)
+    except CapsdError as exc:
+        # What a verb did not catch itself: still a message, never a traceback.
+        return fail(f"capsd {args.command}: {exc}", EXIT_FAILURE)
     except ModuleNotFoundError as exc:
         extra = _EXTRA_OF.get((exc.name or "").split(".")[0])
         if extra is None:

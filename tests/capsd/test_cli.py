@@ -1,5 +1,7 @@
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from capsd.cli import main
@@ -28,3 +30,16 @@ def test_bad_numbers_on_the_command_line_are_usage_errors(
 def test_tls_files_are_checked_before_joining(capfd: pytest.CaptureFixture[str]) -> None:
     assert main(["tap", "cap/**", "--tls", "/nonexistent/ca.pem", "c.pem", "k.pem"]) == 2
     assert "ca_certificate" in capfd.readouterr().err
+
+
+def test_an_error_a_verb_does_not_catch_is_a_message_not_a_traceback(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    # A mission starting in the mockup's corner, 0.5 m deep: no ASV station can see it.
+    plan = tmp_path / "corner.yaml"
+    plan.write_text("name: corner\npoints:\n  - {position_m: [4.3, 0.5], depth_m: 0.5}\n")
+    code = main(["demo", "--tank", "mockup", "--mission", str(plan), "--out", str(tmp_path)])
+    err = capfd.readouterr().err
+    assert code == 1
+    assert "no ASV station in the mockup tank sees the plan's start" in err
+    assert "Traceback" not in err
