@@ -5,13 +5,15 @@ No chasing of noise: the station is kept while the ROV, seen from the station, s
 range band, and no mapped fixture shares its range cell (capsd.echo_cell); only then (and at
 most every `replan_after_s`) is a new one chosen, from good fixes only, for where the ROV will
 be `lead_s` later at its tracked velocity (a ROV flying a survey leg would otherwise leave
-every station as soon as it is reached). Without a good fix for `fix_timeout_s`: if the last
-one lies outside the station's view (the ROV left the aperture faster than the ASV moved), a
-station for it is chosen at once (a ROV on a mission holds where its fix was lost); else the
-ASV holds its station, and still without a fix after `reacquire_after_s` it takes another
-look at where the ROV was last seen, from a bearing at least 40 deg from the one that lost it
-(clutter behind or under the ROV, or its own shadow, hide it from one side only), and again
-every `reacquire_after_s`.
+every station as soon as it is reached). Without a good fix for `fix_timeout_s` the ROV is
+looked for where it will hold: a ROV on a mission stops within a second or two of losing its
+fix, so the last good fix carried on at the tracked velocity for up to `stop_within_s`. If
+that point lies outside the station's view (the ROV left the aperture faster than the ASV
+moved), a station for it is chosen at once; else the ASV holds its station, and still without
+a fix after `reacquire_after_s` it takes another look from a bearing at least 40 deg from the
+one that lost it (clutter behind or under the ROV, or its own shadow, hide it from one side
+only), or, where no such bearing has a station (a corner of a small tank), from the best
+station there is, and again every `reacquire_after_s`.
 The target sent to the autopilot is a carrot that walks from where the ASV was told to be
 towards the station, speed and acceleration limited, turning at a bounded rate; it starts where
 the ASV is when the pilot hands over (GUIDED) and nothing is sent in any other mode.
@@ -42,6 +44,7 @@ class FollowSettings:
     lead_s: float = 3.0
     reacquire_after_s: float = 6.0
     min_lead_speed_m_s: float = 0.05  # slower than this is hovering (or noise): no lead
+    stop_within_s: float = 2.0  # a ROV that lost its fix holds within this (its mission pauses)
     max_speed_m_s: float = 0.3
     max_accel_m_s2: float = 0.1
     max_yaw_rate_rad_s: float = math.radians(15.0)
@@ -131,12 +134,14 @@ class Follower:
             and self.rov_m is not None
             and self.station is not None
             and now_s - self._last_plan_s >= self.settings.replan_after_s
-            and not self._in_view_of_station(self.rov_m)
+            and not self._in_view_of_station(self._held_at(lost_for))
         ):
             # Lost where the station cannot see it (it left the aperture faster than the ASV
-            # re-stationed): a ROV on a mission holds where it was lost, so look there now.
+            # re-stationed): a ROV on a mission holds near where it was lost, so look there now.
             self._last_plan_s = now_s
-            chosen = self.planner.choose(self.rov_m, self._carrot, self._carrot_heading)
+            chosen = self.planner.choose(
+                self._held_at(lost_for), self._carrot, self._carrot_heading
+            )
             if chosen is not None:
                 self.station = chosen
                 self.looks += 1
@@ -149,12 +154,13 @@ class Follower:
             and now_s - self._last_plan_s >= self.settings.reacquire_after_s
         ):
             self._last_plan_s = now_s
+            held = self._held_at(lost_for)
             chosen = self.planner.choose(
-                self.rov_m,
+                held,
                 self._carrot,
                 self._carrot_heading,
                 avoid_bearing_rad=self.station.heading_rad + self.planner.mount_yaw,
-            )
+            ) or self.planner.choose(held, self._carrot, self._carrot_heading)
             if chosen is not None:
                 self.station = chosen
                 self.looks += 1
@@ -172,6 +178,14 @@ class Follower:
         v = self.rov_velocity.copy()
         v[2] = 0.0
         return None if float(np.linalg.norm(v)) < self.settings.min_lead_speed_m_s else v
+
+    def _held_at(self, lost_for_s: float) -> Array:
+        """Where a ROV that lost its fix `lost_for_s` ago holds: carried on, then stopped."""
+        assert self.rov_m is not None
+        v = self._horizontal_velocity()
+        if v is None:
+            return self.rov_m
+        return self.rov_m + v * min(max(lost_for_s, 0.0), self.settings.stop_within_s)
 
     def _ahead(self) -> Array:
         """Where the ROV will be `lead_s` from now, at its horizontal tracked velocity."""

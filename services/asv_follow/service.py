@@ -82,6 +82,8 @@ class MotionConfig(ConfigSection, frozen=True, kw_only=True):
     max_speed_m_s: Annotated[float, msgspec.Meta(gt=0.0, le=2.0)] = 0.5
     max_accel_m_s2: Annotated[float, msgspec.Meta(gt=0.0, le=2.0)] = 0.25
     max_yaw_rate_deg_s: Annotated[float, msgspec.Meta(gt=0.0, le=90.0)] = 15.0
+    # A ROV that lost its fix is looked for this far along its track (its mission pauses).
+    stop_within_s: Annotated[float, msgspec.Meta(ge=0.0, le=30.0)] = 2.0
 
     def settings(self) -> FollowSettings:
         return FollowSettings(
@@ -94,6 +96,7 @@ class MotionConfig(ConfigSection, frozen=True, kw_only=True):
             max_speed_m_s=self.max_speed_m_s,
             max_accel_m_s2=self.max_accel_m_s2,
             max_yaw_rate_rad_s=math.radians(self.max_yaw_rate_deg_s),
+            stop_within_s=self.stop_within_s,
         )
 
 

@@ -140,3 +140,27 @@ def test_a_rov_lost_out_of_the_stations_view_is_looked_for_at_once() -> None:
     assert follower.looks == 1
     view = follower.planner.view(second.position_xy, second.heading_rad, last)
     assert follower.planner.view_is_good(view)
+
+
+def test_a_moving_rov_that_lost_its_fix_is_looked_for_where_it_stops() -> None:
+    """Lost while flying towards the ASV: it holds nearer, too steep for the aperture."""
+    follower = _follower(fix_timeout_s=0.5, replan_after_s=1.0, lead_s=0.0, stop_within_s=6.0)
+    follower.on_mode("GUIDED")
+    follower.on_fix(0.0, np.array([20.0, 6.0, -3.5]))
+    follower.step(0.0)
+    first = follower.station
+    assert first is not None
+    toward = first.position_xy - np.array([20.0, 6.0])
+    toward = toward / np.linalg.norm(toward)
+    velocity = np.array([*(0.5 * toward), 0.0])
+    follower.on_fix(0.2, np.array([20.0, 6.0, -3.5]), velocity)  # its last good fix
+    held = np.array([*(np.array([20.0, 6.0]) + 3.0 * toward), -3.5])  # 6 s on at 0.5 m/s
+    assert follower._in_view_of_station(np.array([20.0, 6.0, -3.5]))
+    assert not follower._in_view_of_station(held)
+    for k in range(1, 40):
+        follower.step(0.2 + 0.2 * k)
+    second = follower.station
+    assert second is not None
+    assert follower.looks >= 1
+    view = follower.planner.view(second.position_xy, second.heading_rad, held)
+    assert follower.planner.view_is_good(view)
