@@ -13,7 +13,10 @@ moved), a station for it is chosen at once; else the ASV holds its station, and 
 a fix after `reacquire_after_s` it takes another look from a bearing at least 40 deg from the
 one that lost it (clutter behind or under the ROV, or its own shadow, hide it from one side
 only), or, where no such bearing has a station (a corner of a small tank), from the best
-station there is, and again every `reacquire_after_s`.
+station there is, and again every `reacquire_after_s`. A ROV holding without positions
+wanders (dead reckoning, `lost_drift_m_s`), so each further look aims at a point on a circle
+around where it stopped that grows with the time lost, a sixth of a turn further round each
+time.
 The target sent to the autopilot is a carrot that walks from where the ASV was told to be
 towards the station, speed and acceleration limited, turning at a bounded rate; it starts where
 the ASV is when the pilot hands over (GUIDED) and nothing is sent in any other mode.
@@ -45,6 +48,7 @@ class FollowSettings:
     reacquire_after_s: float = 6.0
     min_lead_speed_m_s: float = 0.05  # slower than this is hovering (or noise): no lead
     stop_within_s: float = 2.0  # a ROV that lost its fix holds within this (its mission pauses)
+    lost_drift_m_s: float = 0.02  # how fast a ROV holding without positions may wander
     max_speed_m_s: float = 0.3
     max_accel_m_s2: float = 0.1
     max_yaw_rate_rad_s: float = math.radians(15.0)
@@ -154,7 +158,7 @@ class Follower:
             and now_s - self._last_plan_s >= self.settings.reacquire_after_s
         ):
             self._last_plan_s = now_s
-            held = self._held_at(lost_for)
+            held = self._search_point(lost_for)
             chosen = self.planner.choose(
                 held,
                 self._carrot,
@@ -186,6 +190,16 @@ class Follower:
         if v is None:
             return self.rov_m
         return self.rov_m + v * min(max(lost_for_s, 0.0), self.settings.stop_within_s)
+
+    def _search_point(self, lost_for_s: float) -> Array:
+        """Where the next look aims: round the stop point, as far as the ROV may have wandered."""
+        held = self._held_at(lost_for_s)
+        s = self.settings
+        radius = s.lost_drift_m_s * max(0.0, lost_for_s - s.stop_within_s)
+        if radius < 0.05:
+            return held
+        angle = self.looks * math.pi / 3.0
+        return held + radius * np.array([math.cos(angle), math.sin(angle), 0.0])
 
     def _ahead(self) -> Array:
         """Where the ROV will be `lead_s` from now, at its horizontal tracked velocity."""

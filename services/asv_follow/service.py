@@ -84,6 +84,8 @@ class MotionConfig(ConfigSection, frozen=True, kw_only=True):
     max_yaw_rate_deg_s: Annotated[float, msgspec.Meta(gt=0.0, le=90.0)] = 15.0
     # A ROV that lost its fix is looked for this far along its track (its mission pauses).
     stop_within_s: Annotated[float, msgspec.Meta(ge=0.0, le=30.0)] = 2.0
+    # How fast a ROV holding without positions may wander: looks search a growing circle.
+    lost_drift_m_s: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.02
 
     def settings(self) -> FollowSettings:
         return FollowSettings(
@@ -97,6 +99,7 @@ class MotionConfig(ConfigSection, frozen=True, kw_only=True):
             max_accel_m_s2=self.max_accel_m_s2,
             max_yaw_rate_rad_s=math.radians(self.max_yaw_rate_deg_s),
             stop_within_s=self.stop_within_s,
+            lost_drift_m_s=self.lost_drift_m_s,
         )
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from capsd.mounts import SonarMountConfig
 from capsd.services.asv_follow.follower import Follower, FollowSettings
@@ -164,3 +165,29 @@ def test_a_moving_rov_that_lost_its_fix_is_looked_for_where_it_stops() -> None:
     assert follower.looks >= 1
     view = follower.planner.view(second.position_xy, second.heading_rad, held)
     assert follower.planner.view_is_good(view)
+
+
+def test_the_search_for_a_lost_rov_grows_and_goes_round() -> None:
+    """A ROV holding without positions wanders: each look aims further out, elsewhere."""
+    follower = _follower(fix_timeout_s=0.5, reacquire_after_s=6.0, lost_drift_m_s=0.02)
+    follower.on_mode("GUIDED")
+    follower.on_fix(0.0, np.array([20.0, 6.0, -3.5]))
+    follower.step(0.0)
+    stop = np.array([20.0, 6.0, -3.5])  # it hovered: it stops where it was
+    aims = []
+    for k in range(1, 600):
+        t = 0.2 * k
+        looks = follower.looks
+        aim = follower._search_point(t - follower.fix_s)
+        follower.step(t)
+        if follower.looks > looks:
+            aims.append((t, aim))
+    assert len(aims) >= 15  # every 6 s for 2 min
+    distances = [float(np.linalg.norm(a[:2] - stop[:2])) for _, a in aims]
+    assert distances == sorted(distances)
+    assert distances[-1] == pytest.approx(0.02 * (aims[-1][0] - 2.0), rel=1e-6)
+    # Six looks in a row aim in six directions around the stop point.
+    directions = {
+        round(math.degrees(math.atan2(a[1] - stop[1], a[0] - stop[0]))) % 360 for _, a in aims[3:9]
+    }
+    assert len(directions) == 6
