@@ -138,14 +138,12 @@ class Follower:
             and self.rov_m is not None
             and self.station is not None
             and now_s - self._last_plan_s >= self.settings.replan_after_s
-            and not self._in_view_of_station(self._held_at(lost_for))
+            and not self._in_view_of_station(held := self._held_at(lost_for))
         ):
             # Lost where the station cannot see it (it left the aperture faster than the ASV
             # re-stationed): a ROV on a mission holds near where it was lost, so look there now.
             self._last_plan_s = now_s
-            chosen = self.planner.choose(
-                self._held_at(lost_for), self._carrot, self._carrot_heading
-            )
+            chosen = self.planner.choose(held, self._carrot, self._carrot_heading)
             if chosen is not None:
                 self.station = chosen
                 self.looks += 1
@@ -158,13 +156,13 @@ class Follower:
             and now_s - self._last_plan_s >= self.settings.reacquire_after_s
         ):
             self._last_plan_s = now_s
-            held = self._search_point(lost_for)
+            aim = self._search_point(lost_for)
             chosen = self.planner.choose(
-                held,
+                aim,
                 self._carrot,
                 self._carrot_heading,
                 avoid_bearing_rad=self.station.heading_rad + self.planner.mount_yaw,
-            ) or self.planner.choose(held, self._carrot, self._carrot_heading)
+            ) or self.planner.choose(aim, self._carrot, self._carrot_heading)
             if chosen is not None:
                 self.station = chosen
                 self.looks += 1

@@ -134,12 +134,11 @@ class SonarClock:
             return
         slopes.sort()
         rate = slopes[len(slopes) // 2]
-        pairs = list(itertools.pairwise(samples))
         agree = sum(
             abs((a2 - a1) - (t2 - t1) * rate) <= _AGREE_S * 1e9 + 0.2 * abs(a2 - a1)
-            for (t1, a1), (t2, a2) in pairs
+            for (t1, a1), (t2, a2) in itertools.pairwise(samples)
         )
-        if rate <= 0.0 or agree < 0.8 * len(pairs):
+        if rate <= 0.0 or agree < 0.8 * (len(samples) - 1):
             # Not a clock we can use (a replay, a counter that jumps): learn again from here.
             self._rate_ns = None
             self._alone.clear()
