@@ -42,7 +42,8 @@ class Comparison:
     same_quality: int
     raw_identical: int
     tracked_identical: int
-    # Same input stamps, yet a different quality or single-ping fix: must never happen.
+    # Same input stamps and the same track so far, yet a different quality or single-ping fix:
+    # must never happen. (Once the tracks differ, the gate may take or refuse another echo.)
     unexplained: int
     # Tracked estimates all identical up to the first fix whose inputs differ.
     tracked_identical_until_inputs_differ: bool
@@ -85,7 +86,9 @@ def compare(recorded: dict[int, RovFix], replayed: dict[int, RovFix]) -> Compari
 
     A live locator solves a ping with the inputs in by then; one stamped before the ping but
     late on the bus (the fix names the inputs it used) makes that fix, and the track after
-    it, differ from the replay's. Any other difference is a determinism bug: `unexplained`.
+    it, differ from the replay's; after it the track gate may take or refuse an echo the other
+    did not, so quality and single-ping fix may differ for the same inputs. Any difference
+    before the first input difference is a determinism bug: `unexplained`.
     """
     # Pings after the recording's last fix were still in flight when it stopped: not compared.
     end = max(recorded, default=-1)
@@ -109,7 +112,7 @@ def compare(recorded: dict[int, RovFix], replayed: dict[int, RovFix]) -> Compari
         same_quality += quality_ok
         raw_same += raw_ok
         tracked_same += tracked_ok
-        unexplained += inputs_ok and not (quality_ok and raw_ok)
+        unexplained += not inputs_differed and not (quality_ok and raw_ok)
         max_raw = max(max_raw, _distance(a.raw_position_m, b.raw_position_m))
         max_tracked = max(max_tracked, _distance(a.position_m, b.position_m))
         if first is None and not (inputs_ok and quality_ok and raw_ok and tracked_ok):
@@ -242,7 +245,7 @@ def report(c: Comparison) -> str:
         f"largest difference {c.max_raw_difference_m:.6f} m",
         f"  tracked identical   {c.tracked_identical:6d}  ({100 * c.tracked_identical / n:.1f}%), "
         f"largest difference {c.max_tracked_difference_m:.6f} m",
-        f"  same inputs but a different fix (must be 0): {c.unexplained}",
+        f"  a different fix before any input differed (must be 0): {c.unexplained}",
     ]
     if c.identical:
         lines.append("  IDENTICAL")
