@@ -1,58 +1,116 @@
-"""`capsd calibrate RECORDING`: the sonar mount from a recording of the calibration manoeuvre.
+"""`capsd calibrate RECORDING`: the sonar mount and the depth offset from a calibration dive.
 
-The recording holds the sonar frames and the ASV's poses (`capsd record 'cap/**'` with the
-services running) while the ASV turns on the spot near the tank's middle, a turn or two in
-about two minutes, walls in the sonar's range. The fit (capsd.mount_calibration) gives the
-sonar's heading, roll and horizontal position against the ASV's LiDAR-derived frame, each with
-its uncertainty; only what the data determined is written into the new locator config.
+The recording holds the sonar frames, the ASV's poses and the ROV's depth and attitude
+(`capsd record 'cap/**'` with the services running) while the ASV turns on the spot near the
+tank's middle, a turn or two in about two minutes, walls in the sonar's range, and the ROV
+floats at the surface before it dives. The mount fit (capsd.mount_calibration) gives the
+sonar's heading, roll and horizontal position against the ASV's LiDAR-derived frame; the float
+(capsd.depth_calibration) the offset of this autopilot boot's depth readings; each with its
+uncertainty. Only what the data determined is written into the new locator config.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, TypeVar
 
+import msgspec
 import yaml
 
 from capsd.codec import Codec
+from capsd.depth_calibration import DepthFit, fit_depth_offset
 from capsd.errors import CapsdError
 from capsd.keys import Subject, subject_of
 from capsd.mount_calibration import MountFit, Observation, corrected, fit_mount
-from capsd.mounts import SonarMountConfig
-from capsd.payloads import AsvPose, SonarFrame
+from capsd.mounts import RovConfig, SonarMountConfig
+from capsd.payloads import AsvPose, Payload, RovAttitude, RovDepth, SonarFrame
 from capsd.pose_lookup import PoseLookup
-from capsd.recording import read
+from capsd.recording import Recorded, read
 from capsd.tank import TankBounds
 
 EVERY_S = 0.5  # one frame per half second is plenty: neighbouring frames see the same walls
+What = Literal["all", "mount", "depth"]
+T = TypeVar("T", bound=Payload)
 
 
-def observations_of(recording: Path, *, every_s: float = EVERY_S) -> list[Observation]:
-    """Frames of `recording` every `every_s`, each with the ASV pose at its stamp."""
-    frames: list[tuple[int, bytes, str]] = []
-    poses: list[AsvPose] = []
-    pose_codec, frame_codec = Codec(AsvPose), Codec(SonarFrame)
+@dataclass(frozen=True)
+class Calibration:
+    """What was fitted (None: not asked for) and the configs with what was determined."""
+
+    mount_fit: MountFit | None
+    depth_fit: DepthFit | None
+    mount: SonarMountConfig
+    rov: RovConfig
+
+    def lines(self) -> list[str]:
+        """What a person reads: each estimate, its uncertainty, and what could not be told."""
+        return [
+            *([] if self.mount_fit is None else self.mount_fit.lines()),
+            *([] if self.depth_fit is None else self.depth_fit.lines()),
+        ]
+
+    @property
+    def determined_anything(self) -> bool:
+        """Whether the new config differs from the old one in anything."""
+        m, d = self.mount_fit, self.depth_fit
+        mount = m is not None and (m.yaw_determined or m.roll_determined or m.shift_determined)
+        return mount or (d is not None and d.determined)
+
+
+@dataclass
+class _Streams:
+    """The recording's messages this calibration reads, by stream, undecoded."""
+
+    frames: list[Recorded] = field(default_factory=list)
+    poses: list[Recorded] = field(default_factory=list)
+    depths: list[Recorded] = field(default_factory=list)
+    attitudes: list[Recorded] = field(default_factory=list)
+
+
+def _streams(recording: Path) -> _Streams:
+    out = _Streams()
+    by_subject = {
+        Subject.SONAR_FRAME.value: out.frames,
+        Subject.ASV_POSE.value: out.poses,
+        Subject.ROV_DEPTH.value: out.depths,
+        Subject.ROV_ATTITUDE.value: out.attitudes,
+    }
     for message in read(recording):
-        subject = subject_of(message.key)
-        if subject == Subject.SONAR_FRAME.value:
-            frames.append((message.log_time_ns, message.data, message.key))
-        elif subject == Subject.ASV_POSE.value:
-            try:
-                poses.append(
-                    pose_codec.decode(message.data, encoding=message.encoding, key_expr=message.key)
-                )
-            except CapsdError:
-                continue  # counted by nobody here: the pose stream has its own health
-    if not frames:
+        target = by_subject.get(subject_of(message.key))
+        if target is not None:
+            target.append(message)
+    return out
+
+
+def _decoded(messages: list[Recorded], cls: type[T]) -> list[T]:
+    """Those that decode (a bad one is counted by its stream's own health, not here)."""
+    codec = Codec(cls)
+    out: list[T] = []
+    for message in messages:
+        try:
+            out.append(codec.decode(message.data, encoding=message.encoding, key_expr=message.key))
+        except CapsdError:
+            continue
+    return out
+
+
+def _observations(
+    streams: _Streams, recording: Path, *, every_s: float = EVERY_S
+) -> list[Observation]:
+    """Frames every `every_s`, each with the ASV pose at its stamp."""
+    if not streams.frames:
         raise CapsdError(f"{recording}: no sonar frames in it (record cap/** with the frames)")
+    poses = _decoded(streams.poses, AsvPose)
     if not poses:
         raise CapsdError(f"{recording}: no ASV poses in it (asv_pose must run while recording)")
     lookup = PoseLookup(poses)
     out: list[Observation] = []
     next_ns = 0
-    for _, data, key in sorted(frames, key=lambda f: f[0]):
+    frame_codec = Codec(SonarFrame)
+    for message in sorted(streams.frames, key=lambda m: m.log_time_ns):
         try:
-            frame = frame_codec.decode(data, encoding=None, key_expr=key)
+            frame = frame_codec.decode(message.data, encoding=None, key_expr=message.key)
         except CapsdError:
             continue
         if frame.stamp_ns < next_ns:
@@ -65,28 +123,47 @@ def observations_of(recording: Path, *, every_s: float = EVERY_S) -> list[Observ
 
 
 def calibrate(
-    recording: Path, *, mount: SonarMountConfig, tank: TankBounds
-) -> tuple[MountFit, SonarMountConfig]:
-    """The fit and the mount with what it determined applied."""
-    fit = fit_mount(observations_of(recording), mount=mount, tank=tank)
-    return fit, corrected(mount, fit)
+    recording: Path,
+    *,
+    mount: SonarMountConfig,
+    rov: RovConfig,
+    tank: TankBounds,
+    what: What = "all",
+) -> Calibration:
+    """The fits asked for, and the configs with what they determined applied."""
+    streams = _streams(recording)
+    mount_fit = depth_fit = None
+    if what in ("all", "mount"):
+        mount_fit = fit_mount(_observations(streams, recording), mount=mount, tank=tank)
+        mount = corrected(mount, mount_fit)
+    if what in ("all", "depth"):
+        depth_fit = fit_depth_offset(
+            _decoded(streams.depths, RovDepth), _decoded(streams.attitudes, RovAttitude), rov=rov
+        )
+        if depth_fit.determined:
+            rov = msgspec.structs.replace(rov, depth_offset_m=round(depth_fit.offset_m, 4))
+    return Calibration(mount_fit, depth_fit, mount, rov)
 
 
-def write_config(
-    source: Path, out: Path, mount: SonarMountConfig, fit: MountFit, recording: Path
-) -> None:
-    """A copy of the locator config `source` with the calibrated sonar mount, and its provenance."""
+def write_config(source: Path, out: Path, calibration: Calibration, recording: Path) -> None:
+    """A copy of the locator config `source` with what was calibrated, and its provenance."""
     data: dict[str, Any] = yaml.safe_load(source.read_text()) or {}
-    sonar = dict(data.get("sonar") or {})
-    sonar.update(
-        position_m=list(mount.position_m),
-        yaw_deg=mount.yaw_deg,
-        pitch_deg=mount.pitch_deg,
-        roll_deg=mount.roll_deg,
-    )
-    data["sonar"] = sonar
+    if calibration.mount_fit is not None:
+        mount = calibration.mount
+        sonar = dict(data.get("sonar") or {})
+        sonar.update(
+            position_m=list(mount.position_m),
+            yaw_deg=mount.yaw_deg,
+            pitch_deg=mount.pitch_deg,
+            roll_deg=mount.roll_deg,
+        )
+        data["sonar"] = sonar
+    if calibration.depth_fit is not None and calibration.depth_fit.determined:
+        rov = dict(data.get("rov") or {})
+        rov["depth_offset_m"] = calibration.rov.depth_offset_m
+        data["rov"] = rov
     header = [
-        f"# {source.name} with the sonar mount calibrated by `capsd calibrate {recording.name}`:",
-        *(f"#   {line}" for line in fit.lines()),
+        f"# {source.name} calibrated by `capsd calibrate {recording.name}`:",
+        *(f"#   {line}" for line in calibration.lines()),
     ]
     out.write_text("\n".join(header) + "\n" + yaml.safe_dump(data, sort_keys=False))

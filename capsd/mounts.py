@@ -33,6 +33,13 @@ class SonarMountConfig(ConfigSection, frozen=True, kw_only=True):
 
 
 class RovConfig(ConfigSection, frozen=True, kw_only=True):
-    """The ROV's pressure sensor lever arm t_R_D in the ROV body frame."""
+    """The ROV's pressure sensor: its lever arm t_R_D in the ROV body frame, its offset."""
 
     pressure_sensor_m: tuple[float, float, float] = (-0.2, 0.0, 0.0)
+    # The ROV origin's depth when it floats at rest at the surface, trimmed as it dives (a
+    # BlueROV2's 0.25 m frame floats about 1-2 cm proud): what a surface check compares with.
+    float_depth_m: Annotated[float, msgspec.Meta(ge=0.0, le=2.0)] = 0.11
+    # Added to every depth reading before use (services only; the simulator's sensor has its
+    # drawn bias instead): what `capsd calibrate` measured at the surface for this boot of the
+    # autopilot (ArduSub zeroes its pressure at boot, so each boot has its own offset).
+    depth_offset_m: Annotated[float, msgspec.Meta(ge=-1.0, le=1.0)] = 0.0

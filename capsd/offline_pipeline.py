@@ -22,7 +22,7 @@ import numpy as np
 
 from capsd.accuracy import Accuracy, score
 from capsd.geometry import euler_zyx_to_matrix, matrix_to_euler_zyx
-from capsd.mounts import SonarMountConfig
+from capsd.mounts import RovConfig, SonarMountConfig
 from capsd.payloads import (
     Detection,
     ImuSample,
@@ -65,6 +65,9 @@ class Variant:
     # The sonar mount the locator is told (None: the nominal one, as the simulator's config
     # states it); e.g. what `capsd calibrate` found.
     sonar: SonarMountConfig | None = None
+    # The ROV's pressure sensor as the locator is told (None: the simulator's nominal one);
+    # e.g. with the depth offset `capsd calibrate` found at the surface.
+    rov: RovConfig | None = None
     # The locator's covariance floor (None: its default); 0 to see the bare covariance.
     unmodelled_sigma_m: float | None = None
 
@@ -75,7 +78,7 @@ def locator_config(variant: Variant, sim: SimConfig) -> LocatorConfig:
     sonar = variant.sonar if variant.sonar is not None else sim.sonar
     config = LocatorConfig(
         sonar=msgspec.structs.replace(sonar, beam_model=variant.beam_model),
-        rov=sim.rov,
+        rov=variant.rov if variant.rov is not None else sim.rov,
         method=variant.method,
         tank=tank_bounds(tank),
     )
@@ -132,7 +135,7 @@ def run(
     """Simulate `duration_s` and score every variant on the same pings.
 
     `sink` sees what a recording of the live system would hold: the sonar frames, the first
-    variant's ASV poses (one per LiDAR scan) and its fixes.
+    variant's ASV poses (one per LiDAR scan) and its fixes, the ROV's depth and attitude.
     """
     config = msgspec.structs.replace(
         sim_config,
@@ -183,9 +186,13 @@ def run(
         elif isinstance(p, RovDepth):
             for locator in every:
                 locator.on_depth(p)
+            if sink is not None:
+                sink(p)
         elif isinstance(p, RovAttitude):
             for locator in every:
                 locator.on_attitude(p)
+            if sink is not None:
+                sink(p)
         elif isinstance(p, RovVelocity):
             for locator in every:
                 locator.on_velocity(p)

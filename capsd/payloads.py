@@ -445,8 +445,10 @@ class SonarLabel(Payload, frozen=True, kw_only=True):
     """The simulator's truth for one sonar ping (`stamp_ns` and `ping_id` as the frame's).
 
     `range_m`/`azimuth_rad`/`elevation_rad` locate the ROV centre in the sonar frame (the beam
-    model of the simulated sonar); the footprint is the extent of the rays that hit the ROV
-    (None when it is not visible); `overlap` says other echoes share its footprint.
+    model of the simulated sonar), ranges in the sonar's own units as the frame shows them
+    (with a sound-speed error, not the true ones; `rov_position_m` is the truth); the
+    footprint is the extent of the rays that hit the ROV (None when it is not visible);
+    `overlap` says other echoes share its footprint.
     """
 
     ping_id: NonNegInt

@@ -174,6 +174,10 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     layout_seed: int | None = None
     trajectory: TrajectoryName = "square"
     rov_speed_m_s: Annotated[float, msgspec.Meta(gt=0.0, le=0.5)] = 0.3
+    # surface: the ROV floats at the surface above its trajectory's start for the whole run
+    # (a pre-dive surface check: `capsd calibrate` reads its depth offset from it), its origin
+    # at rov.float_depth_m plus the installation's trim error, heaving with the waves.
+    rov_mode: Literal["trajectory", "surface"] = "trajectory"
     seed: int = 0
     # spin: turns on the spot; guided: driven live by an ArduRover stand-in (`asv_guided`).
     asv_mode: Literal["follow", "stationary", "spin", "guided"] = "follow"
@@ -209,6 +213,8 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
                 "`guided`: the ASV cannot follow a ROV flown live; use asv_mode: stationary"
                 " or guided"
             )
+        if self.guided is not None and self.rov_mode == "surface":
+            raise ValueError("`rov_mode: surface`: a ROV flown live (`guided`) is not floating")
         if (self.asv_mode == "guided") != (self.asv_guided is not None):
             raise ValueError("`asv_guided`: needed with `asv_mode: guided`, and only then")
         for i, (start, end) in enumerate(self.sonar_dropouts_s):

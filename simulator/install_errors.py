@@ -38,6 +38,7 @@ class InstallErrorsConfig(ConfigSection, frozen=True, kw_only=True):
     attitude_bias_sigma_deg: Sigma = 0.5  # the ROV AHRS's roll and pitch bias
     heading_error_sigma_deg: Sigma = 2.0  # its magnetometer heading in a steel tank
     attitude_noise_deg: Sigma = 0.2
+    float_trim_sigma_m: Sigma = 0.01  # the ROV's floating depth against rov.float_depth_m
 
 
 @dataclass(frozen=True)
@@ -54,6 +55,7 @@ class InstallErrors:
     heading_error_rad: float  # the AHRS's heading, off about the vertical
     attitude_bias: Transform  # its roll and pitch bias, in the body (rotation only)
     attitude_noise_rad: float
+    float_trim_m: float = 0.0  # the floating ROV sits this much deeper than configured
 
     @classmethod
     def none(cls) -> InstallErrors:
@@ -101,6 +103,8 @@ class InstallErrors:
                 (0.0, 0.0, 0.0), yaw_rad=0.0, pitch_rad=att_pitch, roll_rad=att_roll
             ),
             attitude_noise_rad=math.radians(c.attitude_noise_deg),
+            # Drawn last: every earlier error stays what a seed drew before it was added.
+            float_trim_m=float(rng.normal(0.0, c.float_trim_sigma_m)),
         )
 
     def depth_reading(self, true_depth_m: float, t_s: float, noise_m: float) -> float:
@@ -144,4 +148,6 @@ class InstallErrors:
             "rov_heading_error_deg": round(heading, 3),
             "rov_pitch_bias_deg": round(att_pitch, 3),
             "rov_roll_bias_deg": round(att_roll, 3),
+            "pressure_arm_z_mm": round(self.pressure_arm_m[2] * 1000, 1),
+            "float_trim_mm": round(self.float_trim_m * 1000, 1),
         }

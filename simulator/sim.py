@@ -51,6 +51,7 @@ from capsd.simulator.world import (
     RovMotion,
     RovState,
     asv_motion,
+    floating,
     hovering,
     rov_motion,
     with_look,
@@ -128,6 +129,15 @@ class Simulation:
             np.random.default_rng([config.seed if install_seed is None else install_seed, 0xE7]),
         )
         self.mount = config.sonar.transform().compose(self.errors.sonar)
+        if config.rov_mode == "surface":
+            waves = config.waves.waves()
+            self.rov = floating(
+                self.rov.track.p[0],
+                depth_m=config.rov.float_depth_m + self.errors.float_trim_m,
+                heave_m=waves.heave_m,
+                period_s=waves.heave_period_s,
+                duration_s=self.horizon_s,
+            )
         standoff = config.asv_standoff_m
         if standoff is None:
             # Put the ROV on the boresight at its trajectory's mean depth.
@@ -411,6 +421,8 @@ class Simulation:
         if dropped and self.renderer is not None:
             # The ROV was hidden from the image; the label still says where it truly was.
             label = self._geometric_label(sonar_pose, rov, dropped=True)
+        # In the sonar's range units, as the frame is (the truth position stays on the label).
+        label = label.as_reported(self.errors.sound_speed_scale)
         yield Event(t, topics.SIM_LABEL, cfg.vehicle, self._label_payload(stamp, ping, label, rov))
         if cfg.streams.detections_truth_noise == "on":
             found = self._truth_detection(label)

@@ -129,6 +129,23 @@ class Label:
     overlap: bool  # other echoes inside the ROV's footprint (the paper's failure case)
     ghosts: tuple[tuple[float, float], ...]  # (range, azimuth) of multipath ghosts in the fan
 
+    def as_reported(self, sound_speed_scale: float) -> Label:
+        """Ranges as a sonar reports them that assumes a speed `sound_speed_scale` x too slow.
+
+        A label describes the image: where the ROV's echo lies in it, in the sonar's own range
+        units (what a detector, a person drawing boxes, or training sees).
+        """
+        if sound_speed_scale == 1.0:
+            return self
+        k = 1.0 / sound_speed_scale
+        return replace(
+            self,
+            range_m=self.range_m * k,
+            range_min_m=self.range_min_m * k,
+            range_max_m=self.range_max_m * k,
+            ghosts=tuple((r * k, a) for r, a in self.ghosts),
+        )
+
 
 @dataclass(frozen=True)
 class Ping:

@@ -456,6 +456,21 @@ def rov_motion(
     return RovMotion(track)
 
 
+def floating(
+    position_m: Array, *, depth_m: float, heave_m: float, period_s: float, duration_s: float
+) -> RovMotion:
+    """A ROV floating at the surface above `position_m`: its origin `depth_m` down, heaving."""
+    n = int(duration_s / _DT) + 2
+    t = np.arange(n) * _DT
+    w = 2.0 * math.pi / period_s
+    p = np.tile(np.array([position_m[0], position_m[1], -depth_m], dtype=np.float64), (n, 1))
+    v, a = np.zeros((n, 3)), np.zeros((n, 3))
+    p[:, 2] += heave_m * np.sin(w * t)
+    v[:, 2] = heave_m * w * np.cos(w * t)
+    a[:, 2] = -heave_m * w * w * np.sin(w * t)
+    return RovMotion(Track(_DT, p, v, a))
+
+
 def hovering(position_m: Array, *, duration_s: float = 10.0) -> RovMotion:
     """A ROV that stays at `position_m` (what a stationary ASV faces when the ROV flies live)."""
     n = int(duration_s / _DT) + 2

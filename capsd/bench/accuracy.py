@@ -21,7 +21,7 @@ import msgspec
 
 from capsd.accuracy import HEADER, Accuracy, bootstrap_med, row
 from capsd.bench.baseline import box_range_bias
-from capsd.mounts import SonarMountConfig
+from capsd.mounts import RovConfig, SonarMountConfig
 from capsd.offline_pipeline import Variant, ablations, locator_config, run
 from capsd.progress import Progress
 from capsd.simulator.config import Config as SimConfig
@@ -102,13 +102,13 @@ def bench(
         run_variants = variants
         if install_errors != "off":
             figures["drawn_errors"][name] = Simulation(config, horizon_s=10.0).errors.summary()
-            mount, figures["self_calibration"][name] = _self_calibrate(config)
+            mount, rov, figures["self_calibration"][name] = _self_calibrate(config)
             by_name = {v.name: v for v in variants}
             run_variants = [
                 *variants,
-                dataclasses.replace(by_name[OURS], name=OURS_SELF_CALIBRATED, sonar=mount),
+                dataclasses.replace(by_name[OURS], name=OURS_SELF_CALIBRATED, sonar=mount, rov=rov),
                 dataclasses.replace(
-                    by_name[CALIBRATED], name=CALIBRATED_SELF_CALIBRATED, sonar=mount
+                    by_name[CALIBRATED], name=CALIBRATED_SELF_CALIBRATED, sonar=mount, rov=rov
                 ),
             ]
         results = run(
@@ -141,12 +141,16 @@ def bench(
     return figures
 
 
-def _self_calibrate(config: SimConfig) -> tuple[SonarMountConfig, dict[str, Any]]:
-    """The run's installation calibrated as a team would: a 2-minute turn of the ASV, fitted.
+def _self_calibrate(
+    config: SimConfig,
+) -> tuple[SonarMountConfig, RovConfig, dict[str, Any]]:
+    """The run's installation calibrated as a team would: a 2-minute calibration manoeuvre.
 
-    Another dive of the same installation (its own seed; the installation's errors shared).
+    The ASV turns on the spot while the ROV floats at the surface before its dive. Another
+    dive of the same installation and autopilot boot (its own seed; the errors shared).
     """
-    from capsd.bench.calibrate import observations, wanted_correction
+    from capsd.bench.calibrate import calibration_dive, wanted_correction, wanted_depth_offset
+    from capsd.depth_calibration import fit_depth_offset
     from capsd.mount_calibration import corrected, fit_mount
 
     manoeuvre = msgspec.structs.replace(
@@ -154,13 +158,16 @@ def _self_calibrate(config: SimConfig) -> tuple[SonarMountConfig, dict[str, Any]
         trajectory="square",
         seed=config.seed + 7919,
         asv_mode="spin",
+        rov_mode="surface",
         asv_standoff_m=None,
         rates=msgspec.structs.replace(config.rates, sonar_hz=2.0),
     )
     located = locator_config(Variant(OURS), manoeuvre)
     assert located.tank is not None
-    seen = observations(manoeuvre, duration_s=CALIBRATION_S)
+    dive = calibration_dive(manoeuvre, duration_s=CALIBRATION_S)
+    seen = dive.observations
     fit = fit_mount(seen, mount=located.sonar, tank=located.tank)
+    depth = fit_depth_offset(dive.depths, dive.attitudes, rov=located.rov)
     want_yaw, want_roll, want_y = wanted_correction(manoeuvre, seen)
     summary = {
         "yaw_deg": round(fit.yaw_deg, 3),
@@ -170,17 +177,23 @@ def _self_calibrate(config: SimConfig) -> tuple[SonarMountConfig, dict[str, Any]
         "roll_wanted_deg": round(want_roll, 3),
         "y_mm": round(fit.shift_y_m * 1000, 1),
         "y_wanted_mm": round(want_y * 1000, 1),
+        "depth_offset_mm": round(depth.offset_m * 1000, 1),
+        "depth_offset_wanted_mm": round(wanted_depth_offset(manoeuvre, dive) * 1000, 1),
         "determined": [
             what
             for what, ok in (
                 ("yaw", fit.yaw_determined),
                 ("roll", fit.roll_determined),
                 ("y", fit.shift_determined),
+                ("depth_offset", depth.determined),
             )
             if ok
         ],
     }
-    return corrected(config.sonar, fit), summary
+    rov = located.rov
+    if depth.determined:
+        rov = msgspec.structs.replace(rov, depth_offset_m=round(depth.offset_m, 4))
+    return corrected(config.sonar, fit), rov, summary
 
 
 CALIBRATION_S = 120.0
@@ -317,22 +330,23 @@ def self_calibrated_report(figures: dict[str, Any]) -> list[str]:
         "## After self-calibration (issue 24)",
         "",
         "Each run's installation calibrated from another dive of it: the ASV turning on the "
-        f"spot for {CALIBRATION_S:g} s, fitted by `capsd calibrate`'s code; what it determined "
-        "is given to both methods (the baseline also keeps its box-range correction). The "
-        "depth sensor's bias is not calibrated. On common pings, 95 % block-bootstrap "
-        "intervals.",
+        f"spot for {CALIBRATION_S:g} s while the ROV floats at the surface, fitted by `capsd "
+        "calibrate`'s code (the sonar mount from the walls, the depth reading's offset from "
+        "the float); what it determined is given to both methods (the baseline also keeps its "
+        "box-range correction). On common pings, 95 % block-bootstrap intervals.",
         "",
         "| run | yaw fitted / wanted deg | roll fitted / wanted deg | y fitted / wanted mm "
+        "| depth offset fitted / wanted mm "
         "| ours uncalibrated MED mm | ours MED mm | baseline MED mm | ratio "
         f"| ours <= {MAX_MED_MM:g} mm | ratio <= {MAX_RATIO:g} |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|:-:|:-:|",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|:-:|:-:|",
     ]
     all_met = True
     for name, c in figures["common_self_calibrated"].items():
         cal = figures["self_calibration"][name]
         before = figures["runs"][name][OURS].get("med_mm")
         if "ratio" not in c:
-            lines.append(f"| {name} | - | - | - | {before} | - | - | - | NOT met | NOT met |")
+            lines.append(f"| {name} | - | - | - | - | {before} | - | - | - | NOT met | NOT met |")
             all_met = False
             continue
         verdicts, met = _targets(c)
@@ -341,6 +355,7 @@ def self_calibrated_report(figures: dict[str, Any]) -> list[str]:
             f"| {name} | {cal['yaw_deg']} / {cal['yaw_wanted_deg']} "
             f"| {cal['roll_deg']} / {cal['roll_wanted_deg']} "
             f"| {cal['y_mm']} / {cal['y_wanted_mm']} "
+            f"| {cal.get('depth_offset_mm', '-')} / {cal.get('depth_offset_wanted_mm', '-')} "
             f"| {before} | {c['ours_med_mm']} {_ci(c['ours_med_ci_mm'])} "
             f"| {c['other_med_mm']} {_ci(c['other_med_ci_mm'])} "
             f"| {c['ratio']} {_ci(c['ratio_ci'])} | {verdicts} |"

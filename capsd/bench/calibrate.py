@@ -11,15 +11,17 @@ from __future__ import annotations
 import json
 import math
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from capsd.depth_calibration import fit_depth_offset
 from capsd.geometry import matrix_to_euler_zyx
 from capsd.mount_calibration import Observation, corrected, fit_mount
 from capsd.offline_pipeline import Variant, locator_config, run
-from capsd.payloads import AsvPose, Payload, SonarFrame
+from capsd.payloads import AsvPose, Payload, RovAttitude, RovDepth, SonarFrame
 from capsd.pose_lookup import PoseLookup
 from capsd.progress import Progress
 from capsd.simulator.config import OFFLINE_START_NS, Rates
@@ -34,19 +36,32 @@ TILT_TARGET_DEG = 0.3
 SHIFT_TARGET_MM = 15.0
 
 
-def observations(
-    config: SimConfig, *, duration_s: float, every_s: float = 0.5
-) -> list[Observation]:
-    """Sonar frames every `every_s`, each with the estimated ASV pose at its stamp.
+@dataclass(frozen=True)
+class Dive:
+    """What a recording of the calibration manoeuvre gives `capsd calibrate`."""
+
+    observations: list[Observation]
+    depths: list[RovDepth]
+    attitudes: list[RovAttitude]
+
+
+def calibration_dive(config: SimConfig, *, duration_s: float, every_s: float = 0.5) -> Dive:
+    """Frames every `every_s` with the estimated ASV pose at each; the ROV's depths, attitudes.
 
     As `capsd calibrate` reads a recording: the poses interpolated to the frame's stamp.
     """
     frames: list[SonarFrame] = []
     poses: list[AsvPose] = []
+    depths: list[RovDepth] = []
+    attitudes: list[RovAttitude] = []
 
     def sink(payload: Payload) -> None:
         if isinstance(payload, AsvPose):
             poses.append(payload)
+        elif isinstance(payload, RovDepth):
+            depths.append(payload)
+        elif isinstance(payload, RovAttitude):
+            attitudes.append(payload)
         elif isinstance(payload, SonarFrame) and (
             not frames or payload.stamp_ns >= frames[-1].stamp_ns + int(every_s * 1e9)
         ):
@@ -57,7 +72,21 @@ def observations(
         sink=sink)  # fmt: skip
     lookup = PoseLookup(poses)
     out = [Observation(f, asv) for f in frames if (asv := lookup.at(f.stamp_ns)) is not None]
-    return out[4:]  # the pose estimator's first seconds (a heading prior 20 deg off)
+    # out[4:]: not the pose estimator's first seconds (a heading prior 20 deg off).
+    return Dive(out[4:], depths, attitudes)
+
+
+def wanted_depth_offset(config: SimConfig, dive: Dive) -> float:
+    """The offset the run's hidden depth errors call for (metres, added to each reading).
+
+    The pressure port's misplacement (its z, the ROV about level), less the sensor's bias and
+    its drift by the middle of the dive. Not the floating depth's trim error: that is what a
+    surface check cannot see, and part of what it is scored on.
+    """
+    sim = Simulation(config, horizon_s=10.0)
+    e = sim.errors
+    mid_s = (0.5 * (dive.depths[0].stamp_ns + dive.depths[-1].stamp_ns) - OFFLINE_START_NS) / 1e9
+    return e.pressure_arm_m[2] - e.depth_bias_m - e.depth_drift_m_per_s * mid_s
 
 
 def wanted_correction(
@@ -97,16 +126,20 @@ def bench(
             trajectory=trajectory,
             seed=500 + seed,
             asv_mode="spin",  # the calibration manoeuvre: the ASV turns on the spot
+            rov_mode="surface",  # while the ROV floats at the surface, before its dive
             # The fit reads two frames a second: render no more.
             rates=Rates(sonar_hz=2.0),
             install_errors=InstallErrorsConfig(mode="realistic"),
         )
-        obs = observations(config, duration_s=duration_s)
+        dive = calibration_dive(config, duration_s=duration_s)
+        obs = dive.observations
         loc = locator_config(Variant("ours"), config)
         assert loc.tank is not None  # locator_config always gives the tank
         fit = fit_mount(obs, mount=loc.sonar, tank=loc.tank)
         want_yaw, want_roll, want_y = wanted_correction(config, obs)
         shift_error_m = abs(fit.shift_y_m - want_y)
+        depth = fit_depth_offset(dive.depths, dive.attitudes, rov=loc.rov)
+        want_depth = wanted_depth_offset(config, dive)
         rows.append(
             {
                 "seed": config.seed,
@@ -123,6 +156,11 @@ def bench(
                 "shift_y_sigma_mm": round(fit.shift_y_sigma_m * 1000, 1),
                 "shift_error_mm": round(shift_error_m * 1000, 1),
                 "range_scale": round(fit.range_scale, 5),
+                "wanted_depth_offset_mm": round(want_depth * 1000, 1),
+                "fitted_depth_offset_mm": round(depth.offset_m * 1000, 1),
+                "depth_offset_sigma_mm": round(depth.sigma_m * 1000, 1),
+                "depth_offset_error_mm": round((depth.offset_m - want_depth) * 1000, 1),
+                "depth_offset_determined": depth.determined,
                 "measurements": fit.measurements,
                 "yaw_determined": fit.yaw_determined,
                 "roll_determined": fit.roll_determined,
@@ -138,19 +176,22 @@ def bench(
     yaw_err = float(np.mean([abs(r["yaw_error_deg"]) for r in rows]))
     roll_err = float(np.mean([abs(r["roll_error_deg"]) for r in rows]))
     shift_err = float(np.mean([r["shift_error_mm"] for r in rows]))
+    depth_err = float(np.mean([abs(r["depth_offset_error_mm"]) for r in rows]))
     print(
         f"{tank}/{trajectory}, {seeds} seeds, {duration_s:g} s each, realistic installation "
         "errors; corrections in degrees (wanted: what the hidden errors call for)"
     )
     print(f"{'seed':>5} {'yaw want':>9} {'fitted':>8} {'sigma':>6} {'roll want':>10} "
-          f"{'fitted':>8} {'sigma':>6} {'y err mm':>9} {'scale':>7} {'edges':>6}")  # fmt: skip
+          f"{'fitted':>8} {'sigma':>6} {'y err mm':>9} {'scale':>7} {'edges':>6} "
+          f"{'depth off want mm':>17} {'fitted':>7} {'sigma':>6}")  # fmt: skip
     for r in rows:
         print(
             f"{r['seed']:>5} {r['wanted_yaw_deg']:>9.3f} {r['fitted_yaw_deg']:>8.3f} "
             f"{r['yaw_sigma_deg']:>6.3f} {r['wanted_roll_deg']:>10.3f} "
             f"{r['fitted_roll_deg']:>8.3f} {r['roll_sigma_deg']:>6.3f} "
             f"{r['shift_error_mm']:>9.1f} {r['range_scale']:>7.4f} "
-            f"{r['measurements']:>6}"
+            f"{r['measurements']:>6} {r['wanted_depth_offset_mm']:>17.1f} "
+            f"{r['fitted_depth_offset_mm']:>7.1f} {r['depth_offset_sigma_mm']:>6.1f}"
         )
     print(
         f"mean |yaw error| {yaw_err:.3f} deg (target <= {YAW_TARGET_DEG}: "
@@ -158,7 +199,8 @@ def bench(
         f"{roll_err:.3f} deg (target <= {TILT_TARGET_DEG}: "
         f"{'met' if roll_err <= TILT_TARGET_DEG else 'NOT met'}); mean position error "
         f"{shift_err:.1f} mm sideways (target <= {SHIFT_TARGET_MM:g}: "
-        f"{'met' if shift_err <= SHIFT_TARGET_MM else 'NOT met'}); pitch, x and z not "
+        f"{'met' if shift_err <= SHIFT_TARGET_MM else 'NOT met'}); mean |depth offset error| "
+        f"{depth_err:.1f} mm (the ROV floating at the surface); pitch, x and z not "
         f"determined (said so); {time.monotonic() - started:.0f} s"
     )
     figures = {
@@ -169,6 +211,7 @@ def bench(
         "mean_abs_yaw_error_deg": round(yaw_err, 4),
         "mean_abs_roll_error_deg": round(roll_err, 4),
         "mean_shift_error_mm": round(shift_err, 2),
+        "mean_abs_depth_offset_error_mm": round(depth_err, 2),
     }
     if out is not None:
         out.parent.mkdir(parents=True, exist_ok=True)

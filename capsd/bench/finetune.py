@@ -25,7 +25,7 @@ from capsd.bench.detect import HEADER, MIN_CONFIDENCE, evaluate
 from capsd.codec import Codec
 from capsd.offline_pipeline import Variant
 from capsd.offline_pipeline import run as run_pipeline
-from capsd.payloads import AsvPose, Payload, RovFix, SonarFrame
+from capsd.payloads import AsvPose, Payload, RovAttitude, RovDepth, RovFix, SonarFrame
 from capsd.progress import Progress
 from capsd.recording import McapRecorder, Sample
 from capsd.simulator.config import Config as SimConfig
@@ -44,6 +44,8 @@ _KEYS = {
     SonarFrame: topics.SONAR_FRAME.key("tank", "asv"),
     AsvPose: topics.ASV_POSE.key("tank", "asv"),
     RovFix: topics.ROV_FIX.key("tank", "topside"),
+    RovDepth: topics.ROV_DEPTH.key("tank", "rov"),
+    RovAttitude: topics.ROV_ATTITUDE.key("tank", "rov"),
 }
 
 

@@ -1,4 +1,4 @@
-"""`capsd calibrate RECORDING`: the sonar mount from a recording."""
+"""`capsd calibrate RECORDING`: the sonar mount and the depth offset from a recording."""
 
 from __future__ import annotations
 
@@ -26,18 +26,26 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
                 f"calibrate: {args.locator_config} has no `tank` section: the walls are needed",
                 EXIT_CONFIG,
             )
-        fit, mount = calibrate(args.recording, mount=locator.sonar, tank=locator.tank)
+        result = calibrate(
+            args.recording,
+            mount=locator.sonar,
+            rov=locator.rov,
+            tank=locator.tank,
+            what=args.what,
+        )
     except CapsdError as exc:
         return fail(f"calibrate: {exc}", EXIT_CONFIG)
-    for line in fit.lines():
+    for line in result.lines():
         print(line)
-    write_config(args.locator_config, args.out, mount, fit, args.recording)
+    if not result.determined_anything:
+        return fail("calibrate: nothing was determined; no config written", EXIT_FAILURE)
+    write_config(args.locator_config, args.out, result, args.recording)
+    mount, rov = result.mount, result.rov
     print(
         f"wrote {args.out}: sonar yaw {mount.yaw_deg:g} deg, pitch {mount.pitch_deg:g} deg, "
-        f"roll {mount.roll_deg:g} deg, position {list(mount.position_m)} m"
+        f"roll {mount.roll_deg:g} deg, position {list(mount.position_m)} m; "
+        f"depth offset {rov.depth_offset_m:+g} m"
     )
-    if not (fit.yaw_determined or fit.roll_determined or fit.shift_determined):
-        return fail("calibrate: nothing was determined; the config is unchanged", EXIT_FAILURE)
     return EXIT_OK
 
 
@@ -45,12 +53,14 @@ def register(sub: Subcommands) -> None:
     """Add the calibrate verbs to the `capsd` parser's subcommands."""
     cal = sub.add_parser(
         "calibrate",
-        help="the sonar mount (heading, roll, position) from a recording of the ASV turning",
+        help="the sonar mount and the depth offset from a recording of the calibration dive",
         description="Fit the sonar's heading, roll and horizontal position against the ASV's "
         "LiDAR-derived frame to the tank walls in a recording's sonar frames (`capsd record "
-        "'cap/**'` while the ASV turns on the spot, about two minutes); print each estimate "
-        "with its uncertainty and whether the data determined it; write a copy of the locator "
-        "config with what was determined (docs/INSTALL-ERRORS.md).",
+        "'cap/**'` while the ASV turns on the spot, about two minutes), and the offset of the "
+        "ROV's depth readings from a stretch of it floating at the surface (each boot of the "
+        "autopilot zeroes its depth anew: redo `--what depth` after each); print each "
+        "estimate with its uncertainty and whether the data determined it; write a copy of "
+        "the locator config with what was determined (docs/INSTALL-ERRORS.md).",
     )
     cal.add_argument("recording", type=Path, help="an MCAP recording with frames and ASV poses")
     cal.add_argument(
@@ -60,4 +70,11 @@ def register(sub: Subcommands) -> None:
         help="the locator's config during the recording (its sonar mount and tank)",
     )
     cal.add_argument("-o", "--out", type=Path, required=True, help="the calibrated config")
+    cal.add_argument(
+        "--what",
+        choices=("all", "mount", "depth"),  # capsd.calibrate.What
+        default="all",
+        help="mount: the sonar mount only; depth: the depth offset only (no sonar frames "
+        "needed); all (default): both",
+    )
     cal.set_defaults(func=_cmd_calibrate)

@@ -268,7 +268,9 @@ class Locator:
 
     def on_depth(self, depth: RovDepth) -> None:
         self._note_arrival(depth.stamp_ns)
-        self.depths.add(depth.stamp_ns, (depth.depth_m, depth.sigma_m))
+        # The reading as this boot of the autopilot reports it, plus the surface check's offset.
+        corrected = depth.depth_m + self.config.rov.depth_offset_m
+        self.depths.add(depth.stamp_ns, (corrected, depth.sigma_m))
 
     def on_attitude(self, attitude: RovAttitude) -> None:
         self._note_arrival(attitude.stamp_ns)

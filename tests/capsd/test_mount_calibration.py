@@ -25,8 +25,8 @@ from capsd.mount_calibration import (
     fit_mount,
     predicted_edges,
 )
-from capsd.mounts import SonarMountConfig
-from capsd.payloads import AsvPose, SonarFrame
+from capsd.mounts import RovConfig, SonarMountConfig
+from capsd.payloads import AsvPose, RovDepth, SonarFrame
 from capsd.recording import McapRecorder, Sample
 from capsd.tank import TankBounds
 from tests.conftest import REPO
@@ -121,9 +121,25 @@ def test_without_walls_in_view_it_refuses() -> None:
         fit_mount([Observation(quiet, asv)] * 5, mount=MOUNT, tank=TANK)
 
 
-def _record(path: Path, observations: list[Observation]) -> None:
-    frame_codec, pose_codec = Codec(SonarFrame), Codec(AsvPose)
+def _floating(start_ns: int, *, seconds: float, reading_bias_m: float) -> list[RovDepth]:
+    """A ROV floating level at the default floating depth, heaving 2 cm, its reading biased."""
+    out = []
+    for k in range(int(seconds * 10)):
+        heave = 0.02 * math.sin(2 * math.pi * k / 51)
+        depth = RovConfig().float_depth_m + heave + reading_bias_m
+        out.append(RovDepth(stamp_ns=start_ns + k * 100_000_000, seq=k, depth_m=depth))
+    return out
+
+
+def _record(
+    path: Path, observations: list[Observation], depths: list[RovDepth] | None = None
+) -> None:
+    frame_codec, pose_codec, depth_codec = Codec(SonarFrame), Codec(AsvPose), Codec(RovDepth)
     recorder = McapRecorder(path)
+    depth_key = topics.ROV_DEPTH.key("tank", "rov")
+    for depth in depths or []:
+        encoded = depth_codec.encode(depth)
+        recorder.write(Sample(depth_key, depth_codec.encoding, encoded, depth.stamp_ns))
     for obs in observations:
         x, y, z = (float(v) for v in obs.asv.translation)
         qx, qy, qz, qw = (float(v) for v in matrix_to_quat(obs.asv.rotation))
@@ -149,7 +165,9 @@ def _record(path: Path, observations: list[Observation]) -> None:
 def test_capsd_calibrate_writes_the_corrected_config(tmp_path: Path) -> None:
     true_sonar = _mount_with(MOUNT, math.radians(0.7), 0.0)
     recording = tmp_path / "spin.mcap"
-    _record(recording, _spin(true_sonar))
+    spin = _spin(true_sonar)
+    # The ROV floats at the surface meanwhile; this boot's depth reads 35 mm too deep.
+    _record(recording, spin, _floating(spin[0].frame.stamp_ns, seconds=24, reading_bias_m=0.035))
     locator = tmp_path / "locator.yaml"
     locator.write_text(
         "site: tank\ntank: {length_m: 20.0, width_m: 12.0, depth_m: 6.0}\n"
@@ -172,7 +190,34 @@ def test_capsd_calibrate_writes_the_corrected_config(tmp_path: Path) -> None:
     between = calibrated.rotation.T @ true_sonar.rotation
     angle_deg = math.degrees(math.acos(min(1.0, (np.trace(between) - 1.0) / 2.0)))
     assert angle_deg < 0.1
-    assert out.read_text().startswith("# locator.yaml with the sonar mount calibrated")
+    assert written["rov"]["depth_offset_m"] == pytest.approx(-0.035, abs=0.005)
+    assert "depth offset" in proc.stdout
+    assert out.read_text().startswith("# locator.yaml calibrated by `capsd calibrate spin.mcap`")
+
+
+def test_capsd_calibrate_depth_alone_needs_no_frames(tmp_path: Path) -> None:
+    recording = tmp_path / "float.mcap"
+    _record(recording, [], _floating(1_800_000_000_000_000_000, seconds=30, reading_bias_m=-0.02))
+    locator = tmp_path / "locator.yaml"
+    locator.write_text("site: tank\nrov: {pressure_sensor_m: [-0.2, 0.0, 0.0]}\n")
+    out = tmp_path / "calibrated.yaml"
+    args = [sys.executable, "-m", "capsd", "calibrate", str(recording), "--what", "depth",
+            "--locator-config", str(locator), "-o", str(out)]  # fmt: skip
+    proc = subprocess.run(args, capture_output=True, text=True, timeout=60, cwd=REPO)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    written = yaml.safe_load(out.read_text())
+    assert written["rov"]["depth_offset_m"] == pytest.approx(0.02, abs=0.005)
+    assert written["rov"]["pressure_sensor_m"] == [-0.2, 0.0, 0.0]
+    assert "sonar" not in written  # not asked for: left as it was
+    # A float too short to trust: said, and no config written.
+    short = tmp_path / "short.mcap"
+    _record(short, [], _floating(1_800_000_000_000_000_000, seconds=4, reading_bias_m=0.0))
+    args[4], out2 = str(short), tmp_path / "not_written.yaml"
+    args[-1] = str(out2)
+    proc = subprocess.run(args, capture_output=True, text=True, timeout=60, cwd=REPO)
+    assert proc.returncode == 1
+    assert "depth offset           NOT determined: the ROV floated" in proc.stdout
+    assert not out2.exists()
 
 
 def test_capsd_calibrate_names_what_is_missing(tmp_path: Path) -> None:
