@@ -262,18 +262,21 @@ def calibrate_table(figures: dict[str, Any]) -> list[str]:
     lines = [
         f"{figures['tank']}, {len(figures['runs'])} seeds, {figures['duration_s']:g} s each: "
         f"mean |yaw error| {figures['mean_abs_yaw_error_deg']} deg, |roll error| "
-        f"{figures['mean_abs_roll_error_deg']} deg, sideways {figures['mean_shift_error_mm']} mm.",
+        f"{figures['mean_abs_roll_error_deg']} deg, sideways {figures['mean_shift_error_mm']} mm, "
+        f"|depth offset error| {figures['mean_abs_depth_offset_error_mm']} mm.",
         "",
         "| seed | yaw wanted / fitted (sigma) deg | roll wanted / fitted (sigma) deg "
-        "| sideways error mm | determined |",
-        "|---:|---:|---:|---:|---|",
+        "| sideways error mm | depth offset wanted / fitted (sigma) mm | determined |",
+        "|---:|---:|---:|---:|---:|---|",
     ]
     for r in figures["runs"]:
-        determined = [k for k in ("yaw", "roll", "shift") if r[f"{k}_determined"]]
+        determined = [k for k in ("yaw", "roll", "shift", "depth_offset") if r[f"{k}_determined"]]
         lines.append(
             f"| {r['seed']} | {r['wanted_yaw_deg']} / {r['fitted_yaw_deg']} "
             f"({r['yaw_sigma_deg']}) | {r['wanted_roll_deg']} / {r['fitted_roll_deg']} "
-            f"({r['roll_sigma_deg']}) | {r['shift_error_mm']} | {', '.join(determined)} |"
+            f"({r['roll_sigma_deg']}) | {r['shift_error_mm']} "
+            f"| {r['wanted_depth_offset_mm']} / {r['fitted_depth_offset_mm']} "
+            f"({r['depth_offset_sigma_mm']}) | {', '.join(determined)} |"
         )
     return lines
 
@@ -281,19 +284,20 @@ def calibrate_table(figures: dict[str, Any]) -> list[str]:
 def self_calibrated_table(figures: dict[str, Any]) -> list[str]:
     """With installation errors: ours uncalibrated, then both methods after self-calibration."""
     lines = [
-        "| run | ours uncalibrated | yaw fitted / wanted (deg) | ours | baseline (box range "
-        "and mount calibrated) | ratio |",
-        "|---|---:|---:|---:|---:|---:|",
+        "| run | ours uncalibrated | yaw fitted / wanted (deg) | depth offset fitted / wanted "
+        "(mm) | ours | baseline (box range, mount and depth calibrated) | ratio |",
+        "|---|---:|---:|---:|---:|---:|---:|",
     ]
     for name, c in _in_order(figures["common_self_calibrated"]):
         cal = figures["self_calibration"][name]
         before = figures["runs"][name][OURS].get("med_mm")
         before_cell = "-" if before is None else f"{before:.1f}"
         if "ratio" not in c:
-            lines.append(f"| {_run_name(name)} | {before_cell} | - | - | - | - |")
+            lines.append(f"| {_run_name(name)} | {before_cell} | - | - | - | - | - |")
             continue
         lines.append(
             f"| {_run_name(name)} | {before_cell} | {cal['yaw_deg']} / {cal['yaw_wanted_deg']} "
+            f"| {cal['depth_offset_mm']} / {cal['depth_offset_wanted_mm']} "
             f"| {c['ours_med_mm']:.1f} | {c['other_med_mm']:.1f} "
             f"| {c['ratio']:.2f} {_ci(c['ratio_ci'], 2)} |"
         )
