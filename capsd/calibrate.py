@@ -27,6 +27,7 @@ from capsd.mounts import RovConfig, SonarMountConfig
 from capsd.payloads import AsvPose, Payload, RovAttitude, RovDepth, SonarFrame
 from capsd.pose_lookup import PoseLookup
 from capsd.recording import Recorded, read
+from capsd.services.locator.service import InstallationConfig
 from capsd.tank import TankBounds
 
 EVERY_S = 0.5  # one frame per half second is plenty: neighbouring frames see the same walls
@@ -42,6 +43,8 @@ class Calibration:
     depth_fit: DepthFit | None
     mount: SonarMountConfig
     rov: RovConfig
+    # What the locator should still allow for (None: not asked, the config's is kept).
+    installation: InstallationConfig | None = None
 
     def lines(self) -> list[str]:
         """What a person reads: each estimate, its uncertainty, and what could not be told."""
@@ -128,6 +131,7 @@ def calibrate(
     mount: SonarMountConfig,
     rov: RovConfig,
     tank: TankBounds,
+    prior: InstallationConfig,
     what: What = "all",
 ) -> Calibration:
     """The fits asked for, and the configs with what they determined applied."""
@@ -142,7 +146,33 @@ def calibrate(
         )
         if depth_fit.determined:
             rov = msgspec.structs.replace(rov, depth_offset_m=round(depth_fit.offset_m, 4))
-    return Calibration(mount_fit, depth_fit, mount, rov)
+    installation = installation_after(prior, mount_fit, depth_fit)
+    return Calibration(mount_fit, depth_fit, mount, rov, installation)
+
+
+def installation_after(
+    prior: InstallationConfig, mount_fit: MountFit | None, depth_fit: DepthFit | None
+) -> InstallationConfig:
+    """What the installation may still get wrong after the fits.
+
+    Their 1-sigma where they determined a term; the prior (the tape's, from the locator
+    config) where they did not.
+    """
+    yaw, pitch, roll = prior.sonar_angles_deg
+    x, y, z = prior.sonar_position_m
+    if mount_fit is not None:
+        yaw = mount_fit.yaw_sigma_deg if mount_fit.yaw_determined else yaw
+        roll = mount_fit.roll_sigma_deg if mount_fit.roll_determined else roll
+        y = mount_fit.shift_y_sigma_m if mount_fit.shift_determined else y
+    depth = prior.depth_offset_m
+    if depth_fit is not None and depth_fit.determined:
+        depth = depth_fit.sigma_m
+    return msgspec.structs.replace(
+        prior,
+        sonar_position_m=(round(x, 4), round(y, 4), round(z, 4)),
+        sonar_angles_deg=(round(yaw, 4), round(pitch, 4), round(roll, 4)),
+        depth_offset_m=round(depth, 4),
+    )
 
 
 def write_config(source: Path, out: Path, calibration: Calibration, recording: Path) -> None:
@@ -162,6 +192,8 @@ def write_config(source: Path, out: Path, calibration: Calibration, recording: P
         rov = dict(data.get("rov") or {})
         rov["depth_offset_m"] = calibration.rov.depth_offset_m
         data["rov"] = rov
+    if calibration.installation is not None:
+        data["installation"] = msgspec.to_builtins(calibration.installation)
     header = [
         f"# {source.name} calibrated by `capsd calibrate {recording.name}`:",
         *(f"#   {line}" for line in calibration.lines()),

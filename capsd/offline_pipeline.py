@@ -40,7 +40,7 @@ from capsd.services.asv_pose.estimator import AsvPoseEstimator, EstimatorSetting
 from capsd.services.asv_pose.scan_match import tank_walls
 from capsd.services.asv_pose.tilt import TiltSettings
 from capsd.services.locator.service import Config as LocatorConfig
-from capsd.services.locator.service import Locator, MethodConfig
+from capsd.services.locator.service import InstallationConfig, Locator, MethodConfig
 from capsd.services.sonar_detect.paper_box import box_centre
 from capsd.simulator.config import OFFLINE_START_NS
 from capsd.simulator.config import Config as SimConfig
@@ -68,6 +68,8 @@ class Variant:
     # The ROV's pressure sensor as the locator is told (None: the simulator's nominal one);
     # e.g. with the depth offset `capsd calibrate` found at the surface.
     rov: RovConfig | None = None
+    # What the locator is told the installation may still get wrong (None: its default).
+    installation: InstallationConfig | None = None
     # The locator's covariance floor (None: its default); 0 to see the bare covariance.
     unmodelled_sigma_m: float | None = None
 
@@ -82,6 +84,8 @@ def locator_config(variant: Variant, sim: SimConfig) -> LocatorConfig:
         method=variant.method,
         tank=tank_bounds(tank),
     )
+    if variant.installation is not None:
+        config = msgspec.structs.replace(config, installation=variant.installation)
     if variant.unmodelled_sigma_m is not None:
         config = msgspec.structs.replace(config, unmodelled_sigma_m=variant.unmodelled_sigma_m)
     return config

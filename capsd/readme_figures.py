@@ -31,6 +31,7 @@ _BLOCK = re.compile(
 BASELINE = "paper (baseline)"
 CALIBRATED = "paper, box range calibrated"
 OURS = "ours (CAP-SD)"
+OURS_SELF_CALIBRATED = "ours, mount self-calibrated"
 HELD_OUT = ("pond/",)
 
 
@@ -285,21 +286,24 @@ def self_calibrated_table(figures: dict[str, Any]) -> list[str]:
     """With installation errors: ours uncalibrated, then both methods after self-calibration."""
     lines = [
         "| run | ours uncalibrated | yaw fitted / wanted (deg) | depth offset fitted / wanted "
-        "(mm) | ours | baseline (box range, mount and depth calibrated) | ratio |",
-        "|---|---:|---:|---:|---:|---:|---:|",
+        "(mm) | ours | baseline (box range, mount and depth calibrated) | ratio "
+        "| ours: mean NEES, share within the 95 % bound |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for name, c in _in_order(figures["common_self_calibrated"]):
         cal = figures["self_calibration"][name]
         before = figures["runs"][name][OURS].get("med_mm")
         before_cell = "-" if before is None else f"{before:.1f}"
         if "ratio" not in c:
-            lines.append(f"| {_run_name(name)} | {before_cell} | - | - | - | - | - |")
+            lines.append(f"| {_run_name(name)} | {before_cell} | - | - | - | - | - | - |")
             continue
+        ours = figures["runs"][name][OURS_SELF_CALIBRATED]
         lines.append(
             f"| {_run_name(name)} | {before_cell} | {cal['yaw_deg']} / {cal['yaw_wanted_deg']} "
             f"| {cal['depth_offset_mm']} / {cal['depth_offset_wanted_mm']} "
             f"| {c['ours_med_mm']:.1f} | {c['other_med_mm']:.1f} "
-            f"| {c['ratio']:.2f} {_ci(c['ratio_ci'], 2)} |"
+            f"| {c['ratio']:.2f} {_ci(c['ratio_ci'], 2)} "
+            f"| {ours['nees_mean']}, {_pct(ours['nees_within_95'])} |"
         )
     return lines
 

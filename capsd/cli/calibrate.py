@@ -31,6 +31,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
             mount=locator.sonar,
             rov=locator.rov,
             tank=locator.tank,
+            prior=locator.installation,
             what=args.what,
         )
     except CapsdError as exc:

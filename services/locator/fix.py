@@ -19,12 +19,13 @@ without bound where the depth plane grazes the beam surface, and such fixes are 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 
-from capsd.geometry import Array, Transform, rotvec_to_matrix
+from capsd.geometry import Array, Transform, euler_zyx_to_matrix, rotvec_to_matrix
 from capsd.sonar_geometry import BeamModel, beam_direction
 
 NoFixReason = Literal[
@@ -45,6 +46,33 @@ class FixUncertainty:
     rov_z_sigma_m: float
     # 6 x 6 over (x, y, z, roll, pitch, yaw) of the ASV pose; rotations about the world axes.
     asv_pose_covariance: Array
+
+
+@dataclass(frozen=True)
+class InstallationSigmas:
+    """One-sigma of what the configured installation may still get wrong (held for a dive).
+
+    The range scale (the speed of sound, relative), the sonar's position in the ASV frame
+    (x, y, z), small rotations of the sonar in its own frame (yaw, pitch, roll, radians), and
+    the offset of the depth readings.
+    """
+
+    range_scale: float
+    sonar_position_m: tuple[float, float, float]
+    sonar_angles_rad: tuple[float, float, float]
+    depth_offset_m: float
+
+    @property
+    def any(self) -> bool:
+        return any(
+            v > 0.0
+            for v in (
+                self.range_scale,
+                *self.sonar_position_m,
+                *self.sonar_angles_rad,
+                self.depth_offset_m,
+            )
+        )
 
 
 @dataclass(frozen=True)
@@ -218,6 +246,77 @@ def solve_fix(
     )
 
 
+def _same_root(
+    sonar_pose: Transform,
+    range_m: float,
+    azimuth_rad: float,
+    rov_z_m: float,
+    model: BeamModel,
+    elevation_rad: float,
+) -> Array:
+    """The fix under perturbed inputs, following the root nearest the chosen elevation."""
+    cands, _, why = _candidates(sonar_pose, range_m, azimuth_rad, rov_z_m, model, math.pi)
+    if why is not None or not cands:
+        raise ArithmeticError("fix lost under a small perturbation")
+    return min(cands, key=lambda c: abs(c.elevation_rad - elevation_rad)).position_m
+
+
+def _jacobian(point: Callable[[Array], Array], steps: Array, skip: Array | None = None) -> Array:
+    """3 x n central differences of `point` (columns where `skip` is set stay zero)."""
+    jac = np.zeros((3, len(steps)))
+    for i, h in enumerate(steps):
+        if skip is not None and skip[i]:
+            continue
+        d = np.zeros(len(steps))
+        d[i] = h
+        jac[:, i] = (point(d) - point(-d)) / (2 * h)
+    return jac
+
+
+def installation_covariance(
+    *,
+    asv_pose: Transform,
+    sonar_mount: Transform,
+    range_m: float,
+    azimuth_rad: float,
+    rov_z_m: float,
+    model: BeamModel,
+    elevation_rad: float,
+    sigmas: InstallationSigmas,
+) -> Array:
+    """J Sigma J^T of a fix over the installation's errors, by central differences.
+
+    Parameters: range scale, sonar x, y, z (ASV frame), sonar yaw, pitch, roll (its own
+    frame), depth offset. Not for the tracking filter: these hold for a whole dive, so
+    averaging over pings does not shrink them; they belong in what a fix reports.
+    """
+    sig = np.array(
+        [
+            sigmas.range_scale,
+            *sigmas.sonar_position_m,
+            *sigmas.sonar_angles_rad,
+            sigmas.depth_offset_m,
+        ]
+    )
+    steps = np.array([1e-5, 1e-4, 1e-4, 1e-4, 1e-6, 1e-6, 1e-6, 1e-4])
+
+    def point(delta: Array) -> Array:
+        turn = euler_zyx_to_matrix(float(delta[4]), float(delta[5]), float(delta[6]))
+        mount = Transform(sonar_mount.rotation @ turn, sonar_mount.translation + delta[1:4])
+        return _same_root(
+            asv_pose.compose(mount),
+            range_m * (1.0 + delta[0]),
+            azimuth_rad,
+            rov_z_m - delta[7],
+            model,
+            elevation_rad,
+        )
+
+    jac = _jacobian(point, steps, skip=sig == 0.0)
+    cov = (jac * sig**2) @ jac.T
+    return np.asarray(0.5 * (cov + cov.T))
+
+
 def _propagate(
     asv_pose: Transform,
     sonar_mount: Transform,
@@ -235,26 +334,16 @@ def _propagate(
         pose = Transform(
             rotvec_to_matrix(delta[6:9]) @ asv_pose.rotation, asv_pose.translation + delta[3:6]
         )
-        sonar_pose = pose.compose(sonar_mount)
-        cands, _, why = _candidates(
-            sonar_pose,
+        return _same_root(
+            pose.compose(sonar_mount),
             range_m + delta[0],
             azimuth_rad + delta[1],
             rov_z_m + delta[2],
             model,
-            math.pi,
+            chosen.elevation_rad,
         )
-        if why is not None or not cands:
-            raise ArithmeticError("fix lost under a small perturbation")
-        # Follow the same root: the candidate nearest the chosen elevation.
-        best = min(cands, key=lambda c: abs(c.elevation_rad - chosen.elevation_rad))
-        return best.position_m
 
-    jac = np.zeros((3, 9))
-    for i, h in enumerate(steps):
-        d = np.zeros(9)
-        d[i] = h
-        jac[:, i] = (point(d) - point(-d)) / (2 * h)
+    jac = _jacobian(point, steps)
     sigma = np.zeros((9, 9))
     sigma[0, 0] = unc.range_sigma_m**2
     sigma[1, 1] = unc.azimuth_sigma_rad**2

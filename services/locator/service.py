@@ -37,7 +37,13 @@ from capsd.payloads import (
 )
 from capsd.runner import Publisher, ServiceRunner
 from capsd.services.locator.clutter import ClutterMap, ClutterSettings
-from capsd.services.locator.fix import FixUncertainty, rov_centre_z, solve_fix
+from capsd.services.locator.fix import (
+    FixUncertainty,
+    InstallationSigmas,
+    installation_covariance,
+    rov_centre_z,
+    solve_fix,
+)
 from capsd.services.locator.paper import paper_fix
 from capsd.services.locator.timeline import Lookup, Timeline
 from capsd.services.locator.tracker import Tracker, TrackerSettings
@@ -154,6 +160,30 @@ class ClutterConfig(ConfigSection, frozen=True, kw_only=True):
         )
 
 
+Sigma = Annotated[float, msgspec.Meta(ge=0.0, le=10.0)]
+
+
+class InstallationConfig(ConfigSection, frozen=True, kw_only=True):
+    """1-sigma of what the configured installation may still get wrong.
+
+    Propagated through each fix's geometry into the covariance it reports (not into the
+    filter's: these errors hold for a whole dive, so averaging pings does not shrink them).
+    `capsd calibrate` writes what it determined and keeps the rest (docs/INSTALL-ERRORS.md).
+    """
+
+    range_scale: Annotated[float, msgspec.Meta(ge=0.0, le=0.1)] = 0.0  # the speed of sound
+    sonar_position_m: tuple[Sigma, Sigma, Sigma] = (0.0, 0.0, 0.0)  # x, y, z on the ASV
+    sonar_angles_deg: tuple[Sigma, Sigma, Sigma] = (0.0, 0.0, 0.0)  # yaw, pitch, roll
+    depth_offset_m: Sigma = 0.0
+
+    def sigmas(self) -> InstallationSigmas:
+        """In the solver's units (radians)."""
+        yaw, pitch, roll = (math.radians(v) for v in self.sonar_angles_deg)
+        return InstallationSigmas(
+            self.range_scale, self.sonar_position_m, (yaw, pitch, roll), self.depth_offset_m
+        )
+
+
 class Config(ServiceConfig, frozen=True, kw_only=True):
     """Locator configuration."""
 
@@ -175,6 +205,7 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     # the bound with 15 mm, 80.9 % with 10.6 mm: a few far-off fixes), so 15 mm stays until
     # those are understood (issue 24 item 5).
     unmodelled_sigma_m: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.015
+    installation: InstallationConfig = InstallationConfig()
     # The site's fix key (64 hex digits, owner-only; make-site-certs.sh writes fix.key): every
     # fix is tagged with it, and the ROV's bridge acts only on tagged fixes (capsd.signing).
     fix_key: str | None = None
@@ -238,6 +269,8 @@ class Locator:
         self.map_explained = 0  # candidate echoes the tank's fixtures could have made
         fixtures = () if config.tank is None else config.tank.fixtures
         self._fixture_boxes = fixture_boxes(fixtures, config.clutter.map_margin_m)
+        self._installation = config.installation.sigmas()
+        self._installed = np.zeros((3, 3))  # the last fix's installation covariance
         # Where and when the ROV was last seen by a confirmed track (the reacquire rule).
         self._last_confirmed: tuple[int, Array] | None = None
         # Velocities wait here until the ping they precede, so the tracker sees time in order.
@@ -423,9 +456,34 @@ class Locator:
                 else:
                     fixes.append((solved[0], solved[1], detection))
             explained = [self._explained(asv, d, p) for p, _, d in fixes]
+            installed = [
+                self._installation_cov(asv, d, depth_sample, attitude.value, p) for p, _, d in fixes
+            ]
         else:
-            explained = []
-        return self._finish(out, stamp, fixes, reasons, explained)
+            explained, installed = [], []
+        return self._finish(out, stamp, fixes, reasons, explained, installed)
+
+    def _installation_cov(
+        self, asv: Transform, detection: Detection, depth: DepthSample, attitude: Array, at: Array
+    ) -> Array:
+        """The fix's covariance from what the installation may still get wrong (0 if nothing)."""
+        if not self._installation.any:
+            return np.zeros((3, 3))
+        sonar = asv.compose(self.mount)
+        elevation = to_polar(self.config.sonar.beam_model, sonar.inverse().apply(at))[2]
+        try:
+            return installation_covariance(
+                asv_pose=asv,
+                sonar_mount=self.mount,
+                range_m=detection.range_m,
+                azimuth_rad=detection.azimuth_rad,
+                rov_z_m=rov_centre_z(depth[0], quat_to_matrix(attitude), self.lever_arm),
+                model=self.config.sonar.beam_model,
+                elevation_rad=elevation,
+                sigmas=self._installation,
+            )
+        except ArithmeticError:  # grazing geometry: the solver's own covariance says so
+            return np.zeros((3, 3))
 
     def _explained(self, asv: Transform, detection: Detection, position: Array) -> bool:
         """Whether a mapped fixture shares this echo's range cell (capsd.echo_cell)."""
@@ -453,6 +511,7 @@ class Locator:
         fixes: list[tuple[Array, Array | None, Detection]],
         reasons: list[str],
         explained: list[bool],
+        installed: list[Array],
     ) -> RovFix:
         reason = ",".join(sorted(set(reasons))) or None
         if self.method.tracking == "per_frame":
@@ -467,6 +526,7 @@ class Locator:
             )
         usable = [(p, c) for p, c, _ in fixes if c is not None]
         by_map = [e for (_, c, _), e in zip(fixes, explained, strict=True) if c is not None]
+        by_install = [i for (_, c, _), i in zip(fixes, installed, strict=True) if c is not None]
         self._fuse_velocities_until(stamp)
         learning = self.config.clutter.mode == "learn"
         may_start = [
@@ -491,7 +551,10 @@ class Locator:
                 reason = "map_clutter" if any(by_map) else "static_clutter"
             else:
                 reason = "outside_gate"
-        floor = np.eye(3) * self.config.unmodelled_sigma_m**2
+        if association.index is not None:
+            # Held for a coasted estimate: the installation's errors do not go away with it.
+            self._installed = by_install[association.index]
+        floor = np.eye(3) * self.config.unmodelled_sigma_m**2 + self._installed
         if raw is not None:
             out = msgspec.structs.replace(
                 out, raw_position_m=_vec3(raw[0]), raw_covariance_m2=_flat(raw[1] + floor)

@@ -191,6 +191,12 @@ def test_capsd_calibrate_writes_the_corrected_config(tmp_path: Path) -> None:
     angle_deg = math.degrees(math.acos(min(1.0, (np.trace(between) - 1.0) / 2.0)))
     assert angle_deg < 0.1
     assert written["rov"]["depth_offset_m"] == pytest.approx(-0.035, abs=0.005)
+    # What may still be wrong, for the locator's covariances: the fits' 1-sigma where they
+    # determined a term (heading, depth offset), the config's prior (none here) elsewhere.
+    left = written["installation"]
+    assert 0.0 < left["sonar_angles_deg"][0] < 0.1
+    assert left["sonar_angles_deg"][1] == 0.0
+    assert 0.01 <= left["depth_offset_m"] < 0.015
     assert "depth offset" in proc.stdout
     assert out.read_text().startswith("# locator.yaml calibrated by `capsd calibrate spin.mcap`")
 

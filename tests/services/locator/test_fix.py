@@ -9,8 +9,14 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from capsd.geometry import Transform, euler_zyx_to_matrix, rotvec_to_matrix
-from capsd.services.locator.fix import FixUncertainty, rov_centre_z, solve_fix
+from capsd.geometry import Array, Transform, euler_zyx_to_matrix, rotvec_to_matrix
+from capsd.services.locator.fix import (
+    FixUncertainty,
+    InstallationSigmas,
+    installation_covariance,
+    rov_centre_z,
+    solve_fix,
+)
 from capsd.sonar_geometry import BeamModel, beam_direction, to_polar
 from tests.services.locator.nees import mean_nees_bounds
 
@@ -261,3 +267,64 @@ def test_to_polar_inverts_beam_direction(
     assume(rng > 0.1)
     r, t, e = to_polar(beam, rng * beam_direction(beam, theta, phi))
     assert (r, t, e) == pytest.approx((rng, theta, phi), abs=1e-9)
+
+
+def _installation_case(sigmas: InstallationSigmas, *, range_m: float = 8.0) -> tuple[Array, Array]:
+    """(covariance, position) of a fix on the boresight of a sonar 30 deg down at 0.2 m."""
+    asv = Transform(np.eye(3), np.zeros(3))
+    mount = Transform(euler_zyx_to_matrix(0.0, math.radians(30.0), 0.0), np.array([0.3, 0, -0.2]))
+    target = asv.compose(mount).apply(range_m * beam_direction("conical", 0.0, 0.0))
+    solved = solve_fix(
+        asv_pose=asv,
+        sonar_mount=mount,
+        range_m=range_m,
+        azimuth_rad=0.0,
+        rov_z_m=float(target[2]),
+        vertical_aperture_rad=math.radians(20.0),
+        beam_model="conical",
+    )
+    assert solved.position_m is not None
+    assert solved.elevation_rad is not None
+    cov = installation_covariance(
+        asv_pose=asv,
+        sonar_mount=mount,
+        range_m=range_m,
+        azimuth_rad=0.0,
+        rov_z_m=float(target[2]),
+        model="conical",
+        elevation_rad=solved.elevation_rad,
+        sigmas=sigmas,
+    )
+    return cov, solved.position_m
+
+
+@settings(max_examples=30, deadline=None)
+@given(range_m=st.floats(3.0, 15.0), scale_sigma=st.floats(0.0005, 0.01))
+def test_installation_range_scale_moves_the_fix_along_the_ground(
+    range_m: float, scale_sigma: float
+) -> None:
+    sigmas = InstallationSigmas(scale_sigma, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.0)
+    cov, position = _installation_case(sigmas, range_m=range_m)
+    # The depth is held: a range R (1 + d) moves the fix horizontally by R^2 d / rho.
+    rho = math.hypot(position[0] - 0.3, position[1])
+    assert math.sqrt(cov[0, 0]) == pytest.approx(range_m**2 * scale_sigma / rho, rel=0.02)
+    assert cov[2, 2] == pytest.approx(0.0, abs=1e-12)
+    assert cov[1, 1] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_installation_position_and_depth_terms() -> None:
+    none = InstallationSigmas(0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.0)
+    assert not none.any
+    assert np.allclose(_installation_case(none)[0], 0.0)
+    # A sonar 2 cm off sideways puts the fix 2 cm off sideways.
+    sideways, _ = _installation_case(InstallationSigmas(0.0, (0.0, 0.02, 0.0), (0, 0, 0), 0.0))
+    assert math.sqrt(sideways[1, 1]) == pytest.approx(0.02, rel=1e-3)
+    # A depth offset moves the fix's z by itself, and along the ground through the geometry.
+    depth, _ = _installation_case(InstallationSigmas(0.0, (0, 0, 0), (0, 0, 0), 0.01))
+    assert math.sqrt(depth[2, 2]) == pytest.approx(0.01, rel=1e-3)
+    assert depth[0, 0] > 0.0
+    # Half a degree of sonar heading at 8 m: about 70 mm across.
+    yaw, _ = _installation_case(
+        InstallationSigmas(0.0, (0, 0, 0), (math.radians(0.5), 0.0, 0.0), 0.0)
+    )
+    assert 0.055 < math.sqrt(yaw[1, 1]) < 0.075

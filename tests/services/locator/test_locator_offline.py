@@ -5,11 +5,14 @@ from __future__ import annotations
 import msgspec
 import numpy as np
 
+from capsd.accuracy import CHI2_3_95
+from capsd.bench.accuracy import tape_prior
 from capsd.mounts import SonarMountConfig
 from capsd.services.locator.offline import Scored, run_offline
 from capsd.services.locator.service import Config, MethodConfig, TrackingConfig
 from capsd.simulator.config import Config as SimConfig
 from capsd.simulator.config import Rates, Streams
+from capsd.simulator.install_errors import InstallErrorsConfig
 from capsd.simulator.sim import Simulation
 
 START_NS = 1_800_000_000_000_000_000
@@ -87,3 +90,28 @@ def test_rov_velocity_input_helps_the_filter() -> None:
     err_with = _errors(_run(with_dvl, Config(), duration_s=60), filtered=True)
     err_without = _errors(_run(without, Config(), duration_s=60), filtered=True)
     assert np.mean(err_with) < np.mean(err_without)
+
+
+def test_installation_uncertainty_makes_the_covariance_honest() -> None:
+    # An installation measured with a tape and never calibrated: the fixes are off by what it
+    # got wrong, and only a locator told how far that may be reports covariances that say so.
+    sim = SimConfig(
+        seed=7, trajectory="square", install_errors=InstallErrorsConfig(mode="realistic", seed=3)
+    )
+    told = Config(installation=tape_prior(InstallErrorsConfig()))
+
+    def within(locator: Config) -> float:
+        inside = []
+        for s in _run(sim, locator, duration_s=40):
+            fix, truth = s.fix, s.truth_position_m
+            if fix.quality != "good" or fix.position_m is None or fix.covariance_m2 is None:
+                continue
+            assert truth is not None
+            error = np.subtract(fix.position_m, truth)
+            cov = np.array(fix.covariance_m2).reshape(3, 3)
+            inside.append(float(error @ np.linalg.solve(cov, error)) <= CHI2_3_95)
+        assert len(inside) > 300
+        return float(np.mean(inside))
+
+    assert within(Config()) < 0.5
+    assert within(told) > 0.9
