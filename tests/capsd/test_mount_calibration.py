@@ -198,6 +198,7 @@ def test_capsd_calibrate_writes_the_corrected_config(tmp_path: Path) -> None:
     assert left["sonar_angles_deg"][1] == 0.0
     assert 0.01 <= left["depth_offset_m"] < 0.015
     assert "depth offset" in proc.stdout
+    assert "still allowed for in every fix's covariance" in proc.stdout
     assert out.read_text().startswith("# locator.yaml calibrated by `capsd calibrate spin.mcap`")
 
 
