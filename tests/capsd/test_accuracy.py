@@ -180,14 +180,20 @@ def test_demo_runs_end_to_end_and_writes_its_report(tmp_path: Path) -> None:
 
 
 def test_the_self_calibrated_report_states_its_targets() -> None:
-    from capsd.bench.accuracy import OURS, self_calibrated_report
+    from capsd.bench.accuracy import OURS, OURS_SELF_CALIBRATED, self_calibrated_report
 
     figures = {
-        "runs": {"nfp/square": {OURS: {"med_mm": 120.0}}},
+        "runs": {
+            "nfp/square": {
+                OURS: {"med_mm": 120.0},
+                OURS_SELF_CALIBRATED: {"nees_mean": 2.9, "nees_within_95": 0.95},
+            }
+        },
         "self_calibration": {
             "nfp/square": {
                 "yaw_deg": 0.5, "yaw_wanted_deg": 0.48, "roll_deg": -0.6,
                 "roll_wanted_deg": -0.59, "y_mm": 10.0, "y_wanted_mm": 12.0,
+                "depth_offset_mm": -20.0, "depth_offset_wanted_mm": -25.0,
             }
         },
         "common_self_calibrated": {
@@ -200,7 +206,11 @@ def test_the_self_calibrated_report_states_its_targets() -> None:
     }  # fmt: skip
     text = "\n".join(self_calibrated_report(figures))
     assert "| nfp/square | 0.5 / 0.48 |" in text
-    assert "| 120.0 | 30.0 [28, 33] | 50.0 [47, 52] | 0.6 [0.55, 0.66] | met | NOT met |" in text
+    assert "| -20.0 / -25.0 | 120.0 |" in text
+    assert (
+        "| 120.0 | 30.0 [28, 33] | 50.0 [47, 52] | 0.6 [0.55, 0.66] | met | NOT met | 2.9, 0.95 |"
+        in text
+    )
     assert "All met: no" in text
 
 
