@@ -11,6 +11,7 @@ uncertainty. Only what the data determined is written into the new locator confi
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, TypeVar
@@ -28,6 +29,7 @@ from capsd.payloads import AsvPose, Payload, RovAttitude, RovDepth, SonarFrame
 from capsd.pose_lookup import PoseLookup
 from capsd.recording import Recorded, read
 from capsd.services.locator.service import InstallationConfig
+from capsd.simulator.install_errors import InstallErrorsConfig
 from capsd.tank import TankBounds
 
 EVERY_S = 0.5  # one frame per half second is plenty: neighbouring frames see the same walls
@@ -148,6 +150,21 @@ def calibrate(
             rov = msgspec.structs.replace(rov, depth_offset_m=round(depth_fit.offset_m, 4))
     installation = installation_after(prior, mount_fit, depth_fit)
     return Calibration(mount_fit, depth_fit, mount, rov, installation)
+
+
+def tape_prior(errors: InstallErrorsConfig) -> InstallationConfig:
+    """What a team that measured its installation with a tape knows it may have got wrong.
+
+    The sizes the simulator draws its errors from (docs/INSTALL-ERRORS.md): the locator's
+    `installation` section before `capsd calibrate`.
+    """
+    angle, position = errors.sonar_angle_sigma_deg, errors.sonar_position_sigma_m
+    return InstallationConfig(
+        range_scale=errors.sound_speed_sigma,
+        sonar_position_m=(position, position, position),
+        sonar_angles_deg=(angle, angle, angle),
+        depth_offset_m=math.hypot(errors.depth_bias_sigma_m, errors.pressure_arm_sigma_m),
+    )
 
 
 def installation_after(

@@ -16,7 +16,7 @@ import json
 import sys
 import time
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any, Literal, TextIO
 
 import numpy as np
 
@@ -55,6 +55,19 @@ def _line(elapsed: float, watch: Watch, health: dict[str, Health | None]) -> str
     )
 
 
+def _drawn_errors(sim_config: Path) -> dict[str, float]:
+    """The installation errors the demo's simulator drew (as the accuracy bench reports them)."""
+    import msgspec
+    import yaml
+
+    from capsd.simulator.config import Config as SimConfig
+    from capsd.simulator.sim import Simulation
+
+    data = yaml.safe_load(sim_config.read_text()) or {}
+    config = msgspec.convert({k: v for k, v in data.items() if k != "bus"}, SimConfig)
+    return Simulation(config, horizon_s=10.0).errors.summary()
+
+
 def main(
     *,
     duration_s: float,
@@ -66,6 +79,7 @@ def main(
     record: Path | None = None,
     mission: Path | None = None,
     asv: AsvMode = "station",
+    install_errors: Literal["realistic", "off"] = "realistic",
     stream: TextIO = sys.stdout,
 ) -> int:
     """Run the demo; returns 0 when every service ran to the end and fixes were good.
@@ -74,7 +88,9 @@ def main(
     waypoint and is flown by the ArduSub stand-in the simulator hosts, `capsd mission run`
     commands it through the bridge, and the demo ends when the mission does. With `asv`
     "follow" the ASV is driven too: the follower's targets through the ASV's bridge to the
-    ArduRover stand-in the simulator hosts; "station" keeps it where it starts.
+    ArduRover stand-in the simulator hosts; "station" keeps it where it starts. With
+    `install_errors` "realistic" (the default) the simulated installation is what a tape
+    measured, uncalibrated (docs/INSTALL-ERRORS.md); "off" a perfect one.
     """
     from capsd import plots
 
@@ -102,6 +118,7 @@ def main(
         asv_station_heading_deg=heading,
         asv=asv,
         asv_mav_port=free_port() if asv == "follow" else None,
+        install_errors=install_errors,
     )
     follow = FOLLOW_SERVICES if asv == "follow" else ()
     procs = Processes(logs)
@@ -172,10 +189,12 @@ def main(
         mission_figures["asv"] = {"mode": asv, **_asv_against_walls(watch.asv_xy, tank)}
     accuracy = watch.accuracy if watch is not None else Accuracy()
     summary = accuracy.summary()
+    installation = _drawn_errors(configs["sim"]) if install_errors == "realistic" else {}
     figures = {
         "tank": tank,
         "trajectory": trajectory,
         "seed": seed,
+        "install_errors": installation,
         "duration_s": duration_s,
         "wall_s": round(elapsed, 1),
         "interrupted": interrupted,
@@ -200,6 +219,15 @@ def main(
         "",
         "Every service its own process on 127.0.0.1 over Zenoh; errors against the simulator's "
         "truth of what the autopilot is sent.",
+        "",
+        f"Installation errors: {install_errors}"
+        + (
+            " (drawn from the seed, unknown to the services, uncalibrated: "
+            + ", ".join(f"{k} {v}" for k, v in installation.items())
+            + ")"
+            if installation
+            else ""
+        ),
         "",
         HEADER,
         row(f"{tank}/{trajectory} live", summary),

@@ -189,6 +189,7 @@ def write_configs(
     asv_station_heading_deg: float | None = None,
     asv: AsvMode = "station",
     asv_mav_port: int | None = None,
+    install_errors: Literal["realistic", "off"] = "realistic",
 ) -> dict[str, Path]:
     """Every process's config in `folder`, by name.
 
@@ -201,9 +202,11 @@ def write_configs(
     import msgspec
     import yaml
 
+    from capsd.calibrate import tape_prior
     from capsd.geometry import matrix_to_euler_zyx
     from capsd.signing import SiteKey, write_key
     from capsd.simulator.config import Config as SimConfig
+    from capsd.simulator.install_errors import InstallErrorsConfig
     from capsd.simulator.sim import Simulation
     from capsd.simulator.world import tank_bounds
 
@@ -219,6 +222,8 @@ def write_configs(
         "seed": seed,
         "streams": {"detections_truth_noise": "off", "asv_pose_truth_noise": "off"},
         "rates": {"sonar_hz": sonar_hz},
+        # What the tape got wrong, drawn from the seed; the services keep the nominal mounts.
+        "install_errors": {"mode": install_errors},
     }
     mount = sonar_mount(tank)  # the same sonar for the simulator and the services
     if mount:
@@ -263,6 +268,12 @@ def write_configs(
             "tank": msgspec.to_builtins(tank_bounds(t)),
             "fix_key": str(fix_key),
             **({"sonar": mount} if mount else {}),
+            # Uncalibrated: its covariances allow for what a tape-measured installation may be.
+            **(
+                {"installation": msgspec.to_builtins(tape_prior(InstallErrorsConfig()))}
+                if install_errors == "realistic"
+                else {}
+            ),
         },
         "mav_bridge": {
             "vehicle": "rov_ap",

@@ -105,9 +105,12 @@ def demo_summary(figures: dict[str, Any]) -> list[str]:
     a = figures["accuracy"]
     codes = figures["exit_codes"]
     clean = all(code == 0 for code in codes.values())
+    # Older reports had no field: their installation was perfect.
+    installation = "realistic, uncalibrated" if figures.get("install_errors") else "off"
     return [
         f"`capsd demo --duration {figures['duration_s']:g}` ({figures['tank']}, "
-        f"{figures['trajectory']}, seed {figures['seed']}): {a['pings']} pings, "
+        f"{figures['trajectory']}, seed {figures['seed']}, installation errors "
+        f"{installation}): {a['pings']} pings, "
         f"{100 * a['availability']:.1f} % with a good fix, mean Euclidean error {a['med_mm']} mm "
         f"against the truth (p95 {a['p95_mm']} mm); {figures['autopilot'].splitlines()[0]}; "
         + ("every process exited 0." if clean else f"exit codes {codes}.")

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import time
 from pathlib import Path
 from typing import Any, Literal
@@ -149,21 +148,6 @@ def bench(
     return figures
 
 
-def tape_prior(errors: InstallErrorsConfig) -> InstallationConfig:
-    """What a team that measured its installation with a tape knows it may have got wrong.
-
-    The sizes the simulator draws its errors from (docs/INSTALL-ERRORS.md): the locator's
-    `installation` section before `capsd calibrate`.
-    """
-    angle, position = errors.sonar_angle_sigma_deg, errors.sonar_position_sigma_m
-    return InstallationConfig(
-        range_scale=errors.sound_speed_sigma,
-        sonar_position_m=(position, position, position),
-        sonar_angles_deg=(angle, angle, angle),
-        depth_offset_m=math.hypot(errors.depth_bias_sigma_m, errors.pressure_arm_sigma_m),
-    )
-
-
 def _self_calibrate(
     config: SimConfig,
 ) -> tuple[SonarMountConfig, RovConfig, InstallationConfig, dict[str, Any]]:
@@ -173,7 +157,7 @@ def _self_calibrate(
     dive of the same installation and autopilot boot (its own seed; the errors shared).
     """
     from capsd.bench.calibrate import calibration_dive, wanted_correction, wanted_depth_offset
-    from capsd.calibrate import installation_after
+    from capsd.calibrate import installation_after, tape_prior
     from capsd.depth_calibration import fit_depth_offset
     from capsd.mount_calibration import corrected, fit_mount
 

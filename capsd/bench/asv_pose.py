@@ -20,6 +20,7 @@ from capsd.progress import Progress
 from capsd.services.asv_pose.estimator import AsvPoseEstimator
 from capsd.services.asv_pose.scan_match import tank_walls
 from capsd.simulator.config import Config, Streams
+from capsd.simulator.install_errors import InstallErrorsConfig
 from capsd.simulator.lidar import LidarModel
 from capsd.simulator.sim import Simulation
 from capsd.simulator.world import TankName, make_tank
@@ -41,6 +42,8 @@ def rms_errors(
         tank=tank,
         trajectory="square",
         asv_mode=mode,
+        # The estimator against the truth: a LiDAR mounted askew would be the installation's.
+        install_errors=InstallErrorsConfig(mode="off"),
         streams=Streams(
             sonar_frames="off", detections_truth_noise="off", asv_pose_truth_noise="off"
         ),

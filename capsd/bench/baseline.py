@@ -17,6 +17,7 @@ from capsd.progress import Progress
 from capsd.services.sonar_detect.paper_box import box_centre
 from capsd.simulator.config import OFFLINE_START_NS, Rates, Streams
 from capsd.simulator.config import Config as SimConfig
+from capsd.simulator.install_errors import InstallErrorsConfig
 from capsd.simulator.sim import Simulation
 from capsd.simulator.world import TankName, TrajectoryName
 
@@ -50,6 +51,8 @@ def box_range_bias(*, duration_s: float = 30.0, sonar_hz: float = 5.0) -> RangeB
             seed=seed,
             rates=Rates(sonar_hz=sonar_hz),
             streams=Streams(lidar="off", imu="off"),
+            # The box's own range shortfall, not an installation's sound speed.
+            install_errors=InstallErrorsConfig(mode="off"),
         )
         sim = Simulation(config, horizon_s=duration_s + 5.0)
         for t_s, _, label in sim.labelled_pings(start_ns=OFFLINE_START_NS, duration_s=duration_s):

@@ -21,6 +21,7 @@ from capsd.offline_pipeline import Variant, run
 from capsd.progress import Progress
 from capsd.services.locator.service import Config as LocatorConfig
 from capsd.simulator.config import Config as SimConfig
+from capsd.simulator.install_errors import InstallErrorsConfig
 from capsd.simulator.world import TankName, TrajectoryName
 
 Run = tuple[TankName, TrajectoryName, int]
@@ -54,7 +55,13 @@ def floor_for(pings: list[Scored], *, share: float = TARGET_SHARE) -> float:
 def _pings(runs: tuple[Run, ...], duration_s: float, bar: Progress, done: float) -> list[Scored]:
     out: list[Scored] = []
     for k, (tank, trajectory, seed) in enumerate(runs):
-        config = SimConfig(tank=tank, trajectory=trajectory, seed=seed)
+        # The floor for what no model carries; the installation has its own section.
+        config = SimConfig(
+            tank=tank,
+            trajectory=trajectory,
+            seed=seed,
+            install_errors=InstallErrorsConfig(mode="off"),
+        )
         result = run(
             config,
             duration_s=duration_s,

@@ -34,6 +34,7 @@ from capsd.payloads import Detection, SonarFrame, SonarLabel
 from capsd.progress import Progress
 from capsd.services.sonar_detect.paper_box import box_centre
 from capsd.simulator.config import OFFLINE_START_NS, Config, SonarImageConfig, Streams
+from capsd.simulator.install_errors import InstallErrorsConfig
 from capsd.simulator.sim import Simulation
 from capsd.simulator.sonar_look import Variety
 from capsd.simulator.world import TankName, TrajectoryName
@@ -139,6 +140,9 @@ def sonar_only(
         seed=seed,
         asv_mode=asv_mode,
         sonar_image=SonarImageConfig(variety=variety, look_seed=look_seed),
+        # The detector against its labels: a perfect installation (the sound speed's 0.3 %
+        # would only stretch image and labels alike).
+        install_errors=InstallErrorsConfig(mode="off"),
         streams=Streams(
             lidar="off", imu="off", asv_pose_truth_noise="off", detections_truth_noise="off"
         ),

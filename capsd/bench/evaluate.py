@@ -29,6 +29,7 @@ from capsd.progress import Progress
 from capsd.recording import McapRecorder, Sample
 from capsd.simulator.config import OFFLINE_START_NS
 from capsd.simulator.config import Config as SimConfig
+from capsd.simulator.install_errors import InstallErrorsConfig
 from capsd.simulator.sim import Simulation
 from capsd.simulator.world import TankName, TrajectoryName
 
@@ -73,7 +74,12 @@ def simulated_dive(
     """Run the pipeline, write fixes and the stand-in's reference to `recording`."""
     from capsd.offline_pipeline import Variant, run
 
-    config = SimConfig(tank=tank, trajectory=trajectory, seed=seed)
+    config = SimConfig(
+        tank=tank,
+        trajectory=trajectory,
+        seed=seed,
+        install_errors=InstallErrorsConfig(mode="off"),  # the evaluation's path, not the mounts
+    )
     fixes: list[RovFix] = []
 
     def sink(payload: Payload) -> None:

@@ -30,6 +30,7 @@ from capsd.progress import Progress
 from capsd.recording import McapRecorder, Sample
 from capsd.simulator.config import Config as SimConfig
 from capsd.simulator.config import Rates, SonarImageConfig
+from capsd.simulator.install_errors import InstallErrorsConfig
 from capsd.simulator.world import TankName, TrajectoryName
 
 DIVE: tuple[TankName, TrajectoryName, int] = ("nfp", "square", 404)  # the "first dive"
@@ -58,6 +59,7 @@ def record_dive(path: Path, *, duration_s: float, sonar_hz: float) -> int:
         seed=seed,
         sonar_image=SonarImageConfig(variety="outside"),
         rates=Rates(sonar_hz=sonar_hz),
+        install_errors=InstallErrorsConfig(mode="off"),  # the detector's path, not the mounts'
     )
     codecs: dict[type, Codec[Any]] = {cls: Codec(cls) for cls in _KEYS}
     recorder = McapRecorder(path)

@@ -25,6 +25,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         record=args.record,
         mission=args.mission,
         asv=args.asv,
+        install_errors=args.install_errors,
     )
 
 
@@ -67,5 +68,12 @@ def register(sub: Subcommands) -> None:
         choices=["station", "follow"],
         help="with --mission: the ASV keeps its station, or follows (asv_follow and the "
         "ASV's bridge drive the ArduRover stand-in the simulator hosts)",
+    )
+    dem.add_argument(
+        "--install-errors",
+        default="realistic",
+        choices=["realistic", "off"],
+        help="realistic (default): the simulated installation has what a tape gets wrong "
+        "(docs/INSTALL-ERRORS.md), unknown to the services, uncalibrated; off: a perfect one",
     )
     dem.set_defaults(func=_cmd_demo)

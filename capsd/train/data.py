@@ -39,6 +39,7 @@ from capsd.simulator.config import (
     SonarImageConfig,
     Streams,
 )
+from capsd.simulator.install_errors import InstallErrorsConfig
 from capsd.simulator.sim import Simulation
 from capsd.simulator.sonar_look import Variety
 from capsd.simulator.world import TUNING_TANKS, TankName, TrajectoryName
@@ -84,6 +85,8 @@ class RunPlan:
             ),
             rates=Rates(sonar_hz=self.sonar_hz),
             noise=Noise(),
+            # Training data as the shipped weights were trained: a perfect installation.
+            install_errors=InstallErrorsConfig(mode="off"),
             streams=Streams(
                 lidar="off", imu="off", asv_pose_truth_noise="off", detections_truth_noise="off"
             ),

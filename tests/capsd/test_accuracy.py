@@ -172,11 +172,16 @@ def test_demo_runs_end_to_end_and_writes_its_report(tmp_path: Path) -> None:
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     figures = json.loads((out / "figures.json").read_text())
     assert figures["accuracy"]["good"] > 20
-    assert figures["accuracy"]["med_mm"] < 100.0
+    # The default installation is a tape-measured one, uncalibrated: about 0.1 m off (seed 0
+    # draws 1.2 deg of sonar heading), never the metres of a broken pipeline.
+    assert figures["accuracy"]["med_mm"] < 300.0
+    assert figures["install_errors"]["sonar_yaw_deg"] != 0.0
     assert all(code == 0 for code in figures["exit_codes"].values())
     for name in ("summary.md", "trajectory_3d.png", "position_axes.png", "errors.png"):
         assert (out / name).stat().st_size > 0
-    assert "VISION_POSITION_ESTIMATE" in (out / "summary.md").read_text()
+    summary = (out / "summary.md").read_text()
+    assert "VISION_POSITION_ESTIMATE" in summary
+    assert "Installation errors: realistic (drawn from the seed" in summary
 
 
 def test_the_self_calibrated_report_states_its_targets() -> None:

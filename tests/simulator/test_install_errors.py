@@ -15,10 +15,16 @@ from capsd.simulator.install_errors import InstallErrors, InstallErrorsConfig
 from capsd.simulator.sim import Simulation
 
 REALISTIC = InstallErrorsConfig(mode="realistic")
+OFF = InstallErrorsConfig(mode="off")
+
+
+def test_realistic_is_the_default() -> None:
+    assert Config().install_errors.mode == "realistic"
+    assert Simulation(Config(seed=4), horizon_s=20).errors.sound_speed_scale != 1.0
 
 
 def test_off_leaves_the_world_at_its_nominal_mounts() -> None:
-    sim = Simulation(Config(seed=4), horizon_s=20)
+    sim = Simulation(Config(seed=4, install_errors=OFF), horizon_s=20)
     assert np.allclose(sim.mount.rotation, Config().sonar.transform().rotation)
     assert np.allclose(sim.mount.translation, Config().sonar.transform().translation)
     assert sim.errors.sound_speed_scale == 1.0
@@ -39,7 +45,7 @@ def test_errors_are_drawn_per_seed_at_their_documented_size() -> None:
 
 def test_the_sensors_report_what_an_installation_with_errors_would() -> None:
     sim = Simulation(Config(seed=11, install_errors=REALISTIC), horizon_s=20)
-    nominal = Simulation(Config(seed=11), horizon_s=20)
+    nominal = Simulation(Config(seed=11, install_errors=OFF), horizon_s=20)
     scale = sim.errors.sound_speed_scale
     frames = depths = attitudes = 0
     for event, plain in zip(
@@ -70,7 +76,7 @@ def test_the_sensors_report_what_an_installation_with_errors_would() -> None:
 
 def test_an_uncalibrated_installation_costs_accuracy() -> None:
     variants = [v for v in ablations() if v.name == "ours - polar CNN (box centre)"]
-    config = Config(tank="nfp", trajectory="square", seed=5)
+    config = Config(tank="nfp", trajectory="square", seed=5, install_errors=OFF)
     off = run(config, duration_s=6.0, variants=variants)
     errors = Config(tank="nfp", trajectory="square", seed=5, install_errors=REALISTIC)
     on = run(errors, duration_s=6.0, variants=variants)

@@ -15,6 +15,7 @@ from capsd.payloads import GroundTruth, ImuSample, LidarScan, RovDepth, SonarFra
 from capsd.simulator import dataset
 from capsd.simulator.config import ClockConfig, Clocks, Config, Noise, Streams, WavesConfig
 from capsd.simulator.imu import Imu, ImuModel
+from capsd.simulator.install_errors import InstallErrorsConfig
 from capsd.simulator.lidar import LidarModel, scan
 from capsd.simulator.scene import BLUEROV2_SEMI_AXES, Ellipsoid
 from capsd.simulator.sim import Simulation
@@ -136,6 +137,7 @@ def _quiet(**changes: object) -> Config:
     base = Config(
         noise=Noise(pose_sigma_m=0.0, range_sigma_m=0.0, azimuth_sigma_deg=0.0, depth_sigma_m=0.0),
         streams=Streams(sonar_frames="off", lidar="off", imu="on"),
+        install_errors=InstallErrorsConfig(mode="off"),
     )
     return msgspec.structs.replace(base, **changes)
 

@@ -12,6 +12,7 @@ from capsd.geometry import matrix_to_quat
 from capsd.payloads import AsvPose, RovFix, SonarFrame, SonarLabel
 from capsd.recording import McapRecorder, Sample
 from capsd.simulator.config import OFFLINE_START_NS, Config, Rates, Streams
+from capsd.simulator.install_errors import InstallErrorsConfig
 from capsd.simulator.sim import Simulation
 from capsd.train.labelling import (
     REJECTED_FILE,
@@ -32,6 +33,7 @@ def _dive(path: Path) -> list[tuple[SonarFrame, SonarLabel]]:
         tank="nfp",
         seed=7,
         rates=Rates(sonar_hz=5.0),
+        install_errors=InstallErrorsConfig(mode="off"),  # the nominal mount is the true one
         streams=Streams(
             lidar="off", imu="off", asv_pose_truth_noise="off", detections_truth_noise="off"
         ),

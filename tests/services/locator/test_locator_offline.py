@@ -6,7 +6,7 @@ import msgspec
 import numpy as np
 
 from capsd.accuracy import CHI2_3_95
-from capsd.bench.accuracy import tape_prior
+from capsd.calibrate import tape_prior
 from capsd.mounts import SonarMountConfig
 from capsd.services.locator.offline import Scored, run_offline
 from capsd.services.locator.service import Config, MethodConfig, TrackingConfig
@@ -25,6 +25,9 @@ DETECTION_LEVEL = Streams(
     asv_pose_truth_noise="on",
     detections_truth_noise="on",
 )
+
+
+PERFECT = InstallErrorsConfig(mode="off")  # the method, not an installation
 
 
 def _run(sim: SimConfig, locator: Config, duration_s: float) -> list[Scored]:
@@ -47,7 +50,9 @@ def _errors(scored: list[Scored], *, filtered: bool) -> list[float]:
 
 
 def test_filter_beats_the_raw_fix_on_simulator_data() -> None:
-    scored = _run(SimConfig(seed=5, trajectory="lawnmower"), Config(), duration_s=60)
+    scored = _run(
+        SimConfig(seed=5, trajectory="lawnmower", install_errors=PERFECT), Config(), duration_s=60
+    )
     raw, filtered = _errors(scored, filtered=False), _errors(scored, filtered=True)
     assert len(filtered) > 500
     assert np.mean(filtered) < 0.8 * np.mean(raw)
@@ -56,7 +61,7 @@ def test_filter_beats_the_raw_fix_on_simulator_data() -> None:
 
 def test_no_fix_while_out_of_view_longer_than_the_coast_time() -> None:
     lost_after_s = 1.5
-    sim = SimConfig(seed=2, sonar_dropouts_s=((20.0, 26.0),))
+    sim = SimConfig(seed=2, sonar_dropouts_s=((20.0, 26.0),), install_errors=PERFECT)
     scored = _run(sim, Config(tracking=TrackingConfig(lost_after_s=lost_after_s)), duration_s=30)
     dropout_start_ns = START_NS + 20 * 1_000_000_000
     coast_end_ns = dropout_start_ns + int(lost_after_s * 1e9)
@@ -75,7 +80,7 @@ def test_no_fix_while_out_of_view_longer_than_the_coast_time() -> None:
 
 def test_paper_baseline_is_selectable() -> None:
     paper = Config(method=MethodConfig(preset="paper"), sonar=SonarMountConfig(beam_model="planar"))
-    scored = _run(SimConfig(seed=3), paper, duration_s=20)
+    scored = _run(SimConfig(seed=3, install_errors=PERFECT), paper, duration_s=20)
     fixes = [s.fix for s in scored]
     assert {f.method for f in fixes} == {"paper"}
     assert all(f.track_state == "none" and f.position_m is None for f in fixes)
@@ -85,8 +90,8 @@ def test_paper_baseline_is_selectable() -> None:
 
 
 def test_rov_velocity_input_helps_the_filter() -> None:
-    with_dvl = SimConfig(seed=8, rates=Rates(velocity_hz=5.0))
-    without = SimConfig(seed=8)
+    with_dvl = SimConfig(seed=8, rates=Rates(velocity_hz=5.0), install_errors=PERFECT)
+    without = SimConfig(seed=8, install_errors=PERFECT)
     err_with = _errors(_run(with_dvl, Config(), duration_s=60), filtered=True)
     err_without = _errors(_run(without, Config(), duration_s=60), filtered=True)
     assert np.mean(err_with) < np.mean(err_without)
