@@ -45,8 +45,7 @@ class Calibration:
     depth_fit: DepthFit | None
     mount: SonarMountConfig
     rov: RovConfig
-    # What the locator should still allow for (None: not asked, the config's is kept).
-    installation: InstallationConfig | None = None
+    installation: InstallationConfig  # what the locator should still allow for
 
     def lines(self) -> list[str]:
         """What a person reads: each estimate, its uncertainty, and what could not be told."""
@@ -141,13 +140,25 @@ def calibrate(
     mount_fit = depth_fit = None
     if what in ("all", "mount"):
         mount_fit = fit_mount(_observations(streams, recording), mount=mount, tank=tank)
-        mount = corrected(mount, mount_fit)
     if what in ("all", "depth"):
         depth_fit = fit_depth_offset(
             _decoded(streams.depths, RovDepth), _decoded(streams.attitudes, RovAttitude), rov=rov
         )
-        if depth_fit.determined:
-            rov = msgspec.structs.replace(rov, depth_offset_m=round(depth_fit.offset_m, 4))
+    return applied(mount, rov, prior, mount_fit, depth_fit)
+
+
+def applied(
+    mount: SonarMountConfig,
+    rov: RovConfig,
+    prior: InstallationConfig,
+    mount_fit: MountFit | None,
+    depth_fit: DepthFit | None,
+) -> Calibration:
+    """The configs with what the fits determined applied, and what is left to allow for."""
+    if mount_fit is not None:
+        mount = corrected(mount, mount_fit)
+    if depth_fit is not None and depth_fit.determined:
+        rov = msgspec.structs.replace(rov, depth_offset_m=round(depth_fit.offset_m, 4))
     installation = installation_after(prior, mount_fit, depth_fit)
     return Calibration(mount_fit, depth_fit, mount, rov, installation)
 
@@ -209,8 +220,7 @@ def write_config(source: Path, out: Path, calibration: Calibration, recording: P
         rov = dict(data.get("rov") or {})
         rov["depth_offset_m"] = calibration.rov.depth_offset_m
         data["rov"] = rov
-    if calibration.installation is not None:
-        data["installation"] = msgspec.to_builtins(calibration.installation)
+    data["installation"] = msgspec.to_builtins(calibration.installation)
     header = [
         f"# {source.name} calibrated by `capsd calibrate {recording.name}`:",
         *(f"#   {line}" for line in calibration.lines()),

@@ -157,9 +157,9 @@ def _self_calibrate(
     dive of the same installation and autopilot boot (its own seed; the errors shared).
     """
     from capsd.bench.calibrate import calibration_dive, wanted_correction, wanted_depth_offset
-    from capsd.calibrate import installation_after, tape_prior
+    from capsd.calibrate import applied, tape_prior
     from capsd.depth_calibration import fit_depth_offset
-    from capsd.mount_calibration import corrected, fit_mount
+    from capsd.mount_calibration import fit_mount
 
     manoeuvre = msgspec.structs.replace(
         config,
@@ -198,11 +198,8 @@ def _self_calibrate(
             if ok
         ],
     }
-    rov = located.rov
-    if depth.determined:
-        rov = msgspec.structs.replace(rov, depth_offset_m=round(depth.offset_m, 4))
-    left = installation_after(tape_prior(config.install_errors), fit, depth)
-    return corrected(config.sonar, fit), rov, left, summary
+    cal = applied(config.sonar, located.rov, tape_prior(config.install_errors), fit, depth)
+    return cal.mount, cal.rov, cal.installation, summary
 
 
 CALIBRATION_S = 120.0

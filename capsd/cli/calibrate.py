@@ -47,13 +47,12 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         f"roll {mount.roll_deg:g} deg, position {list(mount.position_m)} m; "
         f"depth offset {rov.depth_offset_m:+g} m"
     )
-    if result.installation is not None:
-        left = result.installation
-        print(
-            "still allowed for in every fix's covariance (1 sigma): range scale "
-            f"{left.range_scale:g}, sonar position {list(left.sonar_position_m)} m, angles "
-            f"{list(left.sonar_angles_deg)} deg, depth offset {left.depth_offset_m:g} m"
-        )
+    left = result.installation
+    print(
+        "still allowed for in every fix's covariance (1 sigma): range scale "
+        f"{left.range_scale:g}, sonar position {list(left.sonar_position_m)} m, angles "
+        f"{list(left.sonar_angles_deg)} deg, depth offset {left.depth_offset_m:g} m"
+    )
     return EXIT_OK
 
 

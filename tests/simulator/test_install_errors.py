@@ -93,3 +93,17 @@ def test_the_calibration_manoeuvre_turns_the_asv_on_the_spot() -> None:
     turned = matrix_to_euler_zyx(start.rotation.T @ later.rotation)[0]
     assert math.degrees(turned) == pytest.approx(90.0, abs=2.0)
     assert np.linalg.norm(later.translation[:2] - start.translation[:2]) < 0.2
+
+
+def test_labels_are_in_the_sonar_s_range_units_as_its_frames() -> None:
+    # The label describes the image: with a sound-speed error its ranges are scaled as the
+    # frame's are; the truth position stays the truth.
+    sim = Simulation(Config(seed=11, install_errors=REALISTIC), horizon_s=20)
+    scale = sim.errors.sound_speed_scale
+    checked = 0
+    for t_s, _, label in sim.labelled_pings(start_ns=OFFLINE_START_NS, duration_s=2.0):
+        sonar = sim.asv_pose(t_s).compose(sim.mount)
+        true_range = float(np.linalg.norm(sonar.inverse().apply(np.array(label.rov_position_m))))
+        assert label.range_m == pytest.approx(true_range / scale, abs=1e-6)
+        checked += 1
+    assert checked > 10

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import msgspec
 import numpy as np
+import pytest
 
 from capsd.accuracy import CHI2_3_95
 from capsd.calibrate import tape_prior
-from capsd.mounts import SonarMountConfig
+from capsd.mounts import RovConfig, SonarMountConfig
 from capsd.services.locator.offline import Scored, run_offline
 from capsd.services.locator.service import Config, MethodConfig, TrackingConfig
 from capsd.simulator.config import Config as SimConfig
@@ -120,3 +121,20 @@ def test_installation_uncertainty_makes_the_covariance_honest() -> None:
 
     assert within(Config()) < 0.5
     assert within(told) > 0.9
+
+
+def test_the_depth_offset_is_added_to_every_reading() -> None:
+    sim = SimConfig(seed=5, trajectory="square", install_errors=PERFECT)
+    offset = RovConfig(depth_offset_m=0.05)
+
+    def mean_z(locator: Config) -> float:
+        zs = [
+            s.fix.raw_position_m[2]
+            for s in _run(sim, locator, duration_s=20)
+            if s.fix.quality == "good" and s.fix.raw_position_m is not None
+        ]
+        assert len(zs) > 100
+        return float(np.mean(zs))
+
+    # A reading 5 cm deeper puts the ROV 5 cm lower.
+    assert mean_z(Config(rov=offset)) - mean_z(Config()) == pytest.approx(-0.05, abs=1e-6)
