@@ -72,6 +72,9 @@ class Variant:
     installation: InstallationConfig | None = None
     # The locator's covariance floor (None: its default); 0 to see the bare covariance.
     unmodelled_sigma_m: float | None = None
+    # Whose speed of sound the ranges are in: the water's from the ROV's thermometer (the
+    # locator's default), or the one the sonar assumed (the paper's method as published).
+    sound_speed: Literal["rov_thermometer", "sonar"] = "rov_thermometer"
 
 
 def locator_config(variant: Variant, sim: SimConfig) -> LocatorConfig:
@@ -86,6 +89,11 @@ def locator_config(variant: Variant, sim: SimConfig) -> LocatorConfig:
     )
     if variant.installation is not None:
         config = msgspec.structs.replace(config, installation=variant.installation)
+    if variant.sound_speed != config.sound_speed.source:
+        config = msgspec.structs.replace(
+            config,
+            sound_speed=msgspec.structs.replace(config.sound_speed, source=variant.sound_speed),
+        )
     if variant.unmodelled_sigma_m is not None:
         config = msgspec.structs.replace(config, unmodelled_sigma_m=variant.unmodelled_sigma_m)
     return config
@@ -220,6 +228,7 @@ def run(
                     ping_id=frame.ping_id,
                     detector=v.detector,
                     detections=tuple(d for d in candidates if d.confidence >= 0.5),
+                    sound_speed_m_s=frame.sound_speed_m_s,
                 )
                 fix = locators[v.name].locate(detections, seq=frame.seq)
                 accuracy[v.name].add(score(fix, p))
@@ -235,19 +244,28 @@ def ablations(*, box_range_bias_m: float | None = None) -> list[Variant]:
     """The paper's method, ours, and ours without each improvement in turn.
 
     With `box_range_bias_m` (measured on training runs), also the paper's method with its box
-    centre's range corrected by it: the strongest form of the baseline.
+    centre's range corrected by it: the strongest form of the baseline (which also gets
+    the ranges in the water's speed of sound, as ours).
     """
     paper = MethodConfig(preset="paper")
     custom = MethodConfig(preset="custom")
     baseline = Variant(
-        "paper (baseline)", detector="box_centre", tilt="paper", method=paper, beam_model="planar"
+        "paper (baseline)",
+        detector="box_centre",
+        tilt="paper",
+        method=paper,
+        beam_model="planar",
+        sound_speed="sonar",
     )
     calibrated = (
         []
         if box_range_bias_m is None
         else [
             dataclasses.replace(
-                baseline, name="paper, box range calibrated", box_range_bias_m=box_range_bias_m
+                baseline,
+                name="paper, box range calibrated",
+                box_range_bias_m=box_range_bias_m,
+                sound_speed="rov_thermometer",
             )
         ]
     )

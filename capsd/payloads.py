@@ -273,11 +273,16 @@ class Detection(msgspec.Struct, frozen=True, kw_only=True):
 
 
 class SonarDetections(Payload, frozen=True, kw_only=True):
-    """The detector's candidates for one ping; `stamp_ns` is the ping's stamp."""
+    """The detector's candidates for one ping; `stamp_ns` is the ping's stamp.
+
+    `sound_speed_m_s` is the speed the sonar assumed for these ranges (the frame's), so a
+    consumer that knows the water's can rescale them; None: not known.
+    """
 
     ping_id: NonNegInt
     detector: str
     detections: tuple[Detection, ...] = ()
+    sound_speed_m_s: Annotated[float, msgspec.Meta(ge=1300.0, le=1800.0)] | None = None
 
 
 # ---------------------------------------------------------------- ROV

@@ -197,6 +197,11 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     streams: Streams = Streams()
     # What the installation gets wrong, unknown to the services (capsd.simulator.install_errors).
     install_errors: InstallErrorsConfig = InstallErrorsConfig()
+    # The water: what the speed of sound truly is (capsd.sound_speed). The sonar assumes a
+    # speed off by install_errors.sound_speed_sigma; the ROV's thermometer reads this
+    # temperature plus its own bias.
+    water_temperature_c: Annotated[float, msgspec.Meta(ge=0.0, le=40.0)] = 24.0
+    water_salinity_ppt: Annotated[float, msgspec.Meta(ge=0.0, le=45.0)] = 0.0
     # Sim-time windows [start_s, end_s] in which the sonar sees nothing (the ROV out of view).
     sonar_dropouts_s: tuple[tuple[float, float], ...] = ()
     # Real-time runs precompute this much motion, then repeat it.

@@ -33,7 +33,9 @@ class InstallErrorsConfig(ConfigSection, frozen=True, kw_only=True):
     lidar_yaw_sigma_deg: Sigma = 0.3  # the LiDAR's heading against the hull
     lidar_position_sigma_m: Sigma = 0.01
     pressure_arm_sigma_m: Sigma = 0.02  # the pressure port's place on the ROV
-    sound_speed_sigma: Sigma = 0.003  # relative: water temperature and salinity
+    # Relative, the speed the sonar assumes against the true one: its own thermometer (in its
+    # housing, warmed by its electronics; about 1.8 degC at 24 degC) and its salinity setting.
+    sound_speed_sigma: Sigma = 0.003
     depth_bias_sigma_m: Sigma = 0.02  # surface pressure at autopilot boot
     depth_drift_sigma_m_per_h: Sigma = 0.03  # atmospheric pressure changing during the dive
     depth_quantum_m: Sigma = 0.002  # a Bar30's 0.2 mbar
@@ -41,6 +43,7 @@ class InstallErrorsConfig(ConfigSection, frozen=True, kw_only=True):
     heading_error_sigma_deg: Sigma = 2.0  # its magnetometer heading in a steel tank
     attitude_noise_deg: Sigma = 0.2
     float_trim_sigma_m: Sigma = 0.01  # the ROV's floating depth against rov.float_depth_m
+    rov_thermometer_sigma_c: Sigma = 0.5  # the ROV's water thermometer (its Bar30's)
 
 
 @dataclass(frozen=True)
@@ -58,6 +61,7 @@ class InstallErrors:
     attitude_bias: Transform  # its roll and pitch bias, in the body (rotation only)
     attitude_noise_rad: float
     float_trim_m: float = 0.0  # the floating ROV sits this much deeper than configured
+    rov_thermometer_bias_c: float = 0.0  # what the ROV's thermometer reads above the water
 
     @classmethod
     def none(cls) -> InstallErrors:
@@ -107,6 +111,7 @@ class InstallErrors:
             attitude_noise_rad=math.radians(c.attitude_noise_deg),
             # Drawn last: every earlier error stays what a seed drew before it was added.
             float_trim_m=float(rng.normal(0.0, c.float_trim_sigma_m)),
+            rov_thermometer_bias_c=float(rng.normal(0.0, c.rov_thermometer_sigma_c)),
         )
 
     def depth_reading(self, true_depth_m: float, t_s: float, noise_m: float) -> float:
@@ -152,4 +157,5 @@ class InstallErrors:
             "rov_roll_bias_deg": round(att_roll, 3),
             "pressure_arm_z_mm": round(self.pressure_arm_m[2] * 1000, 1),
             "float_trim_mm": round(self.float_trim_m * 1000, 1),
+            "rov_thermometer_bias_c": round(self.rov_thermometer_bias_c, 3),
         }

@@ -57,6 +57,7 @@ from capsd.simulator.world import (
     with_look,
 )
 from capsd.sonar_geometry import to_polar
+from capsd.sound_speed import speed_of_sound_m_s
 from capsd.topics import Topic
 
 
@@ -191,6 +192,10 @@ class Simulation:
             config.imu_model(), config.imu_mounting().rotation, np.random.default_rng(seeds[-2])
         )
         self.lever_arm = np.array(config.rov.pressure_sensor_m) + self.errors.pressure_arm_m
+        # The water's true speed of sound (the frames report the one the sonar assumes).
+        self.sound_speed_m_s = speed_of_sound_m_s(
+            config.water_temperature_c, salinity_ppt=config.water_salinity_ppt
+        )
         self._clock_rng = clock_rng
         self._seq: dict[str, int] = {}
         # Real time only: says whether a ping at sim time t is already too late to render
@@ -349,6 +354,10 @@ class Simulation:
                 seq=self._next_seq("depth"),
                 depth_m=depth,
                 pressure_pa=101_325.0 + depth * 1000.0 * 9.80665,
+                # As MAVLink carries it: centi-degrees.
+                temperature_c=round(
+                    self.config.water_temperature_c + self.errors.rov_thermometer_bias_c, 2
+                ),
                 sigma_m=max(sigma, 1e-4),
             ),
         )
@@ -407,14 +416,15 @@ class Simulation:
             )
             label = rendered.label
             frame = self.renderer.frame(rendered, stamp_ns=stamp, seq=ping, ping_id=ping)
-            if self.errors.sound_speed_scale != 1.0:
-                # The sonar turns echo time into range with the speed it assumes: every range
-                # it reports is the true one divided by (true speed / assumed speed).
-                frame = msgspec.structs.replace(
-                    frame,
-                    range_start_m=frame.range_start_m / self.errors.sound_speed_scale,
-                    range_resolution_m=frame.range_resolution_m / self.errors.sound_speed_scale,
-                )
+            # The sonar turns echo time into range with the speed it assumes (and reports it):
+            # every range it gives is the true one divided by (true speed / assumed speed).
+            scale = self.errors.sound_speed_scale
+            frame = msgspec.structs.replace(
+                frame,
+                range_start_m=frame.range_start_m / scale,
+                range_resolution_m=frame.range_resolution_m / scale,
+                sound_speed_m_s=self.sound_speed_m_s / scale,
+            )
             yield Event(t, topics.SONAR_FRAME, cfg.asv_vehicle, frame)
         else:
             label = self._geometric_label(sonar_pose, rov, dropped)
@@ -436,6 +446,7 @@ class Simulation:
                     ping_id=ping,
                     detector="sim_truth_noise",
                     detections=(found,) if found is not None else (),
+                    sound_speed_m_s=self.sound_speed_m_s / self.errors.sound_speed_scale,
                 ),
             )
         yield Event(

@@ -9,6 +9,7 @@ choices can also be switched alone (for ablations).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import threading
@@ -24,6 +25,7 @@ from capsd.config import ConfigSection, ServiceConfig
 from capsd.echo_cell import any_inside, cell_points, fixture_boxes
 from capsd.geometry import Array, Transform, quat_slerp, quat_to_matrix
 from capsd.keys import check_name
+from capsd.logs import log_fields
 from capsd.mounts import RovConfig, SonarMountConfig
 from capsd.payloads import (
     AsvPose,
@@ -49,11 +51,14 @@ from capsd.services.locator.timeline import Lookup, Timeline
 from capsd.services.locator.tracker import Tracker, TrackerSettings
 from capsd.signing import SiteKey
 from capsd.sonar_geometry import to_polar
+from capsd.sound_speed import SoundSpeedError, relative_sigma, speed_of_sound_m_s
 from capsd.tank import TankBounds
 
 logger = logging.getLogger(__name__)
 
 T = TypeVar("T")
+# A change of the speed-of-sound correction this large (relative) is logged again.
+LOG_SCALE_CHANGE = 0.0002
 
 NonNeg = Annotated[float, msgspec.Meta(ge=0.0)]
 Positive = Annotated[float, msgspec.Meta(gt=0.0)]
@@ -184,6 +189,22 @@ class InstallationConfig(ConfigSection, frozen=True, kw_only=True):
         )
 
 
+class SoundSpeedConfig(ConfigSection, frozen=True, kw_only=True):
+    """Whose speed of sound the ranges are in (capsd.sound_speed; docs/INSTALL-ERRORS.md).
+
+    rov_thermometer: each ping's ranges are rescaled from the speed the sonar assumed (it
+    reports it) to the speed of the water the ROV's thermometer reads, at this salinity; the
+    fix's covariance then allows for the thermometer's and the salinity's 1-sigma instead of
+    installation.range_scale. Where a ping or the depth readings do not carry what it needs,
+    the ranges stay the sonar's (counted in Health as sonar_speed_pings). sonar: as reported.
+    """
+
+    source: Literal["rov_thermometer", "sonar"] = "rov_thermometer"
+    salinity_ppt: Annotated[float, msgspec.Meta(ge=0.0, le=45.0)] = 0.0  # demineralised pond
+    salinity_sigma_ppt: Annotated[float, msgspec.Meta(ge=0.0, le=45.0)] = 0.0
+    thermometer_sigma_c: Annotated[float, msgspec.Meta(ge=0.0, le=10.0)] = 0.5
+
+
 class Config(ServiceConfig, frozen=True, kw_only=True):
     """Locator configuration."""
 
@@ -206,14 +227,16 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     # those are understood (issue 24 item 5).
     unmodelled_sigma_m: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.015
     installation: InstallationConfig = InstallationConfig()
+    sound_speed: SoundSpeedConfig = SoundSpeedConfig()
     # The site's fix key (64 hex digits, owner-only; make-site-certs.sh writes fix.key): every
     # fix is tagged with it, and the ROV's bridge acts only on tagged fixes (capsd.signing).
     fix_key: str | None = None
 
 
-# A pose sample: position, orientation (xyzw), 6 x 6 covariance; a depth: metres, sigma.
+# A pose sample: position, orientation (xyzw), 6 x 6 covariance; a depth: metres, sigma and
+# the water's temperature there (NaN: not reported).
 PoseSample = tuple[Array, Array, Array]
-DepthSample = tuple[float, float]
+DepthSample = tuple[float, float, float]
 
 
 def _lerp_pose(a: PoseSample, b: PoseSample, f: float) -> PoseSample:
@@ -222,7 +245,7 @@ def _lerp_pose(a: PoseSample, b: PoseSample, f: float) -> PoseSample:
 
 
 def _lerp_depth(a: DepthSample, b: DepthSample, f: float) -> DepthSample:
-    return a[0] + f * (b[0] - a[0]), b[1]
+    return a[0] + f * (b[0] - a[0]), b[1], a[2] + f * (b[2] - a[2])
 
 
 def _vec3(v: Array) -> tuple[float, float, float]:
@@ -270,6 +293,11 @@ class Locator:
         fixtures = () if config.tank is None else config.tank.fixtures
         self._fixture_boxes = fixture_boxes(fixtures, config.clutter.map_margin_m)
         self._installation = config.installation.sigmas()
+        # Pings whose ranges were rescaled to the water's speed of sound, and those that stayed
+        # the sonar's though the config asks for the thermometer's; the scale last logged.
+        self.water_speed_pings = 0
+        self.sonar_speed_pings = 0
+        self._logged_scale: float | None = None
         self._installed = np.zeros((3, 3))  # the last fix's installation covariance
         # Where and when the ROV was last seen by a confirmed track (the reacquire rule).
         self._last_confirmed: tuple[int, Array] | None = None
@@ -303,7 +331,8 @@ class Locator:
         self._note_arrival(depth.stamp_ns)
         # The reading as this boot of the autopilot reports it, plus the surface check's offset.
         corrected = depth.depth_m + self.config.rov.depth_offset_m
-        self.depths.add(depth.stamp_ns, (corrected, depth.sigma_m))
+        temperature = math.nan if depth.temperature_c is None else depth.temperature_c
+        self.depths.add(depth.stamp_ns, (corrected, depth.sigma_m, temperature))
 
     def on_attitude(self, attitude: RovAttitude) -> None:
         self._note_arrival(attitude.stamp_ns)
@@ -410,6 +439,8 @@ class Locator:
                 "clutter_refusals": self.clutter_refusals,
                 "static_clutter_cells": self.clutter.static_cells(self._solved_until_ns),
                 "map_explained_echoes": self.map_explained,
+                "water_speed_pings": self.water_speed_pings,
+                "sonar_speed_pings": self.sonar_speed_pings,
             }
 
     def locate(self, detections: SonarDetections, *, seq: int) -> RovFix:
@@ -427,6 +458,13 @@ class Locator:
         pose = self._lookup(self.poses, stamp)
         depth = self._lookup(self.depths, stamp)
         attitude = self._lookup(self.attitudes, stamp)
+        installation = self._installation
+        if depth.value is not None and self.config.sound_speed.source == "rov_thermometer":
+            rescaled = self._rescale(candidates, detections.sound_speed_m_s, depth.value[2])
+            if rescaled is None:
+                self.sonar_speed_pings += 1
+            else:
+                candidates, installation = rescaled
         out = msgspec.structs.replace(
             out,
             candidates=len(candidates),
@@ -445,8 +483,8 @@ class Locator:
             asv = Transform(quat_to_matrix(pose.value[1]), pose.value[0])
             # A depth extrapolated from its last two readings carries their noise amplified
             # (x2.2 one reading gap past the newest; more when readings are lost on a link).
-            depth_m, depth_sigma_m = depth.value
-            depth_sample = (depth_m, depth_sigma_m * depth.noise_gain)
+            depth_m, depth_sigma_m, temperature_c = depth.value
+            depth_sample = (depth_m, depth_sigma_m * depth.noise_gain, temperature_c)
             for detection in candidates:
                 solved = self._solve(detection, asv, depth_sample, attitude.value, pose.value[2])
                 if isinstance(solved, str):
@@ -457,17 +495,69 @@ class Locator:
                     fixes.append((solved[0], solved[1], detection))
             explained = [self._explained(asv, d, p) for p, _, d in fixes]
             installed = [
-                self._installation_cov(asv, d, depth_sample, attitude.value, p) for p, _, d in fixes
+                self._installation_cov(asv, d, depth_sample, attitude.value, p, installation)
+                for p, _, d in fixes
             ]
         else:
             explained, installed = [], []
         return self._finish(out, stamp, fixes, reasons, explained, installed)
 
+    def _rescale(
+        self, candidates: list[Detection], assumed_m_s: float | None, temperature_c: float
+    ) -> tuple[list[Detection], InstallationSigmas] | None:
+        """The candidates' ranges in the water's speed of sound, and what is then still unknown.
+
+        None where the ping does not say what speed the sonar assumed, the depth readings carry
+        no temperature, or the temperature is outside the equation's range.
+        """
+        water = self.config.sound_speed
+        if assumed_m_s is None or math.isnan(temperature_c):
+            return None
+        try:
+            speed = speed_of_sound_m_s(temperature_c, salinity_ppt=water.salinity_ppt)
+        except SoundSpeedError:
+            return None
+        scale = speed / assumed_m_s
+        self.water_speed_pings += 1
+        if self._logged_scale is None or abs(scale - self._logged_scale) > LOG_SCALE_CHANGE:
+            self._logged_scale = scale
+            logger.info(
+                "ranges rescaled to the water's speed of sound",
+                extra=log_fields(
+                    scale_ppm=round((scale - 1.0) * 1e6),
+                    temperature_c=round(temperature_c, 2),
+                    water_m_s=round(speed, 1),
+                    sonar_m_s=round(assumed_m_s, 1),
+                ),
+            )
+        left = relative_sigma(
+            temperature_c,
+            salinity_ppt=water.salinity_ppt,
+            temperature_sigma_c=water.thermometer_sigma_c,
+            salinity_sigma_ppt=water.salinity_sigma_ppt,
+        )
+        rescaled = [
+            msgspec.structs.replace(
+                d,
+                range_m=d.range_m * scale,
+                range_sigma_m=d.range_sigma_m * scale,
+                range_extent_m=d.range_extent_m * scale,
+            )
+            for d in candidates
+        ]
+        return rescaled, dataclasses.replace(self._installation, range_scale=left)
+
     def _installation_cov(
-        self, asv: Transform, detection: Detection, depth: DepthSample, attitude: Array, at: Array
+        self,
+        asv: Transform,
+        detection: Detection,
+        depth: DepthSample,
+        attitude: Array,
+        at: Array,
+        sigmas: InstallationSigmas,
     ) -> Array:
         """The fix's covariance from what the installation may still get wrong (0 if nothing)."""
-        if not self._installation.any:
+        if not sigmas.any:
             return np.zeros((3, 3))
         sonar = asv.compose(self.mount)
         elevation = to_polar(self.config.sonar.beam_model, sonar.inverse().apply(at))[2]
@@ -480,7 +570,7 @@ class Locator:
                 rov_z_m=rov_centre_z(depth[0], quat_to_matrix(attitude), self.lever_arm),
                 model=self.config.sonar.beam_model,
                 elevation_rad=elevation,
-                sigmas=self._installation,
+                sigmas=sigmas,
             )
         except ArithmeticError:  # grazing geometry: the solver's own covariance says so
             return np.zeros((3, 3))

@@ -267,6 +267,7 @@ def main(config: Config) -> int:
                             ping_id=frame.ping_id,
                             detector=config.detector,
                             detections=tuple(found),
+                            sound_speed_m_s=frame.sound_speed_m_s,
                         )
                     )
                     stage.record_ns(time.time_ns() - received_ns)

@@ -13,6 +13,7 @@ from capsd.payloads import RovAttitude, RovDepth, SonarFrame
 from capsd.simulator.config import OFFLINE_START_NS, Config
 from capsd.simulator.install_errors import InstallErrors, InstallErrorsConfig
 from capsd.simulator.sim import Simulation
+from capsd.sound_speed import speed_of_sound_m_s
 
 REALISTIC = InstallErrorsConfig(mode="realistic")
 OFF = InstallErrorsConfig(mode="off")
@@ -41,6 +42,8 @@ def test_errors_are_drawn_per_seed_at_their_documented_size() -> None:
     assert 1.7 < heading.std() < 2.3
     ppm = np.array([d["sound_speed_ppm"] for d in draws])
     assert 2500 < ppm.std() < 3500
+    thermometer = np.array([d["rov_thermometer_bias_c"] for d in draws])
+    assert 0.4 < thermometer.std() < 0.6
 
 
 def test_the_sensors_report_what_an_installation_with_errors_would() -> None:
@@ -56,12 +59,20 @@ def test_the_sensors_report_what_an_installation_with_errors_would() -> None:
         p, q = event.payload, plain.payload
         if isinstance(p, SonarFrame) and isinstance(q, SonarFrame):
             assert p.range_resolution_m == pytest.approx(q.range_resolution_m / scale)
+            # The speed it assumed, reported with the frame; the water's when nothing is off.
+            assert q.sound_speed_m_s == pytest.approx(speed_of_sound_m_s(24.0, salinity_ppt=0.0))
+            assert p.sound_speed_m_s == pytest.approx(q.sound_speed_m_s / scale)
             frames += 1
         elif isinstance(p, RovDepth) and isinstance(q, RovDepth):
             assert abs(round(p.depth_m / 0.002) * 0.002 - p.depth_m) < 1e-9  # quantised
             # Bias, plus the pressure port's misplacement along the vertical, plus rounding.
             arm_m = float(np.linalg.norm(sim.errors.pressure_arm_m))
             assert abs(p.depth_m - q.depth_m - sim.errors.depth_bias_m) < arm_m + 0.002
+            # The water's temperature as the ROV's thermometer reads it, in centi-degrees.
+            assert q.temperature_c == 24.0
+            assert p.temperature_c == pytest.approx(
+                24.0 + sim.errors.rov_thermometer_bias_c, abs=0.006
+            )
             depths += 1
         elif isinstance(p, RovAttitude) and isinstance(q, RovAttitude):
             yaw_p = matrix_to_euler_zyx(quat_to_matrix(np.array(p.orientation_xyzw)))[0]

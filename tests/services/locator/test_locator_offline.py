@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 import msgspec
 import numpy as np
 import pytest
@@ -10,7 +12,12 @@ from capsd.accuracy import CHI2_3_95
 from capsd.calibrate import tape_prior
 from capsd.mounts import RovConfig, SonarMountConfig
 from capsd.services.locator.offline import Scored, run_offline
-from capsd.services.locator.service import Config, MethodConfig, TrackingConfig
+from capsd.services.locator.service import (
+    Config,
+    MethodConfig,
+    SoundSpeedConfig,
+    TrackingConfig,
+)
 from capsd.simulator.config import Config as SimConfig
 from capsd.simulator.config import Rates, Streams
 from capsd.simulator.install_errors import InstallErrorsConfig
@@ -138,3 +145,43 @@ def test_the_depth_offset_is_added_to_every_reading() -> None:
 
     # A reading 5 cm deeper puts the ROV 5 cm lower.
     assert mean_z(Config(rov=offset)) - mean_z(Config()) == pytest.approx(-0.05, abs=1e-6)
+
+
+def test_the_rov_s_thermometer_takes_the_speed_of_sound_out_of_the_fixes() -> None:
+    # Only the speed of sound wrong, and far more than usual (the sonar assumes a speed 2 %
+    # off, a wrong salinity setting would do it): rescaled to the water the ROV's thermometer
+    # reads (its own bias drawn too), the fixes lose nearly all of that error.
+    others = (
+        "sonar_angle_sigma_deg",
+        "sonar_position_sigma_m",
+        "lidar_yaw_sigma_deg",
+        "lidar_position_sigma_m",
+        "pressure_arm_sigma_m",
+        "depth_bias_sigma_m",
+        "depth_drift_sigma_m_per_h",
+        "depth_quantum_m",
+        "attitude_bias_sigma_deg",
+        "heading_error_sigma_deg",
+        "attitude_noise_deg",
+        "float_trim_sigma_m",
+    )
+    only_sound = msgspec.structs.replace(
+        InstallErrorsConfig(mode="realistic", seed=4),
+        **dict.fromkeys(others, 0.0),
+        sound_speed_sigma=0.02,
+    )
+    sim = SimConfig(seed=5, trajectory="square", install_errors=only_sound)
+    drawn = Simulation(sim, horizon_s=10).errors
+    assert abs(drawn.sound_speed_scale - 1.0) > 0.005  # this seed's draw: worth correcting
+    assert drawn.rov_thermometer_bias_c != 0.0
+
+    def median_error(sim: SimConfig, source: Literal["rov_thermometer", "sonar"]) -> float:
+        scored = _run(sim, Config(sound_speed=SoundSpeedConfig(source=source)), duration_s=20)
+        errors = _errors(scored, filtered=True)
+        assert len(errors) > 100
+        return float(np.median(errors))
+
+    rescaled = median_error(sim, "rov_thermometer")
+    assert rescaled < 0.3 * median_error(sim, "sonar")
+    perfect = msgspec.structs.replace(sim, install_errors=PERFECT)
+    assert rescaled < median_error(perfect, "rov_thermometer") + 0.005

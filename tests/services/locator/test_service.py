@@ -3,13 +3,23 @@
 from __future__ import annotations
 
 import math
+from typing import Literal
 
+import msgspec
 import numpy as np
 
 from capsd.geometry import Transform
-from capsd.payloads import AsvPose, Detection, RovAttitude, RovDepth, SonarDetections
-from capsd.services.locator.service import ClutterConfig, Config, Locator, MethodConfig
+from capsd.payloads import AsvPose, Detection, RovAttitude, RovDepth, RovFix, SonarDetections
+from capsd.services.locator.service import (
+    ClutterConfig,
+    Config,
+    InstallationConfig,
+    Locator,
+    MethodConfig,
+    SoundSpeedConfig,
+)
 from capsd.sonar_geometry import to_polar
+from capsd.sound_speed import speed_of_sound_m_s
 from capsd.tank import TankBounds, TankFixture
 
 SECOND = 1_000_000_000
@@ -20,7 +30,12 @@ ASV = np.array([4.0, 5.0, 0.0])
 
 
 def _feed_inputs(
-    locator: Locator, *, until_s: float, depth_until_s: float | None = None, from_s: float = 0.0
+    locator: Locator,
+    *,
+    until_s: float,
+    depth_until_s: float | None = None,
+    from_s: float = 0.0,
+    temperature_c: float | None = None,
 ) -> None:
     steps = int(until_s * 50)
     depth_steps = steps if depth_until_s is None else int(depth_until_s * 50)
@@ -37,7 +52,13 @@ def _feed_inputs(
         )
         locator.on_attitude(RovAttitude(stamp_ns=stamp, seq=k, orientation_xyzw=IDENTITY_Q))
         if k <= depth_steps:
-            depth = RovDepth(stamp_ns=stamp, seq=k, depth_m=-float(ROV[2]), sigma_m=0.005)
+            depth = RovDepth(
+                stamp_ns=stamp,
+                seq=k,
+                depth_m=-float(ROV[2]),
+                sigma_m=0.005,
+                temperature_c=temperature_c,
+            )
             locator.on_depth(depth)
 
 
@@ -53,8 +74,17 @@ def _detection_of(locator: Locator, point: np.ndarray, confidence: float = 0.9) 
     )
 
 
-def _ping(stamp_ns: int, *detections: Detection) -> SonarDetections:
-    return SonarDetections(stamp_ns=stamp_ns, seq=0, ping_id=0, detector="t", detections=detections)
+def _ping(
+    stamp_ns: int, *detections: Detection, sound_speed_m_s: float | None = None
+) -> SonarDetections:
+    return SonarDetections(
+        stamp_ns=stamp_ns,
+        seq=0,
+        ping_id=0,
+        detector="t",
+        detections=detections,
+        sound_speed_m_s=sound_speed_m_s,
+    )
 
 
 def _locator(**changes: object) -> Locator:
@@ -100,6 +130,60 @@ def test_an_extrapolated_depth_widens_the_vertical_uncertainty() -> None:
     assert math.isclose(
         late.raw_covariance_m2[8] - floor, (0.005 * math.hypot(6, 5)) ** 2, rel_tol=0.05
     )
+
+
+def test_ranges_are_rescaled_to_the_water_the_rov_s_thermometer_reads() -> None:
+    # The sonar assumed 1480 m/s; the water is at 28 degC (1503 m/s): every range it reports
+    # is 1.5 % short, about 10 cm here. The ROV's thermometer puts the fix back on the ROV.
+    water = speed_of_sound_m_s(28.0, salinity_ppt=0.0)
+
+    def raw_fix(locator: Locator, *, temperature_c: float | None) -> RovFix:
+        _feed_inputs(locator, until_s=1.0, temperature_c=temperature_c)
+        true = _detection_of(locator, ROV)
+        reported = msgspec.structs.replace(true, range_m=true.range_m * 1480.0 / water)
+        return locator.locate(_ping(SECOND // 2, reported, sound_speed_m_s=1480.0), seq=0)
+
+    corrected = _locator()
+    fix = raw_fix(corrected, temperature_c=28.0)
+    assert fix.raw_position_m is not None
+    assert np.linalg.norm(np.subtract(fix.raw_position_m, ROV)) < 1e-6
+    assert corrected.counters()["water_speed_pings"] == 1
+    as_reported = _locator(sound_speed=SoundSpeedConfig(source="sonar"))
+    fix = raw_fix(as_reported, temperature_c=28.0)
+    assert fix.raw_position_m is not None
+    assert np.linalg.norm(np.subtract(fix.raw_position_m, ROV)) > 0.05
+    # No temperature with the depth: the sonar's ranges, counted.
+    unknown = _locator()
+    fix = raw_fix(unknown, temperature_c=None)
+    assert fix.raw_position_m is not None
+    assert np.linalg.norm(np.subtract(fix.raw_position_m, ROV)) > 0.05
+    assert unknown.counters()["sonar_speed_pings"] == 1
+    assert unknown.counters()["water_speed_pings"] == 0
+    assert corrected.counters()["sonar_speed_pings"] == 0
+
+
+def test_the_thermometer_s_sigma_goes_into_the_covariance_in_place_of_the_range_scale() -> None:
+    # Told the sonar's speed may be 1 % off, the fix's range variance is large; rescaled to the
+    # water's speed, what is left is the thermometer's 0.5 degC (about 0.09 %).
+    def range_variance(source: Literal["rov_thermometer", "sonar"]) -> float:
+        locator = _locator(
+            installation=InstallationConfig(range_scale=0.01),
+            sound_speed=SoundSpeedConfig(source=source, thermometer_sigma_c=0.5),
+            unmodelled_sigma_m=0.0,
+        )
+        _feed_inputs(locator, until_s=1.0, temperature_c=20.0)
+        ping = _ping(SECOND // 2, _detection_of(locator, ROV), sound_speed_m_s=1482.0)
+        fix = locator.locate(ping, seq=0)
+        assert fix.raw_covariance_m2 is not None
+        assert fix.raw_position_m is not None
+        along = np.subtract(fix.raw_position_m, ASV)[:2]
+        along = np.append(along / np.linalg.norm(along), 0.0)
+        return float(along @ np.array(fix.raw_covariance_m2).reshape(3, 3) @ along)
+
+    told_sonar, told_water = range_variance("sonar"), range_variance("rov_thermometer")
+    # 1 % of about 4.5 m is 45 mm along the ground; the solver's own 10 mm stays in both.
+    assert math.sqrt(told_sonar) > 0.04
+    assert math.sqrt(told_water) < 0.015
 
 
 def test_stale_and_missing_inputs_give_reasons_not_fixes() -> None:
