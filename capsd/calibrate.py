@@ -7,6 +7,10 @@ floats at the surface before it dives. The mount fit (capsd.mount_calibration) g
 sonar's heading, roll and horizontal position against the ASV's LiDAR-derived frame; the float
 (capsd.depth_calibration) the offset of this autopilot boot's depth readings; each with its
 uncertainty. Only what the data determined is written into the new locator config.
+
+`--what range` reads another recording, made with the calibrated config: the ROV parked (on
+the floor or a stand) while the ASV swings round it facing it; the fixes' offset along the line
+of sight (capsd.range_calibration) moves the sonar's forward position.
 """
 
 from __future__ import annotations
@@ -25,15 +29,16 @@ from capsd.errors import CapsdError
 from capsd.keys import Subject, subject_of
 from capsd.mount_calibration import MountFit, Observation, corrected, fit_mount
 from capsd.mounts import RovConfig, SonarMountConfig
-from capsd.payloads import AsvPose, Payload, RovAttitude, RovDepth, SonarFrame
+from capsd.payloads import AsvPose, Payload, RovAttitude, RovDepth, RovFix, SonarFrame
 from capsd.pose_lookup import PoseLookup
+from capsd.range_calibration import RangeFit, fit_range_offset
 from capsd.recording import Recorded, read
 from capsd.services.locator.service import InstallationConfig
 from capsd.simulator.install_errors import InstallErrorsConfig
 from capsd.tank import TankBounds
 
 EVERY_S = 0.5  # one frame per half second is plenty: neighbouring frames see the same walls
-What = Literal["all", "mount", "depth"]
+What = Literal["all", "mount", "depth", "range"]
 T = TypeVar("T", bound=Payload)
 
 
@@ -46,12 +51,14 @@ class Calibration:
     mount: SonarMountConfig
     rov: RovConfig
     installation: InstallationConfig  # what the locator should still allow for
+    range_fit: RangeFit | None = None
 
     def lines(self) -> list[str]:
         """What a person reads: each estimate, its uncertainty, and what could not be told."""
         return [
             *([] if self.mount_fit is None else self.mount_fit.lines()),
             *([] if self.depth_fit is None else self.depth_fit.lines()),
+            *([] if self.range_fit is None else self.range_fit.lines()),
         ]
 
     @property
@@ -59,7 +66,8 @@ class Calibration:
         """Whether the new config differs from the old one in anything."""
         m, d = self.mount_fit, self.depth_fit
         mount = m is not None and (m.yaw_determined or m.roll_determined or m.shift_determined)
-        return mount or (d is not None and d.determined)
+        ranged = self.range_fit is not None and self.range_fit.determined
+        return mount or ranged or (d is not None and d.determined)
 
 
 @dataclass
@@ -70,6 +78,7 @@ class _Streams:
     poses: list[Recorded] = field(default_factory=list)
     depths: list[Recorded] = field(default_factory=list)
     attitudes: list[Recorded] = field(default_factory=list)
+    fixes: list[Recorded] = field(default_factory=list)
 
 
 def _streams(recording: Path) -> _Streams:
@@ -79,6 +88,7 @@ def _streams(recording: Path) -> _Streams:
         Subject.ASV_POSE.value: out.poses,
         Subject.ROV_DEPTH.value: out.depths,
         Subject.ROV_ATTITUDE.value: out.attitudes,
+        Subject.ROV_FIX.value: out.fixes,
     }
     for message in read(recording):
         target = by_subject.get(subject_of(message.key))
@@ -144,7 +154,17 @@ def calibrate(
         depth_fit = fit_depth_offset(
             _decoded(streams.depths, RovDepth), _decoded(streams.attitudes, RovAttitude), rov=rov
         )
-    return applied(mount, rov, prior, mount_fit, depth_fit)
+    range_fit = None
+    if what == "range":
+        poses = _decoded(streams.poses, AsvPose)
+        if not poses:
+            raise CapsdError(f"{recording}: no ASV poses in it (asv_pose must run while recording)")
+        fixes = _decoded(streams.fixes, RovFix)
+        try:
+            range_fit = fit_range_offset(fixes, PoseLookup(poses), mount=mount.transform())
+        except CapsdError as exc:
+            raise CapsdError(f"{recording}: {exc}") from None
+    return applied(mount, rov, prior, mount_fit, depth_fit, range_fit)
 
 
 def applied(
@@ -153,14 +173,20 @@ def applied(
     prior: InstallationConfig,
     mount_fit: MountFit | None,
     depth_fit: DepthFit | None,
+    range_fit: RangeFit | None = None,
 ) -> Calibration:
     """The configs with what the fits determined applied, and what is left to allow for."""
     if mount_fit is not None:
         mount = corrected(mount, mount_fit)
+    if range_fit is not None and range_fit.determined:
+        # Fixes too far along the line of sight: the sonar sits that much further back than
+        # configured (the orbit faces the ROV: the sonar's axis is the line of sight).
+        x, y, z = mount.position_m
+        mount = msgspec.structs.replace(mount, position_m=(round(x - range_fit.along_m, 4), y, z))
     if depth_fit is not None and depth_fit.determined:
         rov = msgspec.structs.replace(rov, depth_offset_m=round(depth_fit.offset_m, 4))
-    installation = installation_after(prior, mount_fit, depth_fit)
-    return Calibration(mount_fit, depth_fit, mount, rov, installation)
+    installation = installation_after(prior, mount_fit, depth_fit, range_fit)
+    return Calibration(mount_fit, depth_fit, mount, rov, installation, range_fit)
 
 
 def tape_prior(errors: InstallErrorsConfig) -> InstallationConfig:
@@ -179,7 +205,10 @@ def tape_prior(errors: InstallErrorsConfig) -> InstallationConfig:
 
 
 def installation_after(
-    prior: InstallationConfig, mount_fit: MountFit | None, depth_fit: DepthFit | None
+    prior: InstallationConfig,
+    mount_fit: MountFit | None,
+    depth_fit: DepthFit | None,
+    range_fit: RangeFit | None = None,
 ) -> InstallationConfig:
     """What the installation may still get wrong after the fits.
 
@@ -192,6 +221,8 @@ def installation_after(
         yaw = mount_fit.yaw_sigma_deg if mount_fit.yaw_determined else yaw
         roll = mount_fit.roll_sigma_deg if mount_fit.roll_determined else roll
         y = mount_fit.shift_y_sigma_m if mount_fit.shift_determined else y
+    if range_fit is not None and range_fit.determined:
+        x = range_fit.along_sigma_m
     depth = prior.depth_offset_m
     if depth_fit is not None and depth_fit.determined:
         depth = depth_fit.sigma_m
@@ -206,7 +237,8 @@ def installation_after(
 def write_config(source: Path, out: Path, calibration: Calibration, recording: Path) -> None:
     """A copy of the locator config `source` with what was calibrated, and its provenance."""
     data: dict[str, Any] = yaml.safe_load(source.read_text()) or {}
-    if calibration.mount_fit is not None:
+    ranged = calibration.range_fit is not None and calibration.range_fit.determined
+    if calibration.mount_fit is not None or ranged:
         mount = calibration.mount
         sonar = dict(data.get("sonar") or {})
         sonar.update(

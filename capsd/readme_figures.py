@@ -267,20 +267,28 @@ def calibrate_table(figures: dict[str, Any]) -> list[str]:
         f"{figures['tank']}, {len(figures['runs'])} seeds, {figures['duration_s']:g} s each: "
         f"mean |yaw error| {figures['mean_abs_yaw_error_deg']} deg, |roll error| "
         f"{figures['mean_abs_roll_error_deg']} deg, sideways {figures['mean_shift_error_mm']} mm, "
-        f"|depth offset error| {figures['mean_abs_depth_offset_error_mm']} mm.",
+        f"|depth offset error| {figures['mean_abs_depth_offset_error_mm']} mm, "
+        f"|range offset error| {figures.get('mean_abs_along_error_mm', '-')} mm.",
         "",
         "| seed | yaw wanted / fitted (sigma) deg | roll wanted / fitted (sigma) deg "
-        "| sideways error mm | depth offset wanted / fitted (sigma) mm | determined |",
-        "|---:|---:|---:|---:|---:|---|",
+        "| sideways error mm | depth offset wanted / fitted (sigma) mm "
+        "| range offset wanted / fitted (sigma) mm | sonar's drawn forward error mm "
+        "| determined |",
+        "|---:|---:|---:|---:|---:|---:|---:|---|",
     ]
     for r in figures["runs"]:
-        determined = [k for k in ("yaw", "roll", "shift", "depth_offset") if r[f"{k}_determined"]]
+        determined = [
+            k for k in ("yaw", "roll", "shift", "depth_offset", "along") if r.get(f"{k}_determined")
+        ]
         lines.append(
             f"| {r['seed']} | {r['wanted_yaw_deg']} / {r['fitted_yaw_deg']} "
             f"({r['yaw_sigma_deg']}) | {r['wanted_roll_deg']} / {r['fitted_roll_deg']} "
             f"({r['roll_sigma_deg']}) | {r['shift_error_mm']} "
             f"| {r['wanted_depth_offset_mm']} / {r['fitted_depth_offset_mm']} "
-            f"({r['depth_offset_sigma_mm']}) | {', '.join(determined)} |"
+            f"({r['depth_offset_sigma_mm']}) "
+            f"| {r.get('wanted_along_mm', '-')} / {r.get('fitted_along_mm', '-')} "
+            f"({r.get('along_sigma_mm', '-')}) | {r.get('drawn_x_mm', '-')} "
+            f"| {', '.join(determined)} |"
         )
     return lines
 
@@ -289,21 +297,23 @@ def self_calibrated_table(figures: dict[str, Any]) -> list[str]:
     """With installation errors: ours uncalibrated, then both methods after self-calibration."""
     lines = [
         "| run | ours uncalibrated | yaw fitted / wanted (deg) | depth offset fitted / wanted "
-        "(mm) | ours | baseline (box range, mount and depth calibrated) | ratio "
+        "(mm) | range offset fitted / wanted (mm) | ours "
+        "| baseline (box range, mount, depth and range calibrated) | ratio "
         "| ours: mean NEES, share within the 95 % bound |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for name, c in _in_order(figures["common_self_calibrated"]):
         cal = figures["self_calibration"][name]
         before = figures["runs"][name][OURS].get("med_mm")
         before_cell = "-" if before is None else f"{before:.1f}"
         if "ratio" not in c:
-            lines.append(f"| {_run_name(name)} | {before_cell} | - | - | - | - | - | - |")
+            lines.append(f"| {_run_name(name)} | {before_cell} | - | - | - | - | - | - | - |")
             continue
         ours = figures["runs"][name][OURS_SELF_CALIBRATED]
         lines.append(
             f"| {_run_name(name)} | {before_cell} | {cal['yaw_deg']} / {cal['yaw_wanted_deg']} "
             f"| {cal['depth_offset_mm']} / {cal['depth_offset_wanted_mm']} "
+            f"| {cal.get('along_mm', '-')} / {cal.get('along_wanted_mm', '-')} "
             f"| {c['ours_med_mm']:.1f} | {c['other_med_mm']:.1f} "
             f"| {c['ratio']:.2f} {_ci(c['ratio_ci'], 2)} "
             f"| {ours['nees_mean']}, {_pct(ours['nees_within_95'])} |"

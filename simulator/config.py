@@ -177,10 +177,12 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     # surface: the ROV floats at the surface above its trajectory's start for the whole run
     # (a pre-dive surface check: `capsd calibrate` reads its depth offset from it), its origin
     # at rov.float_depth_m plus the installation's trim error, heaving with the waves.
-    rov_mode: Literal["trajectory", "surface"] = "trajectory"
+    # parked: the ROV holds still where its trajectory starts (on the tank floor or a stand:
+    # the range-offset manoeuvre, with asv_mode: orbit).
+    rov_mode: Literal["trajectory", "surface", "parked"] = "trajectory"
     seed: int = 0
     # spin: turns on the spot; guided: driven live by an ArduRover stand-in (`asv_guided`).
-    asv_mode: Literal["follow", "stationary", "spin", "guided"] = "follow"
+    asv_mode: Literal["follow", "stationary", "spin", "orbit", "guided"] = "follow"
     # How far behind the ROV (along W's x) the following ASV keeps; None puts the ROV on the
     # sonar's boresight at the upper flight level.
     asv_standoff_m: Annotated[float, msgspec.Meta(ge=0.0, le=50.0)] | None = None
@@ -218,8 +220,10 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
                 "`guided`: the ASV cannot follow a ROV flown live; use asv_mode: stationary"
                 " or guided"
             )
-        if self.guided is not None and self.rov_mode == "surface":
-            raise ValueError("`rov_mode: surface`: a ROV flown live (`guided`) is not floating")
+        if self.guided is not None and self.rov_mode != "trajectory":
+            raise ValueError(
+                f"`rov_mode: {self.rov_mode}`: a ROV flown live (`guided`) flies its own way"
+            )
         if (self.asv_mode == "guided") != (self.asv_guided is not None):
             raise ValueError("`asv_guided`: needed with `asv_mode: guided`, and only then")
         for i, (start, end) in enumerate(self.sonar_dropouts_s):

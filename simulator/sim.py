@@ -130,7 +130,9 @@ class Simulation:
             np.random.default_rng([config.seed if install_seed is None else install_seed, 0xE7]),
         )
         self.mount = config.sonar.transform().compose(self.errors.sonar)
-        if config.rov_mode == "surface":
+        if config.rov_mode == "parked":
+            self.rov = planned = hovering(self.rov.track.p[0], duration_s=self.horizon_s)
+        elif config.rov_mode == "surface":
             waves = config.waves.waves()
             self.rov = floating(
                 self.rov.track.p[0],

@@ -537,7 +537,7 @@ def asv_motion(
     tank: Tank,
     rov: RovMotion,
     *,
-    mode: Literal["stationary", "follow", "spin"],
+    mode: Literal["stationary", "follow", "spin", "orbit"],
     standoff_m: float,
     waves: Waves,
     start_xy: tuple[float, float] | None,
@@ -547,7 +547,11 @@ def asv_motion(
     MallARD is omnidirectional: it turns to face the ROV (the sonar looks along body x), with
     its heading following the bearing to the ROV through a first-order lag (tau 2 s). `spin`:
     it stays put and turns on the spot, one turn a minute (the calibration manoeuvre: the
-    sonar sweeps every wall at every angle).
+    sonar sweeps every wall at every angle). `orbit`: it swings to and fro on a circle of
+    `standoff_m` about where the ROV starts, ORBIT_SWING_DEG to either side of the tank-centre
+    side, one swing every ORBIT_PERIOD_S, nearer and further by ORBIT_IN_OUT, facing the ROV
+    (the range-offset manoeuvre: the line of sight turns about a parked ROV and dips more and
+    less steeply).
     """
     n = len(rov.track.p)
     dt = rov.track.dt
@@ -561,6 +565,15 @@ def asv_motion(
     if mode in ("stationary", "spin"):
         xy = np.array(start_xy) if start_xy is not None else centre
         targets = np.tile(np.array([xy[0], xy[1], 0.0]), (n, 1))
+    elif mode == "orbit":
+        t = np.arange(n) * dt
+        home = rov_xy[0]
+        side = math.atan2(*(centre - home)[::-1]) if np.linalg.norm(centre - home) > 0.5 else 0.0
+        angle = side + math.radians(ORBIT_SWING_DEG) * np.sin(2.0 * math.pi * t / ORBIT_PERIOD_S)
+        # In and out as well, so that the ROV is seen at several depression angles.
+        radius = standoff_m * (1.0 + ORBIT_IN_OUT * np.sin(2.0 * math.pi * t / ORBIT_IN_OUT_S))
+        xy = home + radius[:, None] * np.column_stack([np.cos(angle), np.sin(angle)])
+        targets = np.column_stack([np.clip(xy, low, high), np.zeros(n)])
     else:
         away = centre - rov_xy
         norm = np.linalg.norm(away, axis=1, keepdims=True)
@@ -583,3 +596,9 @@ def asv_motion(
 
 
 SPIN_RAD_S = 2.0 * math.pi / 60.0  # the calibration manoeuvre: one turn a minute
+# The range-offset manoeuvre: one swing there and back, 75 deg to either side, while the
+# distance goes in and out by 30 % twice.
+ORBIT_PERIOD_S = 120.0
+ORBIT_SWING_DEG = 75.0
+ORBIT_IN_OUT = 0.3
+ORBIT_IN_OUT_S = 60.0

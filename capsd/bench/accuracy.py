@@ -156,7 +156,12 @@ def _self_calibrate(
     The ASV turns on the spot while the ROV floats at the surface before its dive. Another
     dive of the same installation and autopilot boot (its own seed; the errors shared).
     """
-    from capsd.bench.calibrate import calibration_dive, wanted_correction, wanted_depth_offset
+    from capsd.bench.calibrate import (
+        calibration_dive,
+        range_offset_dive,
+        wanted_correction,
+        wanted_depth_offset,
+    )
     from capsd.calibrate import applied, tape_prior
     from capsd.depth_calibration import fit_depth_offset
     from capsd.mount_calibration import fit_mount
@@ -177,7 +182,7 @@ def _self_calibrate(
     fit = fit_mount(seen, mount=located.sonar, tank=located.tank)
     depth = fit_depth_offset(dive.depths, dive.attitudes, rov=located.rov)
     want_yaw, want_roll, want_y = wanted_correction(manoeuvre, seen)
-    summary = {
+    summary: dict[str, Any] = {
         "yaw_deg": round(fit.yaw_deg, 3),
         "yaw_wanted_deg": round(want_yaw, 3),
         "yaw_sigma_deg": round(fit.yaw_sigma_deg, 3),
@@ -198,7 +203,19 @@ def _self_calibrate(
             if ok
         ],
     }
-    cal = applied(config.sonar, located.rov, tape_prior(config.install_errors), fit, depth)
+    prior = tape_prior(config.install_errors)
+    cal = applied(config.sonar, located.rov, prior, fit, depth)
+    # Then, told that, the range offset: the ROV parked while the ASV swings round it.
+    ranged = range_offset_dive(manoeuvre, mount=cal.mount, rov=cal.rov, duration_s=CALIBRATION_S)
+    summary |= {
+        "along_mm": round(ranged.fit.along_m * 1000, 1),
+        "along_wanted_mm": round(ranged.wanted_along_m * 1000, 1),
+        "along_sigma_mm": round(ranged.fit.along_sigma_m * 1000, 1),
+        "x_drawn_mm": round(ranged.drawn_x_m * 1000, 1),
+    }
+    if ranged.fit.determined:
+        summary["determined"].append("along")
+    cal = applied(config.sonar, located.rov, prior, fit, depth, ranged.fit)
     return cal.mount, cal.rov, cal.installation, summary
 
 
@@ -338,14 +355,16 @@ def self_calibrated_report(figures: dict[str, Any]) -> list[str]:
         "Each run's installation calibrated from another dive of it: the ASV turning on the "
         f"spot for {CALIBRATION_S:g} s while the ROV floats at the surface, fitted by `capsd "
         "calibrate`'s code (the sonar mount from the walls, the depth reading's offset from "
-        "the float); what it determined is given to both methods (the baseline also keeps its "
-        "box-range correction). On common pings, 95 % block-bootstrap intervals.",
+        "the float), then, told that, the ROV parked while the ASV swings round it (the range "
+        "offset along the line of sight: `capsd calibrate --what range`); what they "
+        "determined is given to both methods (the baseline also keeps its box-range "
+        "correction). On common pings, 95 % block-bootstrap intervals.",
         "",
         "| run | yaw fitted / wanted deg | roll fitted / wanted deg | y fitted / wanted mm "
-        "| depth offset fitted / wanted mm "
+        "| depth offset fitted / wanted mm | range offset fitted / wanted mm "
         "| ours uncalibrated MED mm | ours MED mm | baseline MED mm | ratio "
         f"| ours <= {MAX_MED_MM:g} mm | ratio <= {MAX_RATIO:g} | ours NEES mean, within 95 % |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|:-:|:-:|---:|",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|:-:|:-:|---:|",
     ]
     all_met = True
     for name, c in figures["common_self_calibrated"].items():
@@ -353,7 +372,7 @@ def self_calibrated_report(figures: dict[str, Any]) -> list[str]:
         before = figures["runs"][name][OURS].get("med_mm")
         if "ratio" not in c:
             lines.append(
-                f"| {name} | - | - | - | - | {before} | - | - | - | NOT met | NOT met | - |"
+                f"| {name} | - | - | - | - | - | {before} | - | - | - | NOT met | NOT met | - |"
             )
             all_met = False
             continue
@@ -365,6 +384,7 @@ def self_calibrated_report(figures: dict[str, Any]) -> list[str]:
             f"| {cal['roll_deg']} / {cal['roll_wanted_deg']} "
             f"| {cal['y_mm']} / {cal['y_wanted_mm']} "
             f"| {cal.get('depth_offset_mm', '-')} / {cal.get('depth_offset_wanted_mm', '-')} "
+            f"| {cal.get('along_mm', '-')} / {cal.get('along_wanted_mm', '-')} "
             f"| {before} | {c['ours_med_mm']} {_ci(c['ours_med_ci_mm'])} "
             f"| {c['other_med_mm']} {_ci(c['other_med_ci_mm'])} "
             f"| {c['ratio']} {_ci(c['ratio_ci'])} | {verdicts} "

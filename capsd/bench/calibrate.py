@@ -15,15 +15,19 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
 
+from capsd.calibrate import applied
 from capsd.depth_calibration import fit_depth_offset
 from capsd.geometry import matrix_to_euler_zyx
 from capsd.mount_calibration import Observation, corrected, fit_mount
+from capsd.mounts import RovConfig, SonarMountConfig
 from capsd.offline_pipeline import Variant, locator_config, run
-from capsd.payloads import AsvPose, Payload, RovAttitude, RovDepth, SonarFrame
+from capsd.payloads import AsvPose, Payload, RovAttitude, RovDepth, RovFix, SonarFrame
 from capsd.pose_lookup import PoseLookup
 from capsd.progress import Progress
+from capsd.range_calibration import RangeFit, fit_range_offset
 from capsd.simulator.config import OFFLINE_START_NS, Rates
 from capsd.simulator.config import Config as SimConfig
 from capsd.simulator.install_errors import InstallErrorsConfig
@@ -114,6 +118,61 @@ def wanted_correction(
     return math.degrees(float(yaw)), math.degrees(float(roll)), float(np.mean(shifts))
 
 
+@dataclass(frozen=True)
+class RangeDive:
+    """The range-offset manoeuvre's fit, and what it should find."""
+
+    fit: RangeFit
+    wanted_along_m: float  # the fixes' mean offset from the truth along the line of sight
+    drawn_x_m: float  # the sonar's own forward error (only part of what the fit takes)
+
+
+def range_offset_dive(
+    config: SimConfig, *, mount: SonarMountConfig, rov: RovConfig, duration_s: float
+) -> RangeDive:
+    """The ROV parked, the ASV swinging round it, the locator told the calibrated config.
+
+    What the fit should find is what the fixes truly are off along the line of sight (from the
+    simulator's truth), not the sonar's drawn forward error alone: the detector's range bias
+    and what the depth reading and the sonar's height do along the sight are in it too.
+    """
+    orbit = msgspec.structs.replace(
+        config,
+        trajectory="square",
+        asv_mode="orbit",
+        rov_mode="parked",
+        asv_standoff_m=None,
+        rates=Rates(sonar_hz=5.0),
+    )
+    poses: list[AsvPose] = []
+    fixes: list[RovFix] = []
+
+    def keep(payload: Payload) -> None:
+        if isinstance(payload, AsvPose):
+            poses.append(payload)
+        elif isinstance(payload, RovFix):
+            fixes.append(payload)
+
+    scored = run(
+        orbit, duration_s=duration_s, variants=[Variant("ours", sonar=mount, rov=rov)], sink=keep
+    )["ours"]
+    lookup = PoseLookup(poses)
+    transform = mount.transform()
+    fit = fit_range_offset(fixes, lookup, mount=transform)
+    along = []
+    for ping in scored.pings:
+        asv = lookup.at(ping.stamp_ns)
+        if ping.raw_m is None or asv is None:
+            continue
+        sonar = asv.compose(transform).translation[:2]
+        raw = np.asarray(ping.raw_m)[:2]
+        sight = (raw - sonar) / np.linalg.norm(raw - sonar)
+        along.append(float((raw - np.asarray(ping.truth_m)[:2]) @ sight))
+    world = Simulation(orbit, horizon_s=10.0)
+    drawn_x = float(world.mount.translation[0] - config.sonar.transform().translation[0])
+    return RangeDive(fit, float(np.mean(along)) if along else math.nan, drawn_x)
+
+
 def bench(
     *, seeds: int, duration_s: float, tank: TankName, trajectory: TrajectoryName, out: Path | None
 ) -> dict[str, Any]:
@@ -140,6 +199,10 @@ def bench(
         shift_error_m = abs(fit.shift_y_m - want_y)
         depth = fit_depth_offset(dive.depths, dive.attitudes, rov=loc.rov)
         want_depth = wanted_depth_offset(config, dive)
+        # Then, told what that determined, the range offset from a parked ROV.
+        cal = applied(loc.sonar, loc.rov, loc.installation, fit, depth)
+        # As long as the turn (120 s: one swing there and back, ORBIT_PERIOD_S).
+        ranged = range_offset_dive(config, mount=cal.mount, rov=cal.rov, duration_s=duration_s)
         rows.append(
             {
                 "seed": config.seed,
@@ -161,6 +224,14 @@ def bench(
                 "depth_offset_sigma_mm": round(depth.sigma_m * 1000, 1),
                 "depth_offset_error_mm": round((depth.offset_m - want_depth) * 1000, 1),
                 "depth_offset_determined": depth.determined,
+                "wanted_along_mm": round(ranged.wanted_along_m * 1000, 1),
+                "fitted_along_mm": round(ranged.fit.along_m * 1000, 1),
+                "along_sigma_mm": round(ranged.fit.along_sigma_m * 1000, 1),
+                "along_error_mm": round((ranged.fit.along_m - ranged.wanted_along_m) * 1000, 1),
+                "along_determined": ranged.fit.determined,
+                "drawn_x_mm": round(ranged.drawn_x_m * 1000, 1),
+                "orbit_spread_deg": round(ranged.fit.spread_deg, 1),
+                "orbit_fixes": ranged.fit.fixes,
                 "measurements": fit.measurements,
                 "yaw_determined": fit.yaw_determined,
                 "roll_determined": fit.roll_determined,
@@ -177,13 +248,15 @@ def bench(
     roll_err = float(np.mean([abs(r["roll_error_deg"]) for r in rows]))
     shift_err = float(np.mean([r["shift_error_mm"] for r in rows]))
     depth_err = float(np.mean([abs(r["depth_offset_error_mm"]) for r in rows]))
+    along_err = float(np.mean([abs(r["along_error_mm"]) for r in rows]))
     print(
         f"{tank}/{trajectory}, {seeds} seeds, {duration_s:g} s each, realistic installation "
         "errors; corrections in degrees (wanted: what the hidden errors call for)"
     )
     print(f"{'seed':>5} {'yaw want':>9} {'fitted':>8} {'sigma':>6} {'roll want':>10} "
           f"{'fitted':>8} {'sigma':>6} {'y err mm':>9} {'scale':>7} {'edges':>6} "
-          f"{'depth off want mm':>17} {'fitted':>7} {'sigma':>6}")  # fmt: skip
+          f"{'depth off want mm':>17} {'fitted':>7} {'sigma':>6} "
+          f"{'along want mm':>13} {'fitted':>7} {'sigma':>6} {'drawn x':>8}")  # fmt: skip
     for r in rows:
         print(
             f"{r['seed']:>5} {r['wanted_yaw_deg']:>9.3f} {r['fitted_yaw_deg']:>8.3f} "
@@ -191,7 +264,9 @@ def bench(
             f"{r['fitted_roll_deg']:>8.3f} {r['roll_sigma_deg']:>6.3f} "
             f"{r['shift_error_mm']:>9.1f} {r['range_scale']:>7.4f} "
             f"{r['measurements']:>6} {r['wanted_depth_offset_mm']:>17.1f} "
-            f"{r['fitted_depth_offset_mm']:>7.1f} {r['depth_offset_sigma_mm']:>6.1f}"
+            f"{r['fitted_depth_offset_mm']:>7.1f} {r['depth_offset_sigma_mm']:>6.1f} "
+            f"{r['wanted_along_mm']:>13.1f} {r['fitted_along_mm']:>7.1f} "
+            f"{r['along_sigma_mm']:>6.1f} {r['drawn_x_mm']:>8.1f}"
         )
     print(
         f"mean |yaw error| {yaw_err:.3f} deg (target <= {YAW_TARGET_DEG}: "
@@ -200,7 +275,8 @@ def bench(
         f"{'met' if roll_err <= TILT_TARGET_DEG else 'NOT met'}); mean position error "
         f"{shift_err:.1f} mm sideways (target <= {SHIFT_TARGET_MM:g}: "
         f"{'met' if shift_err <= SHIFT_TARGET_MM else 'NOT met'}); mean |depth offset error| "
-        f"{depth_err:.1f} mm (the ROV floating at the surface); pitch, x and z not "
+        f"{depth_err:.1f} mm (the ROV floating at the surface); mean |range offset error| "
+        f"{along_err:.1f} mm (the ROV parked, the ASV swinging round it); pitch and z not "
         f"determined (said so); {time.monotonic() - started:.0f} s"
     )
     figures = {
@@ -212,6 +288,7 @@ def bench(
         "mean_abs_roll_error_deg": round(roll_err, 4),
         "mean_shift_error_mm": round(shift_err, 2),
         "mean_abs_depth_offset_error_mm": round(depth_err, 2),
+        "mean_abs_along_error_mm": round(along_err, 2),
     }
     if out is not None:
         out.parent.mkdir(parents=True, exist_ok=True)

@@ -67,7 +67,10 @@ def register(sub: Subcommands) -> None:
         "ROV's depth readings from a stretch of it floating at the surface (each boot of the "
         "autopilot zeroes its depth anew: redo `--what depth` after each); print each "
         "estimate with its uncertainty and whether the data determined it; write a copy of "
-        "the locator config with what was determined (docs/INSTALL-ERRORS.md).",
+        "the locator config with what was determined (docs/INSTALL-ERRORS.md). Then, with "
+        "that config, `--what range` on a recording of the ROV parked while the ASV swings "
+        "round it facing it: the sonar's forward position from the fixes' offset along the "
+        "line of sight.",
     )
     cal.add_argument("recording", type=Path, help="an MCAP recording with frames and ASV poses")
     cal.add_argument(
@@ -79,9 +82,10 @@ def register(sub: Subcommands) -> None:
     cal.add_argument("-o", "--out", type=Path, required=True, help="the calibrated config")
     cal.add_argument(
         "--what",
-        choices=("all", "mount", "depth"),  # capsd.calibrate.What
+        choices=("all", "mount", "depth", "range"),  # capsd.calibrate.What
         default="all",
         help="mount: the sonar mount only; depth: the depth offset only (no sonar frames "
-        "needed); all (default): both",
+        "needed); all (default): both; range: the sonar's forward position from the fixes "
+        "of a parked ROV (a recording made with the calibrated config, the locator running)",
     )
     cal.set_defaults(func=_cmd_calibrate)

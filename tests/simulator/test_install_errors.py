@@ -106,6 +106,23 @@ def test_the_calibration_manoeuvre_turns_the_asv_on_the_spot() -> None:
     assert np.linalg.norm(later.translation[:2] - start.translation[:2]) < 0.2
 
 
+def test_the_range_offset_manoeuvre_swings_the_asv_round_a_parked_rov() -> None:
+    sim = Simulation(Config(asv_mode="orbit", rov_mode="parked", seed=2), horizon_s=130)
+    rov = [sim.rov_state(t).position_m for t in range(0, 121, 5)]
+    assert np.ptp(np.array(rov), axis=0).max() == 0.0  # parked
+    bearings, facing = [], []
+    for t in range(0, 121, 5):
+        asv = sim.asv_pose(float(t))
+        to_rov = rov[0][:2] - asv.translation[:2]
+        bearing = math.atan2(to_rov[1], to_rov[0])
+        bearings.append(bearing)
+        heading = matrix_to_euler_zyx(asv.rotation)[0]
+        facing.append(abs(math.degrees(math.remainder(heading - bearing, math.tau))))
+    # The line of sight turns far enough for capsd.range_calibration, the sonar on the ROV.
+    assert math.degrees(np.ptp(np.unwrap(bearings))) > 60.0
+    assert np.median(facing) < 10.0
+
+
 def test_labels_are_in_the_sonar_s_range_units_as_its_frames() -> None:
     # The label describes the image: with a sound-speed error its ranges are scaled as the
     # frame's are; the truth position stays the truth.

@@ -24,3 +24,7 @@ def test_bench_calibrate_writes_its_figures(tmp_path: Path) -> None:
     # A third of a turn already pins the heading to a few tenths of a degree.
     assert abs(run["yaw_error_deg"]) < 0.3
     assert run["measurements"] > 1000
+    # Then the parked ROV seen from the swinging ASV: a range offset fitted, against the truth.
+    assert "mean |range offset error|" in proc.stdout
+    assert run["orbit_fixes"] > 50
+    assert abs(run["along_error_mm"]) < 30.0
