@@ -38,6 +38,7 @@ CORE = frozenset(
         "capsd.signing",
         "capsd.sonar_geometry",
         "capsd.sonar_image",
+        "capsd.sound_speed",
         "capsd.tank",
         "capsd.topics",
     }
