@@ -237,7 +237,8 @@ class SonarFrame(Payload, frozen=True, kw_only=True):
     azimuths_rad: tuple[float, ...]
     range_start_m: NonNegFloat
     range_resolution_m: PosFloat
-    sound_speed_m_s: PosFloat
+    # The speed of sound the sonar turned echo time into range with; None: it did not say.
+    sound_speed_m_s: Annotated[float, msgspec.Meta(ge=1300.0, le=1800.0)] | None
     gain_percent: Annotated[float, msgspec.Meta(ge=0.0, le=100.0)]
     frequency_hz: PosFloat
     vertical_aperture_rad: PosFloat

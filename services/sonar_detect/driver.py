@@ -68,6 +68,14 @@ class FireConfig(ConfigSection, frozen=True, kw_only=True):
     sample_bits: Literal[8, 16] = 8
     row_gains: Literal["on", "off"] = "off"  # per-row gain prefixes (the driver drops them)
 
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if 0.0 < self.sound_speed_m_s < 1300.0:
+            raise ValueError(
+                "`sound_speed_m_s` must be 0 (the sonar computes it) or 1300-1700 m/s, "
+                f"not {self.sound_speed_m_s:g}"
+            )
+
     def flags(self) -> FireFlag:
         flags = FireFlag.RANGE_IN_METRES | FireFlag.SIMPLE_RETURN
         if self.beams == 512:
@@ -137,7 +145,13 @@ def to_frame(ping: Ping, *, config: Config, stamp_ns: int, seq: int) -> SonarFra
         azimuths_rad=tuple(float(a) for a in azimuths),
         range_start_m=0.0,
         range_resolution_m=ping.range_resolution_m,
-        sound_speed_m_s=ping.sound_speed_m_s if ping.sound_speed_m_s > 0 else 1480.0,
+        # What the ping says it used; else what it was told to use; else unknown (never a
+        # guess: the locator rescales ranges by it).
+        sound_speed_m_s=(
+            ping.sound_speed_m_s
+            if ping.sound_speed_m_s > 0
+            else (config.fire.sound_speed_m_s or None)
+        ),
         gain_percent=min(max(ping.gain_percent, 0.0), 100.0),
         frequency_hz=ping.frequency_hz if ping.frequency_hz > 0 else 1.2e6,
         vertical_aperture_rad=float(np.radians(config.vertical_aperture_deg)),

@@ -60,6 +60,7 @@ def test_the_sensors_report_what_an_installation_with_errors_would() -> None:
         if isinstance(p, SonarFrame) and isinstance(q, SonarFrame):
             assert p.range_resolution_m == pytest.approx(q.range_resolution_m / scale)
             # The speed it assumed, reported with the frame; the water's when nothing is off.
+            assert q.sound_speed_m_s is not None
             assert q.sound_speed_m_s == pytest.approx(speed_of_sound_m_s(24.0, salinity_ppt=0.0))
             assert p.sound_speed_m_s == pytest.approx(q.sound_speed_m_s / scale)
             frames += 1

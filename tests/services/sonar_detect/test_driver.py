@@ -256,3 +256,30 @@ def test_fire_config_names_each_flag() -> None:
     assert FireConfig(sample_bits=16).flags() & FireFlag.DATA_16BIT
     assert FireConfig(row_gains="on").flags() & FireFlag.SEND_GAINS
     assert FireConfig().settings().flags == FireConfig().flags()
+
+
+def test_a_frame_carries_the_speed_of_sound_the_ping_used_and_never_a_guess() -> None:
+    from capsd.protocols.oculus import build_ping_result
+    from capsd.services.sonar_detect.driver import Config as DriverConfig
+    from capsd.services.sonar_detect.driver import FireConfig, to_frame
+
+    def frame(*, reported_m_s: float, told_m_s: float) -> SonarFrame:
+        ping = parse_ping(
+            build_ping_result(
+                version=2,
+                ping_id=1,
+                bearings_cdeg=np.linspace(-6500, 6500, 8).astype(np.int16),
+                image=np.zeros((16, 8), dtype=np.uint8),
+                sound_speed_m_s=reported_m_s,
+            )
+        )
+        config = DriverConfig(fire=FireConfig(sound_speed_m_s=told_m_s))
+        return to_frame(ping, config=config, stamp_ns=1, seq=1)
+
+    assert frame(reported_m_s=1493.5, told_m_s=0.0).sound_speed_m_s == 1493.5
+    # A ping that does not say: the speed it was told to use, else unknown (the locator then
+    # keeps the sonar's ranges and counts the ping), never an assumed 1480.
+    assert frame(reported_m_s=0.0, told_m_s=1500.0).sound_speed_m_s == 1500.0
+    assert frame(reported_m_s=0.0, told_m_s=0.0).sound_speed_m_s is None
+    with pytest.raises(ValueError, match="sound_speed_m_s"):
+        FireConfig(sound_speed_m_s=500.0)
