@@ -133,6 +133,7 @@ class AutopilotStandIn:
         mode: str = "POSHOLD",
         autopilot: Autopilot = "ardusub",
         boot_depth_m: float = 0.0,
+        water_temperature_c: float = 18.0,
         on_mode: Callable[[str], None] | None = None,
         on_target: Callable[[PositionTarget], None] | None = None,
         on_estimate: Callable[[VisionPositionEstimate], None] | None = None,
@@ -151,6 +152,7 @@ class AutopilotStandIn:
         # (BARO2_GND_PRESS), `boot_depth_m` under water if it booted there.
         self.air_pressure_pa = self.params["BARO2_GND_PRESS"]
         self.params["BARO2_GND_PRESS"] += boot_depth_m * RHO_G * self.params["BARO_SPEC_GRAV"]
+        self.water_temperature_c = water_temperature_c  # what its Bar30 reads besides pressure
         self.armed = armed
         self.autopilot: Autopilot = autopilot
         mode_number(mode, autopilot)  # a mode this autopilot has, or KeyError now
@@ -266,7 +268,9 @@ class AutopilotStandIn:
         elif msg == message_id("SCALED_PRESSURE2"):
             pressure_pa = self.pressure_pa(state)
             link.send_scaled_pressure2(
-                time_boot_ms=boot_ms, press_abs_hpa=pressure_pa / 100.0, temperature_c=18.0
+                time_boot_ms=boot_ms,
+                press_abs_hpa=pressure_pa / 100.0,
+                temperature_c=self.water_temperature_c,
             )
         elif msg == message_id("SYSTEM_TIME"):
             link.send_system_time(time_unix_usec=0, time_boot_ms=boot_ms)

@@ -140,6 +140,7 @@ def hosted_autopilot(config: Config, rov: GuidedRov, start_ns: int) -> Autopilot
         state=vehicle,
         params=CONFIGURED_PARAMS,
         mode="MANUAL",
+        water_temperature_c=config.water_temperature_c,
         on_mode=rov.set_mode,
         on_target=on_target,
         on_estimate=on_estimate,

@@ -20,7 +20,7 @@ from capsd import topics
 from capsd.codec import Codec
 from capsd.ned import TankToNed
 from capsd.payloads import GroundTruth
-from capsd.protocols.mavlink import Heartbeat, MavLink, mode_name
+from capsd.protocols.mavlink import Heartbeat, MavLink, ScaledPressure, message_id, mode_name
 from tests.conftest import Proc, free_port, wait_for
 
 pytestmark = pytest.mark.integration
@@ -37,6 +37,7 @@ def test_a_guided_target_flies_the_simulated_rov(
     config = tmp_path / "sim.yaml"
     config.write_text(
         f"bus:\n  connect: [{endpoint}]\ntank: nfp\nasv_mode: stationary\n"
+        "water_temperature_c: 27.5\n"
         "streams: {sonar_frames: 'off', lidar: 'off', imu: 'off'}\n"
         f"guided:\n  port: {port}\n  ned_heading_deg: 40.0\n  ned_origin_m: [2.0, -1.0, 0.0]\n"
         f"  start_m: {list(START)}\n  max_speed_m_s: 0.5\n"
@@ -64,6 +65,7 @@ def _fly(port: int, truths: list[GroundTruth]) -> None:
 
     link = MavLink(f"tcp:127.0.0.1:{port}", system_id=1, component_id=197)
     modes: list[str] = []
+    temperatures: list[float] = []
     with link:  # the stand-in listens before the simulator publishes anything
 
         def estimate() -> None:
@@ -78,10 +80,15 @@ def _fly(port: int, truths: list[GroundTruth]) -> None:
             while (received := link.recv(timeout_s=0.0)) is not None:
                 if isinstance(received.message, Heartbeat):
                     modes.append(mode_name(received.message.custom_mode))
+                elif isinstance(received.message, ScaledPressure):
+                    temperatures.append(received.message.temperature_c)
 
         for _ in range(5):
             estimate()
             time.sleep(0.05)
+        link.send_set_message_interval(
+            target_system=1, message_id=message_id("SCALED_PRESSURE2"), rate_hz=5.0
+        )
         link.send_set_mode(target_system=1, mode="GUIDED")
         north, east, down = NED.position(np.array(TARGET))
         link.send_position_target(
@@ -95,6 +102,9 @@ def _fly(port: int, truths: list[GroundTruth]) -> None:
 
         wait_for(arrived, timeout_s=30, what="the ROV at the GUIDED target")
         assert "GUIDED" in modes  # the stand-in reports the mode it took
+        # Its Bar30 reads the simulated water's temperature (the locator rescales ranges by it).
+        assert temperatures
+        assert set(temperatures) == {27.5}
         # POSHOLD: it stops where it is.
         link.send_set_mode(target_system=1, mode="POSHOLD")
         time.sleep(2.0)
