@@ -134,7 +134,10 @@ def range_offset_dive(
 
     What the fit should find is what the fixes truly are off along the line of sight (from the
     simulator's truth), not the sonar's drawn forward error alone: the detector's range bias
-    and what the depth reading and the sonar's height do along the sight are in it too.
+    and what the depth reading and the sonar's height do along the sight are in it too. Less
+    the ASV pose estimate's own position error along the sight: that error is the same
+    whichever way the sonar looks (the fit rightly takes it as the ROV's place), and moving
+    the sonar would not remove it.
     """
     orbit = msgspec.structs.replace(
         config,
@@ -159,6 +162,7 @@ def range_offset_dive(
     lookup = PoseLookup(poses)
     transform = mount.transform()
     fit = fit_range_offset(fixes, lookup, mount=transform)
+    world = Simulation(orbit, horizon_s=duration_s + 10.0)
     along = []
     for ping in scored.pings:
         asv = lookup.at(ping.stamp_ns)
@@ -167,8 +171,9 @@ def range_offset_dive(
         sonar = asv.compose(transform).translation[:2]
         raw = np.asarray(ping.raw_m)[:2]
         sight = (raw - sonar) / np.linalg.norm(raw - sonar)
-        along.append(float((raw - np.asarray(ping.truth_m)[:2]) @ sight))
-    world = Simulation(orbit, horizon_s=10.0)
+        true_asv = world.asv_pose((ping.stamp_ns - OFFLINE_START_NS) / 1e9).translation[:2]
+        off = raw - np.asarray(ping.truth_m)[:2] - (asv.translation[:2] - true_asv)
+        along.append(float(off @ sight))
     drawn_x = float(world.mount.translation[0] - config.sonar.transform().translation[0])
     return RangeDive(fit, float(np.mean(along)) if along else math.nan, drawn_x)
 
