@@ -194,10 +194,11 @@ class Simulation:
             config.imu_model(), config.imu_mounting().rotation, np.random.default_rng(seeds[-2])
         )
         self.lever_arm = np.array(config.rov.pressure_sensor_m) + self.errors.pressure_arm_m
-        # The water's true speed of sound (the frames report the one the sonar assumes).
+        # The water's true speed of sound, and the one the sonar assumes (and reports).
         self.sound_speed_m_s = speed_of_sound_m_s(
             config.water_temperature_c, salinity_ppt=config.water_salinity_ppt
         )
+        self.sonar_sound_speed_m_s = self.sound_speed_m_s / self.errors.sound_speed_scale
         self._clock_rng = clock_rng
         self._seq: dict[str, int] = {}
         # Real time only: says whether a ping at sim time t is already too late to render
@@ -425,7 +426,7 @@ class Simulation:
                 frame,
                 range_start_m=frame.range_start_m / scale,
                 range_resolution_m=frame.range_resolution_m / scale,
-                sound_speed_m_s=self.sound_speed_m_s / scale,
+                sound_speed_m_s=self.sonar_sound_speed_m_s,
             )
             yield Event(t, topics.SONAR_FRAME, cfg.asv_vehicle, frame)
         else:
@@ -448,7 +449,7 @@ class Simulation:
                     ping_id=ping,
                     detector="sim_truth_noise",
                     detections=(found,) if found is not None else (),
-                    sound_speed_m_s=self.sound_speed_m_s / self.errors.sound_speed_scale,
+                    sound_speed_m_s=self.sonar_sound_speed_m_s,
                 ),
             )
         yield Event(

@@ -568,7 +568,8 @@ def asv_motion(
     elif mode == "orbit":
         t = np.arange(n) * dt
         home = rov_xy[0]
-        side = math.atan2(*(centre - home)[::-1]) if np.linalg.norm(centre - home) > 0.5 else 0.0
+        inward = centre - home
+        side = math.atan2(inward[1], inward[0]) if np.linalg.norm(inward) > 0.5 else 0.0
         angle = side + math.radians(ORBIT_SWING_DEG) * np.sin(2.0 * math.pi * t / ORBIT_PERIOD_S)
         # In and out as well, so that the ROV is seen at several depression angles.
         radius = standoff_m * (1.0 + ORBIT_IN_OUT * np.sin(2.0 * math.pi * t / ORBIT_IN_OUT_S))

@@ -123,7 +123,9 @@ class RangeDive:
     """The range-offset manoeuvre's fit, and what it should find."""
 
     fit: RangeFit
-    wanted_along_m: float  # the fixes' mean offset from the truth along the line of sight
+    # The fixes' mean offset from the truth along the line of sight, less the ASV pose
+    # estimate's own position error along it (range_offset_dive says why).
+    wanted_along_m: float
     drawn_x_m: float  # the sonar's own forward error (only part of what the fit takes)
 
 
