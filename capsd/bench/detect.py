@@ -222,8 +222,16 @@ def _score(tally: Tally, label: SonarLabel, found: list[Detection]) -> None:
             tally.ghost_alarms += 1
 
 
-def _detectors(which: str, weights: list[Path] | None = None) -> dict[str, Detector]:
-    """The detectors by name; one CNN pair per weights file ('cnn (FOLDER)'), or the shipped."""
+SearchRefines = Literal["proposals", "proposals_and_track"]
+
+
+def _detectors(
+    which: str, weights: list[Path] | None = None, *, search_refines: SearchRefines = "proposals"
+) -> dict[str, Detector]:
+    """The detectors by name; one CNN pair per weights file ('cnn (FOLDER)'), or the shipped.
+
+    `search_refines` is the service's `cnn.search_refines` for the CNN with its settings.
+    """
     from dataclasses import replace
 
     from capsd.services.sonar_detect.classical import ClassicalDetector
@@ -237,7 +245,9 @@ def _detectors(which: str, weights: list[Path] | None = None) -> dict[str, Detec
         choices: list[Path | None] = list(weights) if weights else [None]
         for path in choices:
             name = "cnn" if path is None else f"cnn ({path.parent.name})"
-            service = CnnSettings() if path is None else CnnSettings(weights=path)
+            service = CnnSettings(search_refines=search_refines)
+            if path is not None:
+                service = replace(service, weights=path)
             # The service's settings (tracking between whole-frame searches, the track's
             # prior), and the network searching every frame alone (the weights' evaluation).
             out[name] = CnnDetector(service).detect
@@ -293,8 +303,9 @@ def run(
     fixtures: Path | None = None,
     weights: list[Path] | None = None,
     json_out: Path | None = None,
+    search_refines: SearchRefines = "proposals",
 ) -> int:
-    detectors = _detectors(which, weights)
+    detectors = _detectors(which, weights, search_refines=search_refines)
     tallies = evaluate(detectors, duration_s=duration_s)
     if json_out is not None:
         json_out.parent.mkdir(parents=True, exist_ok=True)
@@ -334,17 +345,20 @@ def run(
     return 0
 
 
-def sweep_prior(priors: list[float], *, duration_s: float) -> int:
+def sweep_prior(
+    priors: list[float], *, duration_s: float, search_refines: SearchRefines = "proposals"
+) -> int:
     """The hysteresis prior on the validation runs (never the bench's), both kinds of look."""
     from capsd.services.sonar_detect.cnn import CnnDetector, CnnSettings
     from capsd.train.detector import VALIDATION_RUNS
 
     print(
-        f"validation runs (seeds {', '.join(str(r[3]) for r in VALIDATION_RUNS)}), {duration_s:g} s"
+        f"validation runs (seeds {', '.join(str(r[3]) for r in VALIDATION_RUNS)}), "
+        f"{duration_s:g} s, search refines {search_refines}"
     )
     print(f"{'prior':>6} {'look':<8} {'detected':>9} {'FA/frame':>9}")
     for prior in priors:
-        detector = CnnDetector(CnnSettings(track_prior_logit=prior))
+        detector = CnnDetector(CnnSettings(track_prior_logit=prior, search_refines=search_refines))
         tallies = evaluate(
             {"cnn": detector.detect}, duration_s=duration_s, runs=VALIDATION_RUNS,
             looks=("off", "train"),

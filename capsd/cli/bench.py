@@ -38,7 +38,9 @@ def _cmd_bench_detect(args: argparse.Namespace) -> int:
     if args.throughput:
         return detect.run_throughput(frames=args.frames, which=args.detector)
     if args.prior_sweep:
-        return detect.sweep_prior(args.prior_sweep, duration_s=args.duration)
+        return detect.sweep_prior(
+            args.prior_sweep, duration_s=args.duration, search_refines=args.search_refines
+        )
     for weights in args.weights or []:
         if not weights.is_file():
             return fail(f"bench detect: --weights {weights}: no such file", EXIT_CONFIG)
@@ -48,6 +50,7 @@ def _cmd_bench_detect(args: argparse.Namespace) -> int:
         fixtures=args.fixtures,
         weights=args.weights,
         json_out=args.json,
+        search_refines=args.search_refines,
     )
 
 
@@ -200,6 +203,13 @@ def register(sub: Subcommands) -> None:
         metavar="PT",
         help="CNN weights to compare in one run (default: the shipped ones), each named by "
         "its folder",
+    )
+    bdet.add_argument(
+        "--search-refines",
+        choices=("proposals", "proposals_and_track"),
+        default="proposals",
+        help="the service's cnn.search_refines for the CNN with its settings (default: "
+        "%(default)s)",
     )
     bdet.set_defaults(func=_cmd_bench_detect)
     bft = bench_sub.add_parser(

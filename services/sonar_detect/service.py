@@ -61,6 +61,9 @@ class CnnConfig(ConfigSection, frozen=True, kw_only=True):
     # Added to the logit of a candidate that continues a detection of the last ping (<= 0.2 s
     # before, within 0.3 m): hysteresis, so a ROV at the beam's edge is not dropped. 0: none.
     track_prior_logit: Annotated[float, msgspec.Meta(ge=0.0, le=10.0)] = 1.0
+    # What a whole-frame search refines: the proposals, or also the last ping's tracked ROV
+    # (keeps a far, faint ROV the proposals rank below clutter; more false alarms kept too).
+    search_refines: Literal["proposals", "proposals_and_track"] = "proposals"
     threads: Annotated[int, msgspec.Meta(ge=1, le=64)] = 1
 
 
@@ -152,6 +155,7 @@ def make_detector(config: Config) -> Detector:
         threads=c.threads,
         search_every_s=c.search_every_s,
         track_prior_logit=c.track_prior_logit,
+        search_refines=c.search_refines,
         track_confidence=config.min_confidence,
     )
     try:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -82,7 +83,7 @@ def test_tracks_between_whole_frame_searches() -> None:
     sonar = Transform(euler_zyx_to_matrix(0.0, math.radians(30.0), 0.0), np.array([6.0, 8.0, -0.2]))
     # The mechanics under test (when to search, when to track, the same answer) do not depend
     # on the shipped prior's value: a fixed 2.0 keeps this ROV confident in every ping.
-    tracking = CnnDetector(CnnSettings(track_prior_logit=2.0))
+    tracking = CnnDetector(CnnSettings(track_prior_logit=2.0, search_refines="proposals_and_track"))
     every_frame = CnnDetector(CnnSettings(search_every_s=0.0, track_prior_logit=2.0))
 
     def frame_at(k: int, *, rov: bool = True) -> tuple[SonarFrame, float]:
@@ -126,6 +127,26 @@ def test_tracks_between_whole_frame_searches() -> None:
     assert (tracking.searches, tracking.tracked) == (4, 10)
     tracking.detect(frame_at(2)[0])
     assert tracking.searches == 5
+
+    # With `search_refines: proposals_and_track`, a whole-frame search whose proposals miss the
+    # tracked ROV (as they do for a far, faint echo among brighter clutter; here none are
+    # allowed) still refines it; with `proposals` (the default) the track ends there. Without
+    # a track to continue, nothing is found.
+    for k in (3, 4):
+        tracking.detect(frame_at(k)[0])
+    proposals_only = CnnDetector(CnnSettings(track_prior_logit=2.0))
+    for k in (2, 3, 4):
+        proposals_only.detect(frame_at(k)[0])
+    frame, range_m = frame_at(8)  # 0.1 s after the last search: searched whole
+    for detector in (tracking, proposals_only):
+        detector.settings = replace(detector.settings, max_candidates=0)
+    searches = tracking.searches
+    kept = [d for d in tracking.detect(frame) if d.confidence > 0.5]
+    assert tracking.searches == searches + 1
+    assert kept, "the tracked ROV must survive a search that does not propose it"
+    assert abs(kept[0].range_m - range_m) < 0.05
+    assert not proposals_only.detect(frame)
+    assert not CnnDetector(replace(tracking.settings)).detect(frame)
 
 
 def test_shipped_weights_are_small_and_documented() -> None:
