@@ -5,9 +5,8 @@ Channels (open ws://HOST:PORT in Foxglove; `deploy/foxglove/capsd-layout.json` a
   the dialect viewers accept (fixes, poses, detections, depth, Health of every service...);
 - the operator's scene (capsd.scene, the same derivation `capsd record` writes): transforms,
   the tank with its fixtures, the vehicles, the sonar's field of view, the fix with its
-  covariance, trails, the LiDAR scan, the services' logs, and the sonar fan as JPEG (at most
-  `fan_hz`, so a 40 Hz sonar does not flood a laptop's link);
-- `/capsd/tank_map`: the tank from above (its fixtures, the ASV's and the ROV's trails), 1 Hz.
+  covariance, trails, the LiDAR scan, the services' logs, the sonar fan as JPEG (at most
+  `fan_hz`, so a 40 Hz sonar does not flood a laptop's link) and the tank from above (1 Hz).
 The tank and the sonar mount come from the locator's config: the services' own description.
 Bad payloads are counted (and shown in the console), never forwarded.
 """
@@ -29,11 +28,9 @@ from capsd.codec import decode_any, to_builtins
 from capsd.errors import PayloadError
 from capsd.keys import is_concrete
 from capsd.payloads import SonarDetections, SonarFrame
-from capsd.scene import TOPIC_TYPES, ImageFormat, SceneView, ViewSettings, encode_image
+from capsd.scene import TOPIC_TYPES, ImageFormat, SceneView, ViewSettings
 from capsd.tank import TankBounds
 from capsd.viewer_schema import viewer_schema, without_nulls
-
-TANK_MAP = "/capsd/tank_map"
 
 
 def view_settings(
@@ -71,7 +68,22 @@ def make_view(settings: ViewSettings) -> SceneView:
 
         return fan_with_overlays(frame, None, detections)
 
-    return SceneView(settings, fan=fan)
+    def tank_map(tank: TankBounds, asv: list[fm.Pose], rov: list[fm.Pose]) -> Any:
+        from capsd.simulator.render import top_view
+        from capsd.simulator.world import Box, Tank
+
+        site = Tank(
+            "site", tank.length_m, tank.width_m, tank.depth_m, 1.0,
+            boxes=tuple(Box(f.lo_m, f.hi_m, f.name) for f in tank.fixtures),
+        )  # fmt: skip
+
+        def xy(poses: list[fm.Pose]) -> np.ndarray:
+            points = [(p.position.x, p.position.y) for p in reversed(poses)]  # newest marked
+            return np.array(points) if points else np.full((1, 2), -1000.0)
+
+        return top_view(site, xy(rov), xy(asv), px_per_m=20.0)
+
+    return SceneView(settings, fan=fan, tank_map=tank_map)
 
 
 class LiveView:
@@ -88,13 +100,11 @@ class LiveView:
         self.lock = threading.Lock()
         self.counts: Counter[str] = Counter()
         self.frame: SonarFrame | None = None
-        self._last_map = 0.0
         self.last_error = ""
         # The view's own channels exist before any client connects: a channel created while a
         # client is connected is advertised to it in a race with the server's own bookkeeping
         # (foxglove-sdk 0.30: a subscribe sent at once can get "Unknown channel ID").
-        fixed: dict[str, type[msgspec.Struct]] = {**TOPIC_TYPES, TANK_MAP: fm.CompressedImage}
-        for topic, cls in fixed.items():
+        for topic, cls in TOPIC_TYPES.items():
             self._channel(topic, cls, fm.SCHEMA_NAMES[cls])
 
     def on_sample(self, sample: zenoh.Sample) -> None:
@@ -148,38 +158,12 @@ class LiveView:
 
     def tick(self) -> None:
         """Draw the fan and the map when due (called from the main loop)."""
-        now = time.monotonic()
         with self.lock:
             frame, self.frame = self.frame, None
         if frame is not None:
             messages = self.scene.on_payload("", frame)
             with self.lock:
                 self._view(messages)
-        if now - self._last_map >= 1.0:
-            self._last_map = now
-            image = self._map_image()
-            stamp = fm.foxglove_time(time.time_ns())
-            with self.lock:
-                self._view([(TANK_MAP, fm.CompressedImage(
-                    timestamp=stamp, frame_id="tank", data=encode_image(image, "png", 0),
-                    format="png"))])  # fmt: skip
-
-    def _map_image(self) -> Any:
-        from capsd.simulator.render import top_view
-        from capsd.simulator.world import Box, Tank
-
-        tank = self.settings.tank
-        site = Tank(
-            self.site, tank.length_m, tank.width_m, tank.depth_m, 1.0,
-            boxes=tuple(Box(f.lo_m, f.hi_m, f.name) for f in tank.fixtures),
-        )  # fmt: skip
-        asv, rov = self.scene.trails()
-
-        def xy(poses: list[fm.Pose]) -> np.ndarray:
-            points = [(p.position.x, p.position.y) for p in reversed(poses)]  # newest marked
-            return np.array(points) if points else np.full((1, 2), -1000.0)
-
-        return top_view(site, xy(rov), xy(asv), px_per_m=20.0)
 
 
 def serve(

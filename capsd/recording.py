@@ -35,6 +35,7 @@ from typing import Any
 import msgspec
 import zenoh
 from mcap.reader import make_reader
+from mcap.summary import Summary
 from mcap.writer import CompressionType, Writer
 
 from capsd.codec import SCHEMAS, decode_any, split_encoding
@@ -270,19 +271,35 @@ def read(path: Path) -> Iterable[Recorded]:
         raise CapsdError(f"{path}: not a readable MCAP recording ({exc})") from exc
 
 
-def channel_counts(path: Path) -> dict[str, int]:
-    """Message count per channel, from the file's summary (what `mcap info` prints)."""
+def summary_of(path: Path) -> Summary:
+    """The file's summary with its statistics (what `mcap info` prints); a clear error else."""
     try:
         with path.open("rb") as stream:
             summary = make_reader(stream).get_summary()
     except FileNotFoundError:
         raise CapsdError(f"{path}: no such recording") from None
-    except Exception as exc:
+    except Exception as exc:  # mcap raises several types for a bad file
         raise CapsdError(f"{path}: not a readable MCAP recording ({exc})") from exc
     if summary is None or summary.statistics is None:
         raise CapsdError(f"{path}: MCAP without a summary (was the recording cut short?)")
+    return summary
+
+
+def channel_counts(path: Path) -> dict[str, int]:
+    """Message count per channel, from the file's summary."""
+    summary = summary_of(path)
+    assert summary.statistics is not None  # summary_of checked it
     counts = summary.statistics.channel_message_counts
     return {summary.channels[cid].topic: n for cid, n in counts.items()}
+
+
+def time_span_ns(path: Path) -> tuple[int, int]:
+    """The first and last log time of a recording, from its summary."""
+    statistics = summary_of(path).statistics
+    assert statistics is not None  # summary_of checked it
+    if statistics.message_count == 0:
+        raise CapsdError(f"{path}: a recording without messages")
+    return statistics.message_start_time, statistics.message_end_time
 
 
 def replay(

@@ -6,13 +6,17 @@ configured with (no second description of the tank), `SceneView` makes Foxglove 
 
 - `/capsd/tf` (FrameTransforms): tank -> asv (the ASV pose), asv -> sonar and asv -> lidar
   (the mounts), tank -> rov (the newest good or unsure fix, the ROV's attitude);
-- `/capsd/scene` (SceneUpdate): the tank's walls, floor and fixtures, the ASV and the ROV as
-  boxes, the sonar's field of view from the frames' geometry, the latest fix with its 2-sigma
-  covariance ellipsoid coloured by quality (green good, amber unsure);
+- SceneUpdates, one topic per kind of entity (a viewer that seeks shows the last message of
+  each topic, so every kind is there at once): `/capsd/tank` the tank's walls, floor and
+  fixtures and the ASV and the ROV as boxes, re-sent every `static_every_s`; `/capsd/fix` the
+  latest fix with its 2-sigma covariance ellipsoid coloured by quality (green good, amber
+  unsure); `/capsd/sonar_fov` the sonar's field of view from the frames' geometry;
 - `/capsd/asv_trail`, `/capsd/rov_trail` (PosesInFrame): the last minute, 2 per second;
 - `/capsd/lidar` (LaserScan) in the LiDAR's frame; `/capsd/log` (Log) from the services' logs;
 - `/capsd/sonar_fan` (CompressedImage, JPEG or PNG): the newest frame as a fan with its
-  detections, at most `fan_hz`.
+  detections, at most `fan_hz`;
+- `/capsd/tank_map` (CompressedImage, PNG): the tank from above with its fixtures and both
+  trails, at most `map_hz` (drawn when a sonar frame comes, as the fan is).
 Rates are limited on the payloads' own stamps, so a recording replays the same scene.
 """
 
@@ -45,21 +49,27 @@ from capsd.payloads import (
 from capsd.tank import TankBounds
 
 TF = "/capsd/tf"
-SCENE = "/capsd/scene"
+TANK = "/capsd/tank"
+FIX = "/capsd/fix"
+SONAR_FOV = "/capsd/sonar_fov"
 ASV_TRAIL = "/capsd/asv_trail"
 ROV_TRAIL = "/capsd/rov_trail"
 LIDAR = "/capsd/lidar"
 LOG = "/capsd/log"
 SONAR_FAN = "/capsd/sonar_fan"
+TANK_MAP = "/capsd/tank_map"
 # Each topic and the one message type it carries.
 TOPIC_TYPES: dict[str, type[msgspec.Struct]] = {
     TF: fm.FrameTransforms,
-    SCENE: fm.SceneUpdate,
+    TANK: fm.SceneUpdate,
+    FIX: fm.SceneUpdate,
+    SONAR_FOV: fm.SceneUpdate,
     ASV_TRAIL: fm.PosesInFrame,
     ROV_TRAIL: fm.PosesInFrame,
     LIDAR: fm.LaserScan,
     LOG: fm.Log,
     SONAR_FAN: fm.CompressedImage,
+    TANK_MAP: fm.CompressedImage,
 }
 TOPICS = tuple(TOPIC_TYPES)
 
@@ -90,6 +100,7 @@ class ViewSettings:
     images: ImageFormat = "jpeg"
     jpeg_quality: int = 75
     fan_hz: float = 2.0
+    map_hz: float = 1.0
     tf_hz: float = 20.0
     trail_s: float = 60.0
     trail_hz: float = 2.0
@@ -132,9 +143,18 @@ class _Every:
 class SceneView:
     """Payloads in (with their keys), Foxglove messages out; `static()` once per file/client."""
 
-    def __init__(self, settings: ViewSettings, *, fan: Callable[..., Any] | None = None):
+    def __init__(
+        self,
+        settings: ViewSettings,
+        *,
+        fan: Callable[..., Any] | None = None,
+        tank_map: Callable[..., Any] | None = None,
+    ):
         self.settings = settings
         self.fan = fan  # (frame, detections) -> an image array (BGR); None: no fan images
+        # (tank, ASV trail, ROV trail) -> an image array (BGR); None: no tank map
+        self.tank_map = tank_map
+        self._map_due = _Every(settings.map_hz if settings.images != "off" else 0.0)
         self._tf = _Every(settings.tf_hz)
         self._asv_trail_due = _Every(settings.trail_hz)
         self._rov_trail_due = _Every(settings.trail_hz)
@@ -210,7 +230,7 @@ class SceneView:
                 cubes=(fm.CubePrimitive(pose=_pose(), size=_vec(BLUEROV2_SIZE_M), color=_ROV),),
             ),
         )
-        return [(SCENE, fm.SceneUpdate(entities=entities))]
+        return [(TANK, fm.SceneUpdate(entities=entities))]
 
     # ------------------------------------------------------------------ payloads
 
@@ -355,7 +375,7 @@ class SceneView:
             texts=(text,),
             metadata=(fm.KeyValuePair(key="quality", value=fix.quality),),
         )
-        out.append((SCENE, fm.SceneUpdate(entities=(entity,))))
+        out.append((FIX, fm.SceneUpdate(entities=(entity,))))
         if fix.quality == "good" and self._rov_trail_due.due(stamp):
             self._rov_trail.append(_pose(position, self._attitude))
             out.append(
@@ -385,7 +405,7 @@ class SceneView:
         out: Out = []
         stamp = frame.stamp_ns
         if self._fov_due.due(stamp):
-            out.append((SCENE, fm.SceneUpdate(entities=(self._fov(frame),))))
+            out.append((SONAR_FOV, fm.SceneUpdate(entities=(self._fov(frame),))))
         if self.fan is not None and self.settings.images != "off" and self._fan_due.due(stamp):
             image = self.fan(frame, self._detections.get(frame.ping_id))
             out.append(
@@ -396,6 +416,19 @@ class SceneView:
                         frame_id="sonar",
                         data=encode_image(image, self.settings.images, self.settings.jpeg_quality),
                         format=self.settings.images,
+                    ),
+                )
+            )
+        if self.tank_map is not None and self.settings.images != "off" and self._map_due.due(stamp):
+            image = self.tank_map(self.settings.tank, *self.trails())
+            out.append(
+                (
+                    TANK_MAP,
+                    fm.CompressedImage(
+                        timestamp=fm.foxglove_time(stamp),
+                        frame_id="tank",
+                        data=encode_image(image, "png", 0),
+                        format="png",
                     ),
                 )
             )

@@ -23,7 +23,7 @@ import numpy as np
 from capsd.errors import CapsdError
 from capsd.geometry import quat_to_matrix
 from capsd.recording import read
-from capsd.scene import ASV_TRAIL, LIDAR, ROV_TRAIL, SCENE, SONAR_FAN, TF
+from capsd.scene import ASV_TRAIL, FIX, LIDAR, ROV_TRAIL, SONAR_FAN, SONAR_FOV, TANK, TF
 
 
 def _pose(pose: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
@@ -59,7 +59,7 @@ def render(recording: Path, out: Path, *, fix_key: str | None = None) -> dict[st
                     r = quat_to_matrix(np.array([t["rotation"][k] for k in "xyzw"]))
                     p = np.array([t["translation"][k] for k in "xyz"])
                     tf[t["child_frame_id"]] = (t["parent_frame_id"], r, p)
-            elif m.key == SCENE:
+            elif m.key in (TANK, FIX, SONAR_FOV):
                 for e in body["entities"]:
                     entities[e["id"]] = e
             elif m.key in (ASV_TRAIL, ROV_TRAIL):
@@ -74,7 +74,7 @@ def render(recording: Path, out: Path, *, fix_key: str | None = None) -> dict[st
             if fix.get("quality") == "good" and position:
                 fixes.append((fix["stamp_ns"], position))
     if "tank" not in entities:
-        raise CapsdError(f"{recording}: no /capsd/scene tank (recorded without --view on?)")
+        raise CapsdError(f"{recording}: no /capsd/tank (recorded without --view on?)")
 
     def to_tank(frame: str, points: np.ndarray) -> np.ndarray:
         while frame != "tank":
@@ -132,7 +132,9 @@ def render(recording: Path, out: Path, *, fix_key: str | None = None) -> dict[st
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_zlabel("z (m)")
-    ax.set_title("3D panel: /capsd/scene, /capsd/tf, trails, /capsd/lidar")
+    ax.set_title(
+        "3D panel: /capsd/tank, /capsd/fix, /capsd/sonar_fov, /capsd/tf, trails, /capsd/lidar"
+    )
     ax.legend(loc="upper left", fontsize=7)
     ax.set_box_aspect((2.0, 1.2, 0.6))
     ax.view_init(elev=35, azim=-60)

@@ -42,7 +42,7 @@ async def _client(port: int) -> tuple[dict[str, dict[str, object]], bytes]:
                     for channel in body["channels"]:
                         channels[channel["topic"]] = channel
                 wanted = {"/capsd/sonar_fan", "/capsd/tank_map", "cap/tank/sim/health/sim",
-                          "/capsd/scene", "/capsd/lidar"}  # fmt: skip
+                          "/capsd/tank", "/capsd/lidar"}  # fmt: skip
                 if not subscribed and wanted <= set(channels):
                     fan = channels["/capsd/sonar_fan"]["id"]
                     await ws.send(
@@ -72,7 +72,8 @@ def test_live_view_serves_the_channels(
         if channel["encoding"] == "json":
             assert viewer_rules(json.loads(str(channel["schema"]))) == [], topic
     # The operator's scene, in Foxglove's own schemas (its 3D and Image panels take them).
-    assert channels["/capsd/scene"]["schemaName"] == "foxglove.SceneUpdate"
+    for scene in ("/capsd/tank", "/capsd/fix", "/capsd/sonar_fov"):
+        assert channels[scene]["schemaName"] == "foxglove.SceneUpdate", scene
     assert channels["/capsd/lidar"]["schemaName"] == "foxglove.LaserScan"
     assert channels["/capsd/sonar_fan"]["schemaName"] == "foxglove.CompressedImage"
     # A CompressedImage carrying a JPEG (JSON: the bytes in base64).

@@ -105,8 +105,8 @@ def test_record_then_replay_into_a_fresh_locator_gives_the_same_fixes(
     assert not any(key.endswith("sonar/frame") for key in counts)
     # The operator's scene beside the data (frames excluded from the file still feed it),
     # and the services' log lines.
-    for topic in ("/capsd/tf", "/capsd/scene", "/capsd/rov_trail", "/capsd/lidar",
-                  "/capsd/sonar_fan", "/capsd/log"):  # fmt: skip
+    for topic in ("/capsd/tf", "/capsd/tank", "/capsd/fix", "/capsd/sonar_fov", "/capsd/rov_trail",
+                  "/capsd/lidar", "/capsd/sonar_fan", "/capsd/tank_map", "/capsd/log"):  # fmt: skip
         assert counts.get(topic, 0) > 0, topic
     assert any(key.startswith("services/capsd-tank-") for key in counts)
     preview = _capsd("render", "view", str(mcap_file), "-o", str(tmp_path / "view.png"))

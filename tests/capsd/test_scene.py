@@ -16,7 +16,18 @@ from capsd import foxglove_messages as fm
 from capsd.geometry import quat_to_matrix
 from capsd.mounts import SonarMountConfig
 from capsd.payloads import AsvPose, LidarScan, RovAttitude, RovFix, SonarFrame
-from capsd.scene import ASV_TRAIL, LIDAR, ROV_TRAIL, SCENE, SONAR_FAN, TF, SceneView, ViewSettings
+from capsd.scene import (
+    ASV_TRAIL,
+    FIX,
+    LIDAR,
+    ROV_TRAIL,
+    SONAR_FAN,
+    SONAR_FOV,
+    TANK,
+    TF,
+    SceneView,
+    ViewSettings,
+)
 from capsd.tank import TankBounds, TankFixture
 from capsd.viewer_schema import viewer_rules, viewer_schema
 from tests.capsd.samples import SAMPLES, STAMP
@@ -43,7 +54,7 @@ def _valid(topic: str, message: Any) -> None:
 
 def test_static_scene_draws_the_tank_and_its_fixtures() -> None:
     ((topic, update),) = SceneView(SETTINGS).static(STAMP)
-    assert topic == SCENE
+    assert topic == TANK
     _valid(topic, update)
     tank = next(e for e in update.entities if e.id == "tank")
     assert len(tank.lines[0].points) == 24  # 12 edges of the tank's box, as a line list
@@ -62,7 +73,7 @@ def test_a_fix_is_a_transform_an_ellipsoid_and_a_trail() -> None:
         ),
     )
     out = view.on_payload("cap/tank/topside/locator/fix", _fix(STAMP))  # fmt: skip
-    assert [t for t, _ in first] == [SCENE]  # the static scene, due at the first stamp
+    assert [t for t, _ in first] == [TANK]  # the static scene, due at the first stamp
     topics = [t for t, _ in out]
     assert TF in topics
     assert ROV_TRAIL in topics
@@ -71,7 +82,7 @@ def test_a_fix_is_a_transform_an_ellipsoid_and_a_trail() -> None:
     tf = next(m for t, m in out if t == TF).transforms[0]
     assert (tf.parent_frame_id, tf.child_frame_id) == ("tank", "rov")
     assert tf.rotation.z == pytest.approx(math.sin(0.3))  # the ROV's attitude
-    fix = next(m for t, m in out if t == SCENE and m.entities[0].id == "fix").entities[0]
+    fix = next(m for t, m in out if t == FIX and m.entities[0].id == "fix").entities[0]
     sphere = fix.spheres[0]
     # 2-sigma diameters: 4 sigma along each principal axis (sigmas 20, 10, 5 mm).
     assert sorted([sphere.size.x, sphere.size.y, sphere.size.z]) == pytest.approx(
@@ -79,7 +90,7 @@ def test_a_fix_is_a_transform_an_ellipsoid_and_a_trail() -> None:
     )
     assert sphere.color == fm.Color(r=0.1, g=0.8, b=0.2, a=0.5)
     unsure = view.on_payload("k/locator/fix", _fix(STAMP + 10**6, "unsure"))
-    sphere = next(m for t, m in unsure if t == SCENE).entities[0].spheres[0]
+    sphere = next(m for t, m in unsure if t == FIX).entities[0].spheres[0]
     assert sphere.color.r == 1.0  # amber
     assert view.on_payload("k/locator/fix", _fix(STAMP + 2 * 10**6, "invalid")) == []
 
@@ -129,7 +140,7 @@ def test_scans_frames_and_fan_images() -> None:
     _valid(SONAR_FAN, image)
     assert image.format == "jpeg"
     assert image.data[:3] == b"\xff\xd8\xff"
-    fov = next(m for t, m in out if t == SCENE and m.entities[0].id == "sonar_fov").entities[0]
+    fov = next(m for t, m in out if t == SONAR_FOV and m.entities[0].id == "sonar_fov").entities[0]
     assert fov.frame_id == "sonar"
     # Half a second later: no new image (2 Hz), no new field of view (1 Hz).
     later = msgspec.structs.replace(frame, stamp_ns=frame.stamp_ns + 100_000_000)

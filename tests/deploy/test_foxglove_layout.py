@@ -6,7 +6,6 @@ import json
 import re
 
 from capsd import topics
-from capsd.live_view import TANK_MAP
 from capsd.payloads import Health, RovFix
 from capsd.scene import TOPICS
 from tests.conftest import REPO
@@ -29,7 +28,7 @@ def test_every_panel_in_the_layout_is_configured() -> None:
 
 
 def test_the_layout_names_real_channels_and_fields() -> None:
-    view = set(TOPICS) | {TANK_MAP}
+    view = set(TOPICS)
     config = LAYOUT["configById"]
     assert set(config["3D!capsd_scene"]["topics"]) <= view
     assert config["Image!capsd_fan"]["imageMode"]["imageTopic"] in view
