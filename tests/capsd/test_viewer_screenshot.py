@@ -33,7 +33,7 @@ def _recording(path: Path, stamps_ns: list[int]) -> Path:
         channel = writer.register_channel("/x", "json", schema)
         for k, stamp in enumerate(stamps_ns):
             writer.add_message(channel, stamp, b'{"k": %d}' % k, stamp)
-        writer.finish()
+        writer.finish()  # type: ignore[no-untyped-call]
     return path
 
 
