@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import math
+import socket
 import threading
 import time
 from collections import deque
@@ -23,6 +24,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Self
 
+from capsd.errors import CapsdError
 from capsd.protocols.mavlink import (
     MAV_CMD_DO_SET_MODE,
     MAV_CMD_PREFLIGHT_CALIBRATION,
@@ -120,6 +122,13 @@ class Recorded:
     modes: list[tuple[float, str, bool]] = field(default_factory=list)  # (when, asked, taken)
 
 
+def _check_bindable(port: int) -> None:
+    """OSError if pymavlink's listener could not bind the port (it leaks its socket then)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as pymavlink's does
+        probe.bind(("127.0.0.1", port))
+
+
 class AutopilotStandIn:
     """Run with `with AutopilotStandIn(port) as ap:`; `restart()` cuts and restores the link."""
 
@@ -178,13 +187,24 @@ class AutopilotStandIn:
         self.boot_params = self._read_at_boot()
 
     def __enter__(self) -> Self:
+        """Listening on every port when this returns (a client may connect at once)."""
         ports = [self.port] + ([] if self.gcs_port is None else [self.gcs_port])
+        listening = [threading.Event() for _ in ports]
         for k, port in enumerate(ports):
             thread = threading.Thread(
-                target=self._run, args=(port, k == 0), name=f"autopilot-{port}", daemon=True
+                target=self._run,
+                args=(port, k == 0, listening[k]),
+                name=f"autopilot-{port}",
+                daemon=True,
             )
             thread.start()
             self._threads.append(thread)
+        deadline = time.monotonic() + 10.0
+        for port, ready, thread in zip(ports, listening, self._threads, strict=True):
+            while not ready.wait(timeout=0.02):
+                if not thread.is_alive() or time.monotonic() > deadline:
+                    self.__exit__()
+                    raise CapsdError(f"the autopilot stand-in could not listen on 127.0.0.1:{port}")
         return self
 
     def __exit__(self, *_exc: object) -> None:
@@ -223,9 +243,17 @@ class AutopilotStandIn:
 
     # ------------------------------------------------------------------ loop
 
-    def _run(self, port: int, primary: bool) -> None:
+    def _run(self, port: int, primary: bool, listening: threading.Event) -> None:
         while not self._stop.is_set():
+            try:
+                _check_bindable(port)
+            except OSError:
+                if not listening.is_set():
+                    return  # never listened: __enter__ says so
+                time.sleep(0.1)  # the port taken between two clients: try again
+                continue
             with MavLink(f"tcpin:127.0.0.1:{port}", system_id=1, component_id=1) as link:
+                listening.set()
                 self._serve(link)
             if self._reboot_due.is_set():
                 if primary:  # one thread boots the firmware; the others wait for it
