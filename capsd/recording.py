@@ -80,6 +80,11 @@ def _without_nulls(sample: Sample) -> Sample:
     return dataclasses.replace(sample, data=_ENCODE.encode(without_nulls(value)))
 
 
+# The locator config a recording was made with (`capsd record --locator-config`), attached so
+# that `capsd replay-check` replays into a locator configured as the live one was.
+LOCATOR_CONFIG_ATTACHMENT = "capsd/locator.yaml"
+
+
 class McapRecorder:
     """Writes samples to an MCAP file; channels and schemas registered on first sight."""
 
@@ -156,6 +161,13 @@ class McapRecorder:
         )
         self.counts[topic] += 1
 
+    def attach(self, name: str, data: bytes, *, media_type: str) -> None:
+        """A file kept beside the messages (an MCAP attachment)."""
+        now = time.time_ns()
+        self._writer.add_attachment(
+            create_time=now, log_time=now, name=name, media_type=media_type, data=data
+        )
+
     def close(self) -> None:
         self._writer.finish()  # type: ignore[no-untyped-call]
         self._file.close()
@@ -178,13 +190,15 @@ def record(
     view: SceneView | None = None,
     logs: str | None = None,
     on_progress: Callable[[int], None] | None = None,
+    attachments: dict[str, bytes] | None = None,
 ) -> Counter[str]:
     """Record until `stop` (or `duration_s`); returns the message count per key.
 
     Keys intersecting an `exclude` expression are not written (e.g. the sonar images); with
     `view`, every sample (excluded ones too) also feeds the operator's scene, whose messages are
     written on their own channels (capsd.scene). `logs`: a key expression of log lines to
-    record as well (the services' `services/.../log`).
+    record as well (the services' `services/.../log`). `attachments`: files (by name) kept in
+    the recording, e.g. LOCATOR_CONFIG_ATTACHMENT.
     """
     pending: queue.Queue[tuple[Sample, bool]] = queue.Queue()
     refused: Counter[str] = Counter()
@@ -200,6 +214,8 @@ def record(
             pending.put((Sample(key, str(s.encoding), s.payload.to_bytes(), time.time_ns()), keep))
 
     recorder = McapRecorder(out)
+    for name, data in (attachments or {}).items():
+        recorder.attach(name, data, media_type="application/yaml")
     if view is not None:
         now = time.time_ns()
         for topic, message in view.static(now):
@@ -283,6 +299,21 @@ def summary_of(path: Path) -> Summary:
     if summary is None or summary.statistics is None:
         raise CapsdError(f"{path}: MCAP without a summary (was the recording cut short?)")
     return summary
+
+
+def attachment(path: Path, name: str) -> bytes | None:
+    """The recording's attachment of that name (the last, if several), or None."""
+    found: bytes | None = None
+    try:
+        with path.open("rb") as stream:
+            for item in make_reader(stream).iter_attachments():
+                if item.name == name:
+                    found = bytes(item.data)
+    except FileNotFoundError:
+        raise CapsdError(f"{path}: no such recording") from None
+    except Exception as exc:  # mcap raises several types for a bad file
+        raise CapsdError(f"{path}: not a readable MCAP recording ({exc})") from exc
+    return found
 
 
 def channel_counts(path: Path) -> dict[str, int]:

@@ -28,7 +28,7 @@ from capsd.harness import Processes, free_port
 from capsd.health import query_health
 from capsd.keys import all_health, is_concrete
 from capsd.payloads import RovFix
-from capsd.recording import channel_counts, read, replay
+from capsd.recording import LOCATOR_CONFIG_ATTACHMENT, attachment, channel_counts, read, replay
 
 _FIX_SUFFIX = "/locator/fix"
 
@@ -158,12 +158,17 @@ def recorded_fixes(path: Path) -> tuple[str, dict[int, RovFix]]:
 def run(
     recording: Path,
     *,
-    locator_config: Path,
+    locator_config: Path | None,
     speed: float,
     stream: TextIO = sys.stdout,
 ) -> Comparison:
-    """Replay into a fresh locator on a private router; the comparison (also printed)."""
+    """Replay into a fresh locator on a private router; the comparison (also printed).
+
+    `locator_config` None: the config the recording carries (LOCATOR_CONFIG_ATTACHMENT), else
+    the shipped deploy/config/locator.yaml; which one is printed.
+    """
     fix_key, recorded = recorded_fixes(recording)
+    attached = attachment(recording, LOCATOR_CONFIG_ATTACHMENT) if locator_config is None else None
     site, vehicle = fix_key.split("/")[1:3]
     got: dict[int, RovFix] = {}
     lock = threading.Lock()
@@ -184,10 +189,18 @@ def run(
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     with tempfile.TemporaryDirectory(prefix="capsd-replay-check-") as tmp:
         procs = Processes(Path(tmp))
+        if locator_config is not None:
+            config, origin = locator_config, str(locator_config)
+        elif attached is not None:
+            config, origin = Path(tmp) / "locator.yaml", "the recording's, attached by capsd record"
+            config.write_bytes(attached)
+        else:
+            config = Path("deploy/config/locator.yaml")
+            origin = f"{config}: the recording carries none"
         try:
             procs.start("router", ["-m", "capsd", "router", "--listen", endpoint])
             time.sleep(1.0)
-            args = ["run", "locator", "--config", str(locator_config), "--connect", endpoint]
+            args = ["run", "locator", "--config", str(config), "--connect", endpoint]
             locator = procs.start("locator", ["-m", "capsd", *args])
             with open_session(BusConfig(connect=(endpoint,))) as session:
                 sub = session.declare_subscriber(fix_key, on_fix)
@@ -203,7 +216,7 @@ def run(
                             f"the fresh locator did not start: {locator.log.read_text()[-2000:]}"
                         )
                 print(
-                    f"replaying {recording} into a fresh locator ({locator_config}) at {speed:g}x",
+                    f"replaying {recording} into a fresh locator (config: {origin}) at {speed:g}x",
                     file=stream,
                     flush=True,
                 )

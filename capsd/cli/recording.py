@@ -29,8 +29,9 @@ def _cmd_record(args: argparse.Namespace) -> int:
     import zenoh
 
     from capsd.bus import open_session
-    from capsd.recording import record
+    from capsd.recording import LOCATOR_CONFIG_ATTACHMENT, record
 
+    attachments = {}
     try:
         bus = bus_from_args(args, BusConfig())
         for expr in (args.keyexpr, *args.exclude):
@@ -40,8 +41,13 @@ def _cmd_record(args: argparse.Namespace) -> int:
             from capsd.live_view import make_view
 
             view = make_view(view_from_args(args))
+        if args.locator_config is not None:
+            # What the site's locator runs with, kept in the file (capsd replay-check uses it).
+            attachments[LOCATOR_CONFIG_ATTACHMENT] = args.locator_config.read_bytes()
     except (ConfigError, zenoh.ZError) as exc:
         return fail(f"record: {exc}", EXIT_CONFIG)
+    except OSError as exc:
+        return fail(f"record: --locator-config: {exc}", EXIT_CONFIG)
 
     def progress(n: int) -> None:
         print(f"record: {n} messages", file=sys.stderr, flush=True)
@@ -58,6 +64,7 @@ def _cmd_record(args: argparse.Namespace) -> int:
                 view=view,
                 logs="services/capsd-$*/log" if view is not None else None,
                 on_progress=progress,
+                attachments=attachments,
             )
     except KeyboardInterrupt:
         return EXIT_OK
@@ -245,8 +252,9 @@ def register(sub: Subcommands) -> None:
     rchk.add_argument(
         "--locator-config",
         type=Path,
-        default=Path("deploy/config/locator.yaml"),
-        help="the live locator's config (the demo writes it to its logs folder)",
+        default=None,
+        help="the live locator's config (default: the one `capsd record --locator-config` kept "
+        "in the recording, else deploy/config/locator.yaml)",
     )
     rchk.add_argument(
         "--speed", type=positive_float, default=1.0, help="replay speed (1 = real time)"

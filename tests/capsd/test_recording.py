@@ -18,7 +18,7 @@ from mcap.reader import make_reader
 from capsd import topics
 from capsd.errors import CapsdError
 from capsd.payloads import RovFix
-from capsd.recording import channel_counts, read
+from capsd.recording import LOCATOR_CONFIG_ATTACHMENT, attachment, channel_counts, read
 from capsd.replay_check import compare
 from capsd.viewer_schema import viewer_rules
 from tests.conftest import REPO, Proc, relay
@@ -51,6 +51,8 @@ def test_record_then_replay_into_a_fresh_locator_gives_the_same_fixes(
         "cap/*/*/sonar/frame",
         "--duration",
         "10",
+        "--locator-config",
+        "deploy/config/locator.yaml",
         "--connect",
         endpoint,
     )
@@ -127,16 +129,12 @@ def test_record_then_replay_into_a_fresh_locator_gives_the_same_fixes(
     # common: the simulator's truth detections are put at the ping's instant, right after
     # the depth and attitude sampled at that instant, and Zenoh may hand the locator either
     # first (real detections come a detection time later: the demo replays 100 % identical).
-    check = _capsd(
-        "replay-check",
-        str(mcap_file),
-        "--locator-config",
-        "deploy/config/locator.yaml",
-        "--speed",
-        "2",
-        timeout=90,
-    )
+    # The locator's config travels in the file: replay-check takes it from there.
+    attached = attachment(mcap_file, LOCATOR_CONFIG_ATTACHMENT)
+    assert attached == (REPO / "deploy/config/locator.yaml").read_bytes()
+    check = _capsd("replay-check", str(mcap_file), "--speed", "2", timeout=90)
     assert check.returncode == 0, check.stdout + check.stderr
+    assert "config: the recording's, attached by capsd record" in check.stdout
     assert f"recorded {counts[FIX_KEY]}, replayed {counts[FIX_KEY]}," in check.stdout
     assert "a different fix before any input differed (must be 0): 0" in check.stdout
     identical = int(check.stdout.split("raw fix identical")[1].split()[0])
