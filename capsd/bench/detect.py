@@ -1,7 +1,8 @@
 """`capsd bench detect`: detectors on held-out simulated frames, against the labels.
 
-Accuracy (default): for each held-out run (both tanks, the ASV following and stationary, seeds
-never used in training or tuning) the simulator renders frames and labels; each detector's
+Accuracy (default): for each held-out run (both tanks, the ASV following and stationary, one
+run far off for the 14-20 m band, seeds never used in training or tuning) the simulator renders
+frames and labels; each detector's
 candidates at or above the service's confidence threshold are matched to the truth (within
 0.5 m). Reported per detector, for pings without and with clutter overlapping the ROV:
 detection rate, false alarms per frame (and how many of them sit on a multipath ghost), range
@@ -30,6 +31,7 @@ from typing import Any, Literal
 import msgspec
 import numpy as np
 
+from capsd.mounts import SonarMountConfig
 from capsd.payloads import Detection, SonarFrame, SonarLabel
 from capsd.progress import Progress
 from capsd.services.sonar_detect.paper_box import box_centre
@@ -39,8 +41,13 @@ from capsd.simulator.sim import Simulation
 from capsd.simulator.sonar_look import Variety
 from capsd.simulator.world import TankName, TrajectoryName
 
-AsvMode = Literal["follow", "stationary"]
+# follow_far: the far band (14-20 m). With the sonar 30 deg down, a ROV 14-20 m off is inside
+# the 20 deg aperture only 5-10 m below it; a team surveying a pond's far end mounts the sonar
+# shallower: here 12 deg down, the ASV following 16 m off.
+AsvMode = Literal["follow", "stationary", "follow_far"]
 Run = tuple[TankName, TrajectoryName, AsvMode, int]
+FAR_STANDOFF_M = 16.0
+FAR_PITCH_DEG = 12.0
 RUNS: tuple[Run, ...] = (
     ("nfp", "square", "follow", 101),
     ("nfp", "lawnmower", "follow", 102),
@@ -48,6 +55,7 @@ RUNS: tuple[Run, ...] = (
     ("nfp", "two_floor", "stationary", 106),
     ("mockup", "square", "stationary", 104),
     ("mockup", "random", "follow", 105),
+    ("nfp", "lawnmower", "follow_far", 107),
 )
 PERIOD_40HZ_NS = 25_000_000
 MIN_CONFIDENCE = 0.5  # the sonar_detect service's default
@@ -134,11 +142,16 @@ def sonar_only(
     look_seed: int | None = None,
 ) -> Config:
     """A simulator config that renders sonar pings and labels only (no LiDAR, IMU, stand-ins)."""
+    far = asv_mode == "follow_far"
+    mode: Literal["follow", "stationary"] = "stationary" if asv_mode == "stationary" else "follow"
+    sonar = SonarMountConfig()
     return Config(
         tank=tank,
         trajectory=trajectory,
         seed=seed,
-        asv_mode=asv_mode,
+        asv_mode=mode,
+        asv_standoff_m=FAR_STANDOFF_M if far else None,
+        sonar=msgspec.structs.replace(sonar, pitch_deg=FAR_PITCH_DEG) if far else sonar,
         sonar_image=SonarImageConfig(variety=variety, look_seed=look_seed),
         # The detector against its labels: a perfect installation (the sound speed's 0.3 %
         # would only stretch image and labels alike).
