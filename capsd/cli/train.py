@@ -69,6 +69,8 @@ def _cmd_train_detector(args: argparse.Namespace) -> int:
             return fail(f"finetune: {exc}", EXIT_CONFIG)
         return EXIT_OK
 
+    if not 0.0 <= args.far_share <= 1.0:
+        return fail(f"train detector: --far-share {args.far_share}: between 0 and 1", EXIT_CONFIG)
     config = TrainConfig(
         seed=args.seed,
         runs=args.runs,
@@ -79,6 +81,7 @@ def _cmd_train_detector(args: argparse.Namespace) -> int:
         refine_epochs=args.refine_epochs,
         mining_runs=args.mining_runs,
         hard_runs=args.hard_runs,
+        far_share=args.far_share,
         hard_rounds=args.hard_rounds,
         hard_epochs=args.hard_epochs,
         eval_duration_s=args.eval_duration,
@@ -107,6 +110,12 @@ def register(sub: Subcommands) -> None:
     tdet.add_argument("--out", type=Path, default=Path("services/sonar_detect/weights"))
     tdet.add_argument("--seed", type=int, default=0)
     tdet.add_argument("--runs", type=positive_int, default=64, help="simulated training runs")
+    tdet.add_argument(
+        "--far-share",
+        type=float,
+        default=0.0,
+        help="share of runs far off (the ROV 10-20 m away, the sonar 8-20 deg down; default 0)",
+    )
     tdet.add_argument("--run-duration", type=positive_float, default=60.0, help="seconds per run")
     tdet.add_argument("--workers", type=int, default=2, help="rendering processes")
     tdet.add_argument("--threads", type=int, default=2, help="torch threads for training")

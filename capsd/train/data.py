@@ -12,15 +12,18 @@ Runs are spread over worker processes; the same plan and seed give the same samp
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from multiprocessing import get_context
 from typing import Any, Literal
 
+import msgspec
 import numpy as np
 import numpy.typing as npt
 
+from capsd.mounts import SonarMountConfig
 from capsd.payloads import SonarFrame, SonarLabel
 from capsd.progress import Progress
 from capsd.services.sonar_detect.polar_input import (
@@ -52,6 +55,9 @@ TRAJECTORIES: tuple[TrajectoryName, ...] = (
     "two_floor",
 )
 NEGATIVE_MIN_DISTANCE_M = 0.8
+# Far runs (plan_runs' far_share): how far the ASV follows and how shallow its sonar looks.
+FAR_STANDOFF_M = (11.0, 18.0)
+FAR_PITCH_DEG = (8.0, 20.0)
 
 
 @dataclass(frozen=True)
@@ -69,14 +75,19 @@ class RunPlan:
     duration_s: float
     sonar_hz: float
     variety: Variety = "train"
+    sonar_pitch_deg: float | None = None  # None: the simulator's default mount (30 deg down)
 
     def config(self) -> Config:
+        sonar = SonarMountConfig()
+        if self.sonar_pitch_deg is not None:
+            sonar = msgspec.structs.replace(sonar, pitch_deg=self.sonar_pitch_deg)
         return Config(
             tank=self.tank,
             trajectory=self.trajectory,
             seed=self.seed,
             asv_mode=self.asv_mode,
             asv_standoff_m=self.standoff_m,
+            sonar=sonar,
             sonar_image=SonarImageConfig(
                 gain_percent=self.gain_percent,
                 ghost_gain=self.ghost_gain,
@@ -93,11 +104,16 @@ class RunPlan:
         )
 
 
-def plan_runs(*, runs: int, seed: int, duration_s: float, sonar_hz: float) -> list[RunPlan]:
+def plan_runs(
+    *, runs: int, seed: int, duration_s: float, sonar_hz: float, far_share: float = 0.0
+) -> list[RunPlan]:
     """`runs` varied runs drawn from `seed` (both tanks, every trajectory, both ASV modes).
 
     Every run but each fifth draws the sonar's look (capsd.simulator.sonar_look, training region);
     each fifth keeps the simulator's fixed look with its gain and noise varied a little.
+    A `far_share` of the runs (drawn from a stream of their own, so that 0 plans as before) is
+    far instead: the nfp tank, the ASV following FAR_STANDOFF_M off with its sonar
+    FAR_PITCH_DEG down, so that the ROV is in the aperture 10-20 m away.
     """
     rng = np.random.default_rng(seed)
     plans = []
@@ -122,6 +138,17 @@ def plan_runs(*, runs: int, seed: int, duration_s: float, sonar_hz: float) -> li
                 variety="off" if k % 5 == 4 else "train",
             )
         )
+    if far_share > 0.0:
+        far_rng = np.random.default_rng([seed, 0xFA4])
+        for k, plan in enumerate(plans):
+            if far_rng.random() < far_share:
+                plans[k] = dataclasses.replace(
+                    plan,
+                    tank="nfp",
+                    asv_mode="follow",
+                    standoff_m=float(far_rng.uniform(*FAR_STANDOFF_M)),
+                    sonar_pitch_deg=float(far_rng.uniform(*FAR_PITCH_DEG)),
+                )
     return plans
 
 

@@ -64,6 +64,8 @@ class TrainConfig:
     hard_epochs: int = 2
     hard_repeat: int = 3
     hard_lr: float = 5e-4
+    # The share of runs far off (the ROV 10-20 m away, the sonar shallower; data.plan_runs).
+    far_share: float = 0.0
     eval_duration_s: float = 20.0
     # Where the networks train (rendering and calibration stay on the CPU). "cuda" is for a
     # machine with a GPU: the same steps, not bit-identical to the CPU's.
@@ -258,6 +260,7 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
         seed=config.seed,
         duration_s=config.duration_s,
         sonar_hz=config.sonar_hz,
+        far_share=config.far_share,
     )
     samples = render(plans, workers=config.workers)
     rendered_s = time.monotonic() - started
@@ -278,6 +281,7 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
         seed=config.seed + 1,
         duration_s=config.duration_s,
         sonar_hz=config.sonar_hz,
+        far_share=config.far_share,
     )
     mined = render(mining, workers=config.workers, proposal_state=buffer.getvalue())
     samples.crops.extend(mined.crops)
@@ -291,6 +295,7 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
             seed=config.seed + 2 + round_index,
             duration_s=config.duration_s,
             sonar_hz=config.sonar_hz,
+            far_share=config.far_share,
         )
         fresh = render(hard_set, workers=config.workers, proposal_state=buffer.getvalue())
         hard = _hard_indices(
