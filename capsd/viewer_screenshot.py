@@ -245,10 +245,15 @@ def screenshot(
     Driven over the DevTools protocol (a loopback port Chromium picks), so the wait is the
     page's real time: the viewer reads the recording in the background while it draws.
     """
-    from websockets.sync.client import connect
+    try:
+        from websockets.sync.client import connect
+    except ImportError:
+        raise CapsdError("needs the websockets package (install capsd[topside])") from None
 
     out.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="capsd-chromium-") as profile:
+        # Chromium's chatter to a file: a pipe nobody reads fills up and stalls it.
+        log = Path(profile) / "chromium.log"
         command = [
             browser,
             *CHROMIUM_FLAGS,
@@ -258,11 +263,12 @@ def screenshot(
             "--remote-debugging-port=0",
             url,
         ]
-        with subprocess.Popen(
-            command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
-        ) as chromium:
+        with (
+            log.open("w") as log_file,
+            subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=log_file) as chromium,
+        ):
             try:
-                port = _devtools_port(Path(profile), chromium)
+                port = _devtools_port(Path(profile), chromium, log)
                 page = _page_socket(port)
                 with connect(page, max_size=None, open_timeout=10) as socket:
                     # The page exactly this size (a headless window's size includes its frame).
@@ -300,13 +306,13 @@ def _call(socket: ClientConnection, call_id: int, method: str, params: dict[str,
             return reply
 
 
-def _devtools_port(profile: Path, chromium: subprocess.Popen[str]) -> int:
+def _devtools_port(profile: Path, chromium: subprocess.Popen[bytes], log: Path) -> int:
     """The DevTools port Chromium chose (it writes it into its profile), within 30 s."""
     marker = profile / "DevToolsActivePort"
     deadline = time.monotonic() + 30.0
     while time.monotonic() < deadline:
         if chromium.poll() is not None:
-            tail = (chromium.stderr.read() if chromium.stderr else "").strip().splitlines()[-3:]
+            tail = log.read_text(errors="replace").strip().splitlines()[-3:]
             raise CapsdError(f"chromium exited {chromium.returncode}: {' / '.join(tail)}")
         if marker.is_file():
             first = marker.read_text().splitlines()[:1]

@@ -90,16 +90,18 @@ def _cmd_render_screenshot(args: argparse.Namespace) -> int:
             url = viewer_url(args.viewer_url or base, base, time_ns=at_ns, live=live)
             print(f"opening {url}")
             bar = Progress(args.wait_s, label="viewer loading", unit=" s")
-            screenshot(
-                url,
-                args.out,
-                browser=browser,
-                width=width,
-                height=height,
-                wait_s=args.wait_s,
-                progress=bar.update,
-            )
-            bar.close()
+            try:
+                screenshot(
+                    url,
+                    args.out,
+                    browser=browser,
+                    width=width,
+                    height=height,
+                    wait_s=args.wait_s,
+                    progress=bar.update,
+                )
+            finally:
+                bar.close()
     except CapsdError as exc:
         return fail(f"render screenshot: {exc}", EXIT_CONFIG)
     where = live if at_ns is None else f"{(at_ns - first_ns) / 1e9:.1f} s into the recording"

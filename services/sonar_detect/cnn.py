@@ -62,10 +62,10 @@ class CnnSettings:
     track_confidence: float = 0.5  # detections at least this confident are tracked
     # Hysteresis: a candidate within `track_gate_m` of a tracked detection of a ping at most
     # `track_max_gap_s` before has this added to its logit. On the validation runs (seeds
-    # 301-306, never the bench's; by hand, 20 s each) prior 0 / 1 gave 77.2 / 81.4 % on the
+    # 301-306, never the bench's; 20 s each) prior 0 / 1 gave 77.2 / 81.4 % on the
     # fixed look (0.0033 / 0.0062 false alarms per frame) and 58.4 / 60.7 % on drawn looks
     # (0.044 / 0.059): 1.0 keeps the fixed look under 0.01; no prior does on drawn looks.
-    # (`capsd bench detect --prior-sweep P... --duration 20` prints the same figures.)
+    # (`capsd bench detect --prior-sweep 0 1 --duration 20`.)
     track_prior_logit: float = 1.0
     track_gate_m: float = 0.3
     track_max_gap_s: float = 0.2
