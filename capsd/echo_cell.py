@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from capsd.geometry import Array, Transform
-from capsd.sonar_geometry import BeamModel, beam_direction
+from capsd.sonar_geometry import BeamModel, beam_directions
 from capsd.tank import TankFixture
 
 _ELEVATION_SAMPLES = 21
@@ -37,7 +37,7 @@ def cell_points(
     elevations = np.linspace(-half, half, _ELEVATION_SAMPLES)
     if skip_elevation_rad is not None:
         elevations = elevations[np.abs(elevations - skip_elevation_rad) > skip_within_rad]
-    directions = np.array([beam_direction(beam_model, azimuth_rad, e) for e in elevations])
+    directions = beam_directions(beam_model, azimuth_rad, elevations)
     ranges = (range_m - half_width_m, range_m, range_m + half_width_m)
     local = np.concatenate([r * directions for r in ranges]).reshape(-1, 3)
     return np.asarray(local @ sonar_pose.rotation.T + sonar_pose.translation)

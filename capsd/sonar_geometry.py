@@ -26,6 +26,15 @@ def beam_direction(model: BeamModel, azimuth_rad: float, elevation_rad: float) -
     return np.array([ct * ce, st, ct * se])
 
 
+def beam_directions(model: BeamModel, azimuth_rad: float, elevations_rad: Array) -> Array:
+    """Unit vectors in S (n x 3) toward one azimuth at each of `elevations_rad` (n)."""
+    ct, st = math.cos(azimuth_rad), math.sin(azimuth_rad)
+    ce, se = np.cos(elevations_rad), np.sin(elevations_rad)
+    if model == "planar":
+        return np.stack([ce * ct, ce * st, se], axis=1)
+    return np.stack([ct * ce, np.full_like(ce, st), ct * se], axis=1)
+
+
 def to_polar(model: BeamModel, p_s: Array) -> tuple[float, float, float]:
     """(range, azimuth, elevation) of a point in S under `model` (inverse of beam_direction)."""
     x, y, z = (float(c) for c in p_s)

@@ -46,6 +46,7 @@ from capsd.services.locator.fix import (
     rov_centre_z,
     solve_fix,
 )
+from capsd.services.locator.moving_echo import MovingEchoes, MovingEchoSettings
 from capsd.services.locator.paper import paper_fix
 from capsd.services.locator.timeline import Lookup, Timeline
 from capsd.services.locator.tracker import Tracker, TrackerSettings
@@ -140,8 +141,10 @@ class ClutterConfig(ConfigSection, frozen=True, kw_only=True):
     # refuse_start: an echo whose range cell, at its bearing and anywhere in the vertical
     # aperture, holds a mapped fixture (`tank.fixtures`, grown by `map_margin_m`) may update a
     # track but never start one (the 2D image cannot tell the two apart), unless it lies where
-    # the ROV was last confirmed (see `reacquire_*`); off.
-    map_explained: Literal["refuse_start", "off"] = "refuse_start"
+    # the ROV was last confirmed (see `reacquire_*`); refuse_unless_moving: the same, unless
+    # the echo has moved as no static source's could (capsd.services.locator.moving_echo,
+    # `moving_*`); off.
+    map_explained: Literal["refuse_start", "refuse_unless_moving", "off"] = "refuse_unless_moving"
     map_margin_m: Annotated[float, msgspec.Meta(ge=0.0, le=2.0)] = 0.3
     # A ROV lost over a rack is found again where it was: a map-explained echo may start a
     # track within reacquire_radius_m + reacquire_speed_m_s x (time since the last confirmed
@@ -149,12 +152,19 @@ class ClutterConfig(ConfigSection, frozen=True, kw_only=True):
     reacquire_radius_m: Annotated[float, msgspec.Meta(ge=0.0, le=5.0)] = 0.5
     reacquire_speed_m_s: Annotated[float, msgspec.Meta(ge=0.0, le=2.0)] = 0.3
     reacquire_window_s: Annotated[float, msgspec.Meta(ge=0.0, le=600.0)] = 10.0
+    # The moving-echo test: followed at least moving_min_age_s, then at least moving_shift_m
+    # from wherever a static source of its first sighting would now appear.
+    moving_min_age_s: Annotated[float, msgspec.Meta(ge=0.1, le=60.0)] = 1.0
+    moving_shift_m: Annotated[float, msgspec.Meta(ge=0.05, le=5.0)] = 0.3
     cell_m: Annotated[float, msgspec.Meta(ge=0.1, le=5.0)] = 0.5
     static_after_s: Annotated[float, msgspec.Meta(gt=0.0, le=600.0)] = 5.0
     min_sightings: Annotated[int, msgspec.Meta(ge=1)] = 10
     forget_after_s: Annotated[float, msgspec.Meta(gt=0.0, le=3600.0)] = 60.0
     # Candidates nearer the tracked ROV than this are not learned (its own echo's spread).
     clear_of_track_m: Annotated[float, msgspec.Meta(gt=0.0, le=10.0)] = 1.0
+
+    def moving_settings(self) -> MovingEchoSettings:
+        return MovingEchoSettings(min_age_s=self.moving_min_age_s, min_shift_m=self.moving_shift_m)
 
     def settings(self) -> ClutterSettings:
         return ClutterSettings(
@@ -290,6 +300,13 @@ class Locator:
         # Candidates kept from starting a track (learned clutter or the map explains them).
         self.clutter_refusals = 0
         self.map_explained = 0  # candidate echoes the tank's fixtures could have made
+        # ... of which moved as no fixture's echo could (they may start a track)
+        self.moving_echoes = 0
+        self._movers = MovingEchoes(
+            config.clutter.moving_settings(),
+            beam_model=config.sonar.beam_model,
+            half_aperture_rad=self.aperture_rad / 2.0,
+        )
         fixtures = () if config.tank is None else config.tank.fixtures
         self._fixture_boxes = fixture_boxes(fixtures, config.clutter.map_margin_m)
         self._installation = config.installation.sigmas()
@@ -439,6 +456,7 @@ class Locator:
                 "clutter_refusals": self.clutter_refusals,
                 "static_clutter_cells": self.clutter.static_cells(self._solved_until_ns),
                 "map_explained_echoes": self.map_explained,
+                "moving_map_explained_echoes": self.moving_echoes,
                 "water_speed_pings": self.water_speed_pings,
                 "sonar_speed_pings": self.sonar_speed_pings,
             }
@@ -493,7 +511,10 @@ class Locator:
                     reasons.append("outside_tank")
                 else:
                     fixes.append((solved[0], solved[1], detection))
-            explained = [self._explained(asv, d, p) for p, _, d in fixes]
+            explained = [
+                self._explained(asv, d, p) and not self._moved(stamp, asv, d, p)
+                for p, _, d in fixes
+            ]
             installed = [
                 self._installation_cov(asv, d, depth_sample, attitude.value, p, installation)
                 for p, _, d in fixes
@@ -593,6 +614,20 @@ class Locator:
         found = any_inside(points, self._fixture_boxes)
         self.map_explained += int(found)
         return found
+
+    def _moved(self, stamp: int, asv: Transform, detection: Detection, position: Array) -> bool:
+        """Whether a map-explained echo has moved as no fixture's could (it may then start)."""
+        if self.config.clutter.map_explained != "refuse_unless_moving":
+            return False
+        moved = self._movers.observe(
+            stamp,
+            asv.compose(self.mount),
+            range_m=detection.range_m,
+            azimuth_rad=detection.azimuth_rad,
+            position_m=position,
+        )
+        self.moving_echoes += int(moved)
+        return moved
 
     def _finish(
         self,

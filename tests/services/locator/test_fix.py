@@ -17,7 +17,7 @@ from capsd.services.locator.fix import (
     rov_centre_z,
     solve_fix,
 )
-from capsd.sonar_geometry import BeamModel, beam_direction, to_polar
+from capsd.sonar_geometry import BeamModel, beam_direction, beam_directions, to_polar
 from tests.services.locator.nees import mean_nees_bounds
 
 APERTURE = math.radians(20.0)
@@ -267,6 +267,15 @@ def test_to_polar_inverts_beam_direction(
     assume(rng > 0.1)
     r, t, e = to_polar(beam, rng * beam_direction(beam, theta, phi))
     assert (r, t, e) == pytest.approx((rng, theta, phi), abs=1e-9)
+
+
+@given(azimuth, st.lists(elevation, min_size=1, max_size=5), model)
+def test_beam_directions_are_beam_direction_for_every_elevation(
+    theta: float, phis: list[float], beam: BeamModel
+) -> None:
+    many = beam_directions(beam, theta, np.array(phis))
+    one = np.array([beam_direction(beam, theta, phi) for phi in phis])
+    assert many == pytest.approx(one, abs=1e-12)
 
 
 def _installation_case(sigmas: InstallationSigmas, *, range_m: float = 8.0) -> tuple[Array, Array]:

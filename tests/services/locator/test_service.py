@@ -257,7 +257,8 @@ def test_an_echo_a_mapped_fixture_explains_never_starts_a_track() -> None:
     """A rack top in the echo's range cell (same range and bearing, lower): it may be the rack."""
     rack = TankFixture(name="rack", lo_m=(7.5, 4.5, -3.5), hi_m=(8.8, 5.5, -3.0))
     tank = TankBounds(fixtures=(rack,))
-    for mode, expect_start in (("refuse_start", False), ("off", True)):
+    modes = (("refuse_start", False), ("refuse_unless_moving", False), ("off", True))
+    for mode, expect_start in modes:
         locator = _locator(tank=tank, clutter=ClutterConfig(map_explained=mode))  # type: ignore[arg-type]
         started = False
         for k in range(10):
@@ -276,6 +277,28 @@ def test_an_echo_a_mapped_fixture_explains_never_starts_a_track() -> None:
         open_water.locate(_ping(SECOND // 2, _detection_of(open_water, ROV)), seq=0).track_state
         == "tentative"
     )
+
+
+def test_an_echo_over_a_rack_that_moves_as_no_fixture_can_starts_a_track() -> None:
+    """The ROV flies along a rack at 0.3 m/s: its echo shares the rack's cells all the way."""
+    rack = TankFixture(name="rack", lo_m=(7.0, 3.0, -3.5), hi_m=(9.0, 8.0, -3.0))
+    tank = TankBounds(fixtures=(rack,))
+    outcomes = {}
+    for mode in ("refuse_start", "refuse_unless_moving"):
+        locator = _locator(tank=tank, clutter=ClutterConfig(map_explained=mode))
+        states = []
+        for k in range(40):  # 4 s at 10 Hz
+            stamp = k * SECOND // 10
+            _feed_inputs(locator, from_s=k / 10, until_s=(k + 1) / 10)
+            rov = ROV + np.array([0.0, -1.0 + 0.3 * k / 10, 0.0])
+            fix = locator.locate(_ping(stamp, _detection_of(locator, rov)), seq=k)
+            states.append(f"{fix.track_state}:{fix.no_fix_reason}")
+        outcomes[mode] = states
+    assert set(outcomes["refuse_start"]) == {"none:map_clutter"}
+    moving = outcomes["refuse_unless_moving"]
+    first = next(k for k, s in enumerate(moving) if s != "none:map_clutter")
+    assert 10 <= first <= 25, moving  # followed for 1 s, then 0.3 m from any static source
+    assert moving[-1] == "tracking:None", moving
 
 
 def _lost_then_over_the_rack(locator: Locator, *, hidden_s: float) -> list[str]:
