@@ -235,16 +235,18 @@ def _score(tally: Tally, label: SonarLabel, found: list[Detection]) -> None:
             tally.ghost_alarms += 1
 
 
-SearchRefines = Literal["proposals", "proposals_and_track"]
+@dataclass(frozen=True)
+class CnnOptions:
+    """The service's `cnn.search_refines` and `cnn.track_hold_s` for the CNN with its settings."""
+
+    search_refines: Literal["proposals", "proposals_and_track"] = "proposals"
+    track_hold_s: float = 0.0
 
 
 def _detectors(
-    which: str, weights: list[Path] | None = None, *, search_refines: SearchRefines = "proposals"
+    which: str, weights: list[Path] | None = None, *, options: CnnOptions = CnnOptions()
 ) -> dict[str, Detector]:
-    """The detectors by name; one CNN pair per weights file ('cnn (FOLDER)'), or the shipped.
-
-    `search_refines` is the service's `cnn.search_refines` for the CNN with its settings.
-    """
+    """The detectors by name; one CNN pair per weights file ('cnn (FOLDER)'), or the shipped."""
     from dataclasses import replace
 
     from capsd.services.sonar_detect.classical import ClassicalDetector
@@ -258,7 +260,9 @@ def _detectors(
         choices: list[Path | None] = list(weights) if weights else [None]
         for path in choices:
             name = "cnn" if path is None else f"cnn ({path.parent.name})"
-            service = CnnSettings(search_refines=search_refines)
+            service = CnnSettings(
+                search_refines=options.search_refines, track_hold_s=options.track_hold_s
+            )
             if path is not None:
                 service = replace(service, weights=path)
             # The service's settings (tracking between whole-frame searches, the track's
@@ -316,9 +320,9 @@ def run(
     fixtures: Path | None = None,
     weights: list[Path] | None = None,
     json_out: Path | None = None,
-    search_refines: SearchRefines = "proposals",
+    options: CnnOptions = CnnOptions(),
 ) -> int:
-    detectors = _detectors(which, weights, search_refines=search_refines)
+    detectors = _detectors(which, weights, options=options)
     tallies = evaluate(detectors, duration_s=duration_s)
     if json_out is not None:
         json_out.parent.mkdir(parents=True, exist_ok=True)
@@ -359,7 +363,7 @@ def run(
 
 
 def sweep_prior(
-    priors: list[float], *, duration_s: float, search_refines: SearchRefines = "proposals"
+    priors: list[float], *, duration_s: float, options: CnnOptions = CnnOptions()
 ) -> int:
     """The hysteresis prior on the validation runs (never the bench's), both kinds of look."""
     from capsd.services.sonar_detect.cnn import CnnDetector, CnnSettings
@@ -367,11 +371,18 @@ def sweep_prior(
 
     print(
         f"validation runs (seeds {', '.join(str(r[3]) for r in VALIDATION_RUNS)}), "
-        f"{duration_s:g} s, search refines {search_refines}"
+        f"{duration_s:g} s, search refines {options.search_refines}, "
+        f"track hold {options.track_hold_s:g} s"
     )
     print(f"{'prior':>6} {'look':<8} {'detected':>9} {'FA/frame':>9}")
     for prior in priors:
-        detector = CnnDetector(CnnSettings(track_prior_logit=prior, search_refines=search_refines))
+        detector = CnnDetector(
+            CnnSettings(
+                track_prior_logit=prior,
+                search_refines=options.search_refines,
+                track_hold_s=options.track_hold_s,
+            )
+        )
         tallies = evaluate(
             {"cnn": detector.detect}, duration_s=duration_s, runs=VALIDATION_RUNS,
             looks=("off", "train"),

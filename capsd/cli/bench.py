@@ -10,6 +10,7 @@ from capsd.launch import (
     EXIT_CONFIG,
     EXIT_FAILURE,
     EXIT_OK,
+    non_negative_float,
     non_negative_int,
     positive_float,
     positive_int,
@@ -37,10 +38,9 @@ def _cmd_bench_detect(args: argparse.Namespace) -> int:
 
     if args.throughput:
         return detect.run_throughput(frames=args.frames, which=args.detector)
+    options = detect.CnnOptions(search_refines=args.search_refines, track_hold_s=args.track_hold)
     if args.prior_sweep:
-        return detect.sweep_prior(
-            args.prior_sweep, duration_s=args.duration, search_refines=args.search_refines
-        )
+        return detect.sweep_prior(args.prior_sweep, duration_s=args.duration, options=options)
     for weights in args.weights or []:
         if not weights.is_file():
             return fail(f"bench detect: --weights {weights}: no such file", EXIT_CONFIG)
@@ -50,7 +50,7 @@ def _cmd_bench_detect(args: argparse.Namespace) -> int:
         fixtures=args.fixtures,
         weights=args.weights,
         json_out=args.json,
-        search_refines=args.search_refines,
+        options=options,
     )
 
 
@@ -210,6 +210,13 @@ def register(sub: Subcommands) -> None:
         default="proposals",
         help="the service's cnn.search_refines for the CNN with its settings (default: "
         "%(default)s)",
+    )
+    bdet.add_argument(
+        "--track-hold",
+        type=non_negative_float,
+        default=0.0,
+        metavar="S",
+        help="the service's cnn.track_hold_s for the CNN with its settings (default: %(default)s)",
     )
     bdet.set_defaults(func=_cmd_bench_detect)
     bft = bench_sub.add_parser(

@@ -75,6 +75,9 @@ class CnnSettings:
     # on the validation runs (20 s, prior 1) 82.6 / 61.2 % detected against 81.4 / 60.7 %,
     # false alarms 0.0079 / 0.066 against 0.0062 / 0.059 per frame (fixed / drawn looks).
     search_refines: Literal["proposals", "proposals_and_track"] = "proposals"
+    # After pings without a confident ROV, keep refining where it last was for this long
+    # (0: forget it at the first miss): a far ROV's echo fades for a ping or two.
+    track_hold_s: float = 0.0
 
 
 # The network alone: every frame searched, no track prior (calibration, stored evaluation).
@@ -95,6 +98,7 @@ class _Track:
     stamp_ns: int
     searched_ns: int
     geometry: tuple[int, int, float, float]
+    seen_ns: int  # when the candidates were last confident
 
 
 def _geometry(frame: SonarFrame) -> tuple[int, int, float, float]:
@@ -165,19 +169,29 @@ class CnnDetector:
             found = self._refine(frame, image, table, candidates)
             candidates = [Candidate(d.range_m, d.azimuth_rad) for d in found]
         merged = self._merge(found)
-        if track is not None and s.track_prior_logit != 0.0 and self._continues(track, frame):
+        if (
+            track is not None
+            and s.track_prior_logit != 0.0
+            and self._continues(track, frame)
+            and track.seen_ns == track.stamp_ns  # confident last ping, not only held
+        ):
             prior = [self._with_prior(d, track.candidates) for d in merged]
             merged = sorted(prior, key=lambda d: -d.confidence)
-        self._track = _Track(
-            [
-                Candidate(d.range_m, d.azimuth_rad)
-                for d in merged
-                if d.confidence >= s.track_confidence
-            ],
-            frame.stamp_ns,
-            searched_ns,
-            geometry,
-        )
+        confident = [
+            Candidate(d.range_m, d.azimuth_rad)
+            for d in merged
+            if d.confidence >= s.track_confidence
+        ]
+        seen_ns = frame.stamp_ns
+        if (
+            not confident
+            and track is not None
+            and track.candidates
+            and self._continues(track, frame)
+            and frame.stamp_ns - track.seen_ns <= s.track_hold_s * 1e9
+        ):
+            confident, seen_ns = track.candidates, track.seen_ns
+        self._track = _Track(confident, frame.stamp_ns, searched_ns, geometry, seen_ns)
         return merged
 
     def _continues(self, track: _Track, frame: SonarFrame) -> bool:

@@ -64,6 +64,9 @@ class CnnConfig(ConfigSection, frozen=True, kw_only=True):
     # What a whole-frame search refines: the proposals, or also the last ping's tracked ROV
     # (keeps a far, faint ROV the proposals rank below clutter; more false alarms kept too).
     search_refines: Literal["proposals", "proposals_and_track"] = "proposals"
+    # After pings without a confident ROV, keep refining where it last was for this long
+    # (without the prior); 0: forget it at the first miss.
+    track_hold_s: Annotated[float, msgspec.Meta(ge=0.0, le=10.0)] = 0.0
     threads: Annotated[int, msgspec.Meta(ge=1, le=64)] = 1
 
 
@@ -156,6 +159,7 @@ def make_detector(config: Config) -> Detector:
         search_every_s=c.search_every_s,
         track_prior_logit=c.track_prior_logit,
         search_refines=c.search_refines,
+        track_hold_s=c.track_hold_s,
         track_confidence=config.min_confidence,
     )
     try:

@@ -15,6 +15,7 @@ from capsd.cli import main
         (["tap", "cap/**", "--count", "-3"], "must not be negative"),
         (["tap", "cap/**", "--duration", "nan"], "must be a positive number"),
         (["bench", "detect", "--frames", "0"], "not allowed"),
+        (["bench", "detect", "--track-hold", "-1"], "must be a positive number"),
         (["replay", "x.mcap", "--speed", "0"], "must be a positive number"),
     ],
 )

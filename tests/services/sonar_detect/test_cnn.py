@@ -212,3 +212,36 @@ def test_training_is_deterministic_for_a_seed(tmp_path: Path) -> None:
     first, second = (n.state_dict() for n in nets)
     assert all(torch.equal(first[k], second[k]) for k in first)
     assert isinstance(nets[0], PolarNet)
+
+
+def test_a_held_track_is_refined_through_pings_without_the_rov() -> None:
+    """`track_hold_s`: a ping or two without a confident ROV does not end the track."""
+    tank = make_tank("nfp", clutter="off")
+    renderer = SonarRenderer(SonarModel(range_max_m=20.0, n_ranges=1000), tank)
+    sonar = Transform(euler_zyx_to_matrix(0.0, math.radians(30.0), 0.0), np.array([6.0, 8.0, -0.2]))
+    body = Ellipsoid(
+        sonar.apply(6.0 * np.array([math.cos(0.2), math.sin(0.2), 0.0])),
+        euler_zyx_to_matrix(0.6, 0.0, 0.0),
+        BLUEROV2_SEMI_AXES,
+    )
+
+    def frame(k: int, *, rov: bool) -> SonarFrame:
+        ping = renderer.render(sonar, body if rov else None, np.random.default_rng(k))
+        return renderer.frame(ping, stamp_ns=1_000_000_000 + k * 25_000_000, seq=k, ping_id=k)
+
+    found = {}
+    for hold_s in (0.0, 1.0):
+        detector = CnnDetector(
+            CnnSettings(
+                track_prior_logit=2.0, search_refines="proposals_and_track", track_hold_s=hold_s
+            )
+        )
+        assert [d for d in detector.detect(frame(0, rov=True)) if d.confidence > 0.5]
+        for k in (1, 2, 3):  # 75 ms without the ROV: nothing confident
+            assert not [d for d in detector.detect(frame(k, rov=False)) if d.confidence > 0.5]
+        # Back, but no proposal allowed (as for a far echo the proposal net ranks low).
+        detector.settings = replace(detector.settings, max_candidates=0)
+        found[hold_s] = [d for d in detector.detect(frame(4, rov=True)) if d.confidence > 0.5]
+    assert not found[0.0]
+    assert found[1.0]
+    assert abs(found[1.0][0].range_m - 6.0) < 0.1
