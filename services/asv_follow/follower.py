@@ -19,7 +19,9 @@ around where it stopped that grows with the time lost, a sixth of a turn further
 time.
 The target sent to the autopilot is a carrot that walks from where the ASV was told to be
 towards the station, speed and acceleration limited, turning at a bounded rate; it starts where
-the ASV is when the pilot hands over (GUIDED) and nothing is sent in any other mode.
+the ASV is when the pilot hands over (GUIDED) and nothing is sent in any other mode. A station
+facing more than `turn_first_rad` away from the hull is turned to first, where the hull is:
+ArduRover turns a hull only at its target, and the sonar should face the ROV on the way.
 """
 
 from __future__ import annotations
@@ -52,6 +54,11 @@ class FollowSettings:
     max_speed_m_s: float = 0.3
     max_accel_m_s2: float = 0.1
     max_yaw_rate_rad_s: float = math.radians(15.0)
+    # A station whose heading is further than this from the hull's is turned to before the
+    # ASV goes: ArduRover's GUIDED turns a hull only at its target (the bridge's heading-only
+    # targets), so a carrot that walks while the hull faces the old way keeps the sonar looking
+    # away from the ROV for the whole trip.
+    turn_first_rad: float = math.radians(30.0)
 
 
 @dataclass(frozen=True)
@@ -227,11 +234,26 @@ class Follower:
         )
 
     def _walk(self, dt: float) -> None:
-        """Move the carrot towards the station: speed, acceleration and turn rate limited."""
+        """Turn the carrot, then move it towards the station (speed, acceleration, turn rate).
+
+        While the hull faces more than `turn_first_rad` off the station's heading, the carrot
+        only turns, where the hull is.
+        """
         assert self._carrot is not None
         if self.station is None or dt <= 0.0:
             return
         s = self.settings
+        turn = wrap_angle(self.station.heading_rad - self._carrot_heading)
+        max_turn = s.max_yaw_rate_rad_s * dt
+        self._carrot_heading += max(-max_turn, min(max_turn, turn))
+        if (
+            self.asv_xy is not None
+            and abs(wrap_angle(self.station.heading_rad - self.asv_heading)) > s.turn_first_rad
+        ):
+            # Turn first: the carrot waits where the hull is, so the target is a heading.
+            self._carrot = self.asv_xy.copy()
+            self._carrot_v = np.zeros(2)
+            return
         to_go = self.station.position_xy - self._carrot
         distance = float(np.linalg.norm(to_go))
         # Slow down to stop at the station: v^2 = 2 a d.
@@ -249,6 +271,3 @@ class Follower:
             self._carrot_v = np.zeros(2)
         else:
             self._carrot = self._carrot + step
-        turn = wrap_angle(self.station.heading_rad - self._carrot_heading)
-        max_turn = s.max_yaw_rate_rad_s * dt
-        self._carrot_heading += max(-max_turn, min(max_turn, turn))

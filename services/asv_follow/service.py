@@ -82,6 +82,9 @@ class MotionConfig(ConfigSection, frozen=True, kw_only=True):
     max_speed_m_s: Annotated[float, msgspec.Meta(gt=0.0, le=2.0)] = 0.5
     max_accel_m_s2: Annotated[float, msgspec.Meta(gt=0.0, le=2.0)] = 0.25
     max_yaw_rate_deg_s: Annotated[float, msgspec.Meta(gt=0.0, le=90.0)] = 15.0
+    # A station facing further than this from the hull is turned to, where the hull is, before
+    # the ASV goes (ArduRover turns a hull only at its target). 180: never.
+    turn_first_deg: Annotated[float, msgspec.Meta(gt=0.0, le=180.0)] = 30.0
     # A ROV that lost its fix is looked for this far along its track (its mission pauses).
     stop_within_s: Annotated[float, msgspec.Meta(ge=0.0, le=30.0)] = 2.0
     # How fast a ROV holding without positions may wander: looks search a growing circle.
@@ -98,6 +101,7 @@ class MotionConfig(ConfigSection, frozen=True, kw_only=True):
             max_speed_m_s=self.max_speed_m_s,
             max_accel_m_s2=self.max_accel_m_s2,
             max_yaw_rate_rad_s=math.radians(self.max_yaw_rate_deg_s),
+            turn_first_rad=math.radians(self.turn_first_deg),
             stop_within_s=self.stop_within_s,
             lost_drift_m_s=self.lost_drift_m_s,
         )

@@ -191,3 +191,49 @@ def test_the_search_for_a_lost_rov_grows_and_goes_round() -> None:
         round(math.degrees(math.atan2(a[1] - stop[1], a[0] - stop[0]))) % 360 for _, a in aims[3:9]
     }
     assert len(directions) == 6
+
+
+def test_a_station_facing_away_is_turned_to_before_the_asv_goes() -> None:
+    """The hull faces 0 deg; the ROV behind it: the carrot turns where the hull is, then goes."""
+    follower = _follower(max_yaw_rate_rad_s=math.radians(15.0))
+    follower.on_mode("GUIDED")
+    rov = np.array([2.0, 9.0, -3.5])  # behind the ASV at START
+    follower.on_fix(0.0, rov)
+    target = follower.step(0.0)
+    assert target is not None
+    station = follower.station
+    assert station is not None
+    assert abs(math.degrees(station.heading_rad)) > 90.0
+    heading = 0.0
+    for k in range(1, 300):  # 30 s at 10 Hz; the hull turns as told, it does not move yet
+        now = k * 0.1
+        follower.on_fix(now, rov)
+        follower.on_pose(START, heading)
+        target = follower.step(now)
+        assert target is not None
+        off = abs(math.degrees(math.atan2(math.sin(station.heading_rad - heading),
+                                          math.cos(station.heading_rad - heading))))  # fmt: skip
+        if off > 30.0:
+            assert np.allclose(target.position_xy, START), k  # only a heading
+        heading = target.heading_rad
+        if off <= 30.0:
+            break
+    # Within 30 deg of the station's heading: now the carrot walks.
+    moved = False
+    for k in range(300, 400):
+        now = k * 0.1
+        follower.on_fix(now, rov)
+        follower.on_pose(START, heading)
+        target = follower.step(now)
+        assert target is not None
+        moved = moved or not np.allclose(target.position_xy, START)
+    assert moved
+    # Without the rule the carrot walks at once, the hull still facing away.
+    eager = _follower(turn_first_rad=math.pi)
+    eager.on_mode("GUIDED")
+    eager.on_fix(0.0, rov)
+    eager.step(0.0)
+    eager.on_fix(1.0, rov)
+    walked = eager.step(1.0)
+    assert walked is not None
+    assert not np.allclose(walked.position_xy, START)
