@@ -19,9 +19,10 @@ around where it stopped that grows with the time lost, a sixth of a turn further
 time.
 The target sent to the autopilot is a carrot that walks from where the ASV was told to be
 towards the station, speed and acceleration limited, turning at a bounded rate; it starts where
-the ASV is when the pilot hands over (GUIDED) and nothing is sent in any other mode. A station
-facing more than `turn_first_rad` away from the hull is turned to first, where the hull is:
-ArduRover turns a hull only at its target, and the sonar should face the ROV on the way.
+the ASV is when the pilot hands over (GUIDED) and nothing is sent in any other mode. On the
+way the hull is to face the ROV (or where it is looked for), at the station the station's
+heading; ArduRover turns a hull only at its target, so while the hull faces more than
+`turn_first_rad` off that heading the carrot turns where the hull is, and only then walks.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ from capsd.geometry import Array, wrap_angle
 from capsd.services.asv_follow.station import Station, StationPlanner
 
 FollowState = Literal["standby", "holding", "following", "no_station"]
+ARRIVED_M = 1.0  # this near its station the hull takes the station's heading
 
 
 @dataclass(frozen=True)
@@ -90,6 +92,7 @@ class Follower:
         self._carrot_heading = 0.0
         self._last_plan_s = -math.inf
         self.looks = 0  # stations chosen to look again at a lost ROV
+        self._aim: Array | None = None  # where the station was chosen to look
         self._last_step_s: float | None = None
 
     def on_pose(self, xy: Array, heading_rad: float) -> None:
@@ -137,6 +140,7 @@ class Follower:
             )
             if chosen is not None:
                 self.station = chosen
+                self._aim = self._ahead()
                 self.replans += 1
                 replanned = True
         lost_for = now_s - self.fix_s
@@ -153,6 +157,7 @@ class Follower:
             chosen = self.planner.choose(held, self._carrot, self._carrot_heading)
             if chosen is not None:
                 self.station = chosen
+                self._aim = held
                 self.looks += 1
                 replanned = True
         elif (
@@ -172,6 +177,7 @@ class Follower:
             ) or self.planner.choose(aim, self._carrot, self._carrot_heading)
             if chosen is not None:
                 self.station = chosen
+                self._aim = aim
                 self.looks += 1
                 replanned = True
         state: FollowState
@@ -179,8 +185,21 @@ class Follower:
             state = "no_station" if fresh else "holding"
         else:
             state = "following" if fresh else "holding"
-        self._walk(dt)
+        self._walk(dt, fresh=fresh)
         return Target(self._carrot.copy(), self._carrot_heading, state, replanned)
+
+    def _wanted_heading(self, *, fresh: bool) -> float:
+        """The hull's heading now: the sonar on the ROV on the way, the station's at it."""
+        assert self.station is not None
+        look = self._ahead() if fresh and self.rov_m is not None else self._aim
+        if self.asv_xy is None or look is None:
+            return self.station.heading_rad
+        if float(np.linalg.norm(self.station.position_xy - self.asv_xy)) <= ARRIVED_M:
+            return self.station.heading_rad
+        offset = look[:2] - self.asv_xy
+        if float(np.linalg.norm(offset)) < ARRIVED_M:  # (under the hull: no bearing to face)
+            return self.station.heading_rad
+        return wrap_angle(math.atan2(offset[1], offset[0]) - self.planner.mount_yaw)
 
     def _horizontal_velocity(self) -> Array | None:
         """The ROV's tracked horizontal velocity; None while it hovers (or it is noise)."""
@@ -233,22 +252,23 @@ class Follower:
             or self.planner.masked(self.station.position_xy, self.station.heading_rad, self.rov_m)
         )
 
-    def _walk(self, dt: float) -> None:
+    def _walk(self, dt: float, *, fresh: bool) -> None:
         """Turn the carrot, then move it towards the station (speed, acceleration, turn rate).
 
-        While the hull faces more than `turn_first_rad` off the station's heading, the carrot
-        only turns, where the hull is.
+        On the way the hull is to face the ROV (`_wanted_heading`); while it faces more than
+        `turn_first_rad` off that, the carrot only turns, where the hull is.
         """
         assert self._carrot is not None
         if self.station is None or dt <= 0.0:
             return
         s = self.settings
-        turn = wrap_angle(self.station.heading_rad - self._carrot_heading)
+        heading = self._wanted_heading(fresh=fresh)
+        turn = wrap_angle(heading - self._carrot_heading)
         max_turn = s.max_yaw_rate_rad_s * dt
         self._carrot_heading += max(-max_turn, min(max_turn, turn))
         if (
             self.asv_xy is not None
-            and abs(wrap_angle(self.station.heading_rad - self.asv_heading)) > s.turn_first_rad
+            and abs(wrap_angle(heading - self.asv_heading)) > s.turn_first_rad
         ):
             # Turn first: the carrot waits where the hull is, so the target is a heading.
             self._carrot = self.asv_xy.copy()
