@@ -22,7 +22,8 @@ towards the station, speed and acceleration limited, turning at a bounded rate; 
 the ASV is when the pilot hands over (GUIDED) and nothing is sent in any other mode. On the
 way the hull is to face the ROV (or where it is looked for), at the station the station's
 heading; ArduRover turns a hull only at its target, so while the hull faces more than
-`turn_first_rad` off that heading the carrot turns where the hull is, and only then walks.
+`turn_first_rad` off that heading the carrot turns where the hull is, and only then walks;
+a way that would pass over the ROV (to a station on its other side) goes round it.
 """
 
 from __future__ import annotations
@@ -38,6 +39,10 @@ from capsd.services.asv_follow.station import Station, StationPlanner
 
 FollowState = Literal["standby", "holding", "following", "no_station"]
 ARRIVED_M = 1.0  # this near its station the hull takes the station's heading
+# A way that passes nearer the ROV than this share of the carrot's or the station's distance
+# from it goes round instead, heading at most this much bearing ahead round the ROV.
+AROUND_WITHIN = 0.8
+AROUND_STEP_RAD = math.radians(30.0)
 
 
 @dataclass(frozen=True)
@@ -188,10 +193,47 @@ class Follower:
         self._walk(dt, fresh=fresh)
         return Target(self._carrot.copy(), self._carrot_heading, state, replanned)
 
+    def _look_point(self, *, fresh: bool) -> Array | None:
+        """Where the ROV is (ahead, with a fresh fix) or is looked for (the station's aim)."""
+        return self._ahead() if fresh and self.rov_m is not None else self._aim
+
+    def _around(self, look: Array | None, station_xy: Array) -> Array:
+        """Where the carrot heads: the station, or round the ROV when the way passes over it.
+
+        A straight way to a station on the ROV's other side passes over it, where the ROV is
+        under the sonar's aperture; instead the carrot goes round on a spiral from its own
+        distance to the station's, at most AROUND_STEP_RAD of bearing ahead at a time.
+        """
+        assert self._carrot is not None
+        if look is None:
+            return station_xy
+        centre = look[:2]
+        here = self._carrot - centre
+        there = station_xy - centre
+        r_here, r_there = float(np.linalg.norm(here)), float(np.linalg.norm(there))
+        way = station_xy - self._carrot
+        length2 = float(way @ way)
+        if length2 < 1e-12 or min(r_here, r_there) < 0.5:
+            return station_xy
+        t = min(max(float((centre - self._carrot) @ way) / length2, 0.0), 1.0)
+        closest = float(np.linalg.norm(self._carrot + t * way - centre))
+        if closest >= AROUND_WITHIN * min(r_here, r_there):
+            return station_xy
+        a_here = math.atan2(here[1], here[0])
+        turn = wrap_angle(math.atan2(there[1], there[0]) - a_here)
+        if abs(turn) <= AROUND_STEP_RAD:
+            return station_xy
+        step = math.copysign(AROUND_STEP_RAD, turn)
+        # On the tangent, not the circle: heading for a point on the circle cuts inside it.
+        radius = (r_here + (r_there - r_here) * step / turn) / math.cos(step)
+        return np.asarray(
+            centre + radius * np.array([math.cos(a_here + step), math.sin(a_here + step)])
+        )
+
     def _wanted_heading(self, *, fresh: bool) -> float:
         """The hull's heading now: the sonar on the ROV on the way, the station's at it."""
         assert self.station is not None
-        look = self._ahead() if fresh and self.rov_m is not None else self._aim
+        look = self._look_point(fresh=fresh)
         if self.asv_xy is None or look is None:
             return self.station.heading_rad
         if float(np.linalg.norm(self.station.position_xy - self.asv_xy)) <= ARRIVED_M:
@@ -274,7 +316,8 @@ class Follower:
             self._carrot = self.asv_xy.copy()
             self._carrot_v = np.zeros(2)
             return
-        to_go = self.station.position_xy - self._carrot
+        goal = self._around(self._look_point(fresh=fresh), self.station.position_xy)
+        to_go = goal - self._carrot
         distance = float(np.linalg.norm(to_go))
         # Slow down to stop at the station: v^2 = 2 a d.
         speed = min(s.max_speed_m_s, math.sqrt(2.0 * s.max_accel_m_s2 * distance))
@@ -287,7 +330,7 @@ class Follower:
         self._carrot_v = self._carrot_v + change
         step = self._carrot_v * dt
         if float(np.linalg.norm(step)) >= distance:
-            self._carrot = self.station.position_xy.copy()
+            self._carrot = goal.copy()
             self._carrot_v = np.zeros(2)
         else:
             self._carrot = self._carrot + step

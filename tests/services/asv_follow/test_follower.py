@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from capsd.mounts import SonarMountConfig
+from capsd.services.asv_follow import follower as follower_module
 from capsd.services.asv_follow.follower import Follower, FollowSettings
-from capsd.services.asv_follow.station import StationPlanner, StationSettings
+from capsd.services.asv_follow.station import Station, StationPlanner, StationSettings
 from capsd.tank import TankBounds
 
 START = np.array([10.0, 8.0])
@@ -221,3 +222,37 @@ def test_the_hull_turns_to_face_the_rov_before_the_asv_goes() -> None:
     k, heading = left_start(_follower(turn_first_rad=math.pi))
     assert k <= 2
     assert abs(heading) < math.radians(5.0)
+
+
+def test_the_way_to_a_station_beyond_the_rov_goes_round_it(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A station on the ROV's far side: the carrot keeps its distance instead of passing over."""
+    rov = np.array([16.0, 8.0, -3.5])  # 6 m ahead of the ASV at START, which faces it
+
+    def nearest_on_the_way() -> float:
+        follower = _follower()
+        follower.on_mode("GUIDED")
+        follower.on_fix(0.0, rov)
+        assert follower.step(0.0) is not None
+        far_side = rov[:2] + np.array([6.0, 0.5])
+        heading = math.atan2(rov[1] - far_side[1], rov[0] - far_side[0])
+        view = follower.planner.view(far_side, heading, rov)
+        follower.station = Station(position_xy=far_side, heading_rad=heading, view=view)
+        follower._last_plan_s = math.inf  # keep this station (no replanning in this test)
+        nearest = math.inf
+        xy, hull = START.copy(), 0.0
+        for k in range(1, 1200):  # 120 s at 10 Hz; the hull goes where it is told
+            now = k * 0.1
+            follower.on_fix(now, rov)
+            follower.on_pose(xy, hull)
+            target = follower.step(now)
+            assert target is not None
+            xy, hull = target.position_xy, target.heading_rad
+            nearest = min(nearest, float(np.linalg.norm(xy - rov[:2])))
+        assert float(np.linalg.norm(xy - far_side)) < 0.05  # arrived
+        return nearest
+
+    assert nearest_on_the_way() > 0.8 * 6.0 - 0.2
+    monkeypatch.setattr(follower_module, "AROUND_WITHIN", 0.0)  # straight through
+    assert nearest_on_the_way() < 1.0
