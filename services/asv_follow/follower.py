@@ -202,7 +202,8 @@ class Follower:
 
         A straight way to a station on the ROV's other side passes over it, where the ROV is
         under the sonar's aperture; instead the carrot goes round on a spiral from its own
-        distance to the station's, at most AROUND_STEP_RAD of bearing ahead at a time.
+        distance to the station's, at most AROUND_STEP_RAD of bearing ahead at a time, kept
+        as far from the walls as a station must be.
         """
         assert self._carrot is not None
         if look is None:
@@ -226,9 +227,11 @@ class Follower:
         step = math.copysign(AROUND_STEP_RAD, turn)
         # On the tangent, not the circle: heading for a point on the circle cuts inside it.
         radius = (r_here + (r_there - r_here) * step / turn) / math.cos(step)
-        return np.asarray(
-            centre + radius * np.array([math.cos(a_here + step), math.sin(a_here + step)])
-        )
+        point = centre + radius * np.array([math.cos(a_here + step), math.sin(a_here + step)])
+        # Never nearer a wall than a station may be (closer to the ROV there, if need be); a
+        # keep-out box in the way: straight.
+        point = self.planner.within_walls(point)
+        return np.asarray(point) if self.planner.clear(point) else station_xy
 
     def _wanted_heading(self, *, fresh: bool) -> float:
         """The hull's heading now: the sonar on the ROV on the way, the station's at it."""

@@ -130,10 +130,21 @@ class StationPlanner:
             and view.conditioning <= s.max_conditioning
         )
 
+    def _wall_clearance(self) -> float:
+        s = self.settings
+        return s.wall_clearance_m + s.hull_radius_m + s.tracking_margin_m
+
+    def within_walls(self, asv_xy: Array) -> Array:
+        """`asv_xy` moved the least to where the hull keeps its clearance from the walls."""
+        c = self._wall_clearance()
+        x = min(max(float(asv_xy[0]), c), max(c, self.tank.length_m - c))
+        y = min(max(float(asv_xy[1]), c), max(c, self.tank.width_m - c))
+        return np.array([x, y])
+
     def clear(self, asv_xy: Array) -> bool:
         """Whether the hull at `asv_xy` keeps its clearance from walls and keep-out boxes."""
         s = self.settings
-        c = s.wall_clearance_m + s.hull_radius_m + s.tracking_margin_m
+        c = self._wall_clearance()
         x, y = float(asv_xy[0]), float(asv_xy[1])
         if not (c <= x <= self.tank.length_m - c and c <= y <= self.tank.width_m - c):
             return False

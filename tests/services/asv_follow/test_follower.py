@@ -231,7 +231,12 @@ def test_the_way_to_a_station_beyond_the_rov_goes_round_it(
     rov = np.array([16.0, 8.0, -3.5])  # 6 m ahead of the ASV at START, which faces it
 
     def nearest_on_the_way() -> float:
-        follower = _follower()
+        # A tank wide enough that no wall narrows the way round.
+        planner = StationPlanner(
+            SonarMountConfig(), TankBounds(length_m=40.0, width_m=30.0), StationSettings()
+        )
+        follower = Follower(planner, FollowSettings())
+        follower.on_pose(START, 0.0)
         follower.on_mode("GUIDED")
         follower.on_fix(0.0, rov)
         assert follower.step(0.0) is not None
@@ -256,3 +261,30 @@ def test_the_way_to_a_station_beyond_the_rov_goes_round_it(
     assert nearest_on_the_way() > 0.8 * 6.0 - 0.2
     monkeypatch.setattr(follower_module, "AROUND_WITHIN", 0.0)  # straight through
     assert nearest_on_the_way() < 1.0
+
+
+def test_going_round_the_rov_keeps_the_hull_clear_of_the_walls() -> None:
+    """In a narrow tank one way round is closed: the other side, or straight."""
+    tank = TankBounds(length_m=30.0, width_m=11.0)
+    planner = StationPlanner(SonarMountConfig(), tank, StationSettings())
+    rov = np.array([16.0, 7.5, -3.5])  # 3.5 m from the far wall: no room round that side
+    for start in (np.array([10.0, 7.0]), np.array([10.0, 8.0])):
+        follower = Follower(planner, FollowSettings())
+        follower.on_pose(start, 0.0)
+        follower.on_mode("GUIDED")
+        follower.on_fix(0.0, rov)
+        assert follower.step(0.0) is not None
+        far_side = rov[:2] + np.array([6.0, 0.0])
+        view = follower.planner.view(far_side, math.pi, rov)
+        follower.station = Station(position_xy=far_side, heading_rad=math.pi, view=view)
+        follower._last_plan_s = math.inf
+        xy, hull = start.copy(), 0.0
+        for k in range(1, 1500):
+            now = k * 0.1
+            follower.on_fix(now, rov)
+            follower.on_pose(xy, hull)
+            target = follower.step(now)
+            assert target is not None
+            xy, hull = target.position_xy, target.heading_rad
+            assert planner.clear(xy), (start, k, xy)
+        assert float(np.linalg.norm(xy - far_side)) < 0.05
