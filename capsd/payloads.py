@@ -494,6 +494,7 @@ ALL_PAYLOADS: tuple[type[Payload], ...] = (
     RovVelocity,
     AutopilotStatus,
     RovFix,
+    VehicleCommand,
     ReferencePose,
     GroundTruth,
     SonarLabel,

@@ -26,6 +26,7 @@ from capsd.payloads import (
     SonarFrame,
     SonarLabel,
     StreamStats,
+    VehicleCommand,
 )
 
 _IDENTITY = (0.0, 0.0, 0.0, 1.0)
@@ -77,4 +78,6 @@ SAMPLES: tuple[Payload, ...] = (
                 rov_position_m=(3.0, 4.0, -2.0), rov_orientation_xyzw=_IDENTITY),
     SimControl(stamp_ns=STAMP, seq=1, mute=("asv/scan@asv",), for_s=5.0),
     ReferencePose(stamp_ns=STAMP, seq=3, position_m=(0.5, -0.1, -1.1), frame_id="mocap"),
+    VehicleCommand(stamp_ns=STAMP, seq=2, mission="nfp-lawnmower", kind="goto", waypoint=3,
+                   position_m=(12.0, 6.0, -3.5), heading_rad=0.5, reason="repeat"),
 )  # fmt: skip

@@ -20,6 +20,16 @@ def test_every_payload_type_has_a_sample() -> None:
     assert {type(s) for s in SAMPLES} == set(ALL_PAYLOADS)
 
 
+def test_every_payload_type_is_known_to_tools() -> None:
+    """A payload class missing from ALL_PAYLOADS would not decode in `capsd tap` or replays."""
+
+    def leaves(cls: type[Payload]) -> set[type[Payload]]:
+        subs = cls.__subclasses__()
+        return {cls} if not subs else set().union(*(leaves(c) for c in subs))
+
+    assert leaves(Payload) == set(ALL_PAYLOADS)
+
+
 @pytest.mark.parametrize("payload", SAMPLES, ids=lambda p: type(p).__name__)
 def test_round_trip_in_memory(payload: Payload) -> None:
     codec = Codec(type(payload))
