@@ -14,12 +14,13 @@ poses), and a ROV that hovers over a rack stays refused, as any static echo ther
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from capsd.geometry import Array, Transform
-from capsd.sonar_geometry import BeamModel, beam_directions
+from capsd.sonar_geometry import BeamModel, beam_directions, to_polar
 
 _ELEVATION_SAMPLES = 41
 
@@ -86,7 +87,7 @@ class MovingEchoes:
         chain.sightings += 1
         if chain.sightings < s.min_sightings or stamp_ns - chain.first_ns < s.min_age_s * 1e9:
             return False
-        return self.shift_m(chain, sonar_pose, range_m, azimuth_rad) >= s.min_shift_m
+        return self._shift_m(chain, sonar_pose, range_m, azimuth_rad) >= s.min_shift_m
 
     def _nearest(self, stamp_ns: int, position_m: Array) -> _Chain | None:
         s = self.settings
@@ -100,7 +101,7 @@ class MovingEchoes:
                 best = (d, chain)
         return None if best is None else best[1]
 
-    def shift_m(
+    def _shift_m(
         self, chain: _Chain, sonar_pose: Transform, range_m: float, azimuth_rad: float
     ) -> float:
         """Metres between the echo now and the nearest place a static source would appear."""
@@ -108,10 +109,8 @@ class MovingEchoes:
         world = chain.first_range_m * local @ chain.first_sonar.rotation.T
         world += chain.first_sonar.translation
         now = (world - sonar_pose.translation) @ sonar_pose.rotation  # into S now
-        r = np.linalg.norm(now, axis=1)
-        if self.beam_model == "planar":
-            az = np.arctan2(now[:, 1], now[:, 0])
-        else:
-            az = np.arcsin(np.clip(now[:, 1] / np.maximum(r, 1e-9), -1.0, 1.0))
-        d = np.hypot(r - range_m, range_m * (az - azimuth_rad))
-        return float(d.min())
+        shifts = []
+        for point in now:
+            r, az, _ = to_polar(self.beam_model, point)
+            shifts.append(math.hypot(r - range_m, range_m * (az - azimuth_rad)))
+        return min(shifts)

@@ -224,39 +224,53 @@ def test_the_hull_turns_to_face_the_rov_before_the_asv_goes() -> None:
     assert abs(heading) < math.radians(5.0)
 
 
+def _fly_to_station(
+    planner: StationPlanner,
+    start: np.ndarray,
+    rov: np.ndarray,
+    station_xy: np.ndarray,
+    heading_rad: float,
+    *,
+    steps: int,
+) -> list[np.ndarray]:
+    """The carrot's 10 Hz positions to a station handed over (never replanned), hull obeying."""
+    follower = Follower(planner, FollowSettings())
+    follower.on_pose(start, 0.0)
+    follower.on_mode("GUIDED")
+    follower.on_fix(0.0, rov)
+    assert follower.step(0.0) is not None
+    view = planner.view(station_xy, heading_rad, rov)
+    follower.station = Station(position_xy=station_xy, heading_rad=heading_rad, view=view)
+    follower._last_plan_s = math.inf  # keep this station
+    xy, hull = start.copy(), 0.0
+    way = []
+    for k in range(1, steps):
+        now = k * 0.1
+        follower.on_fix(now, rov)
+        follower.on_pose(xy, hull)
+        target = follower.step(now)
+        assert target is not None
+        xy, hull = target.position_xy, target.heading_rad
+        way.append(xy)
+    return way
+
+
 def test_the_way_to_a_station_beyond_the_rov_goes_round_it(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """A station on the ROV's far side: the carrot keeps its distance instead of passing over."""
     rov = np.array([16.0, 8.0, -3.5])  # 6 m ahead of the ASV at START, which faces it
+    # A tank wide enough that no wall narrows the way round.
+    planner = StationPlanner(
+        SonarMountConfig(), TankBounds(length_m=40.0, width_m=30.0), StationSettings()
+    )
+    far_side = rov[:2] + np.array([6.0, 0.5])
+    heading = math.atan2(rov[1] - far_side[1], rov[0] - far_side[0])
 
     def nearest_on_the_way() -> float:
-        # A tank wide enough that no wall narrows the way round.
-        planner = StationPlanner(
-            SonarMountConfig(), TankBounds(length_m=40.0, width_m=30.0), StationSettings()
-        )
-        follower = Follower(planner, FollowSettings())
-        follower.on_pose(START, 0.0)
-        follower.on_mode("GUIDED")
-        follower.on_fix(0.0, rov)
-        assert follower.step(0.0) is not None
-        far_side = rov[:2] + np.array([6.0, 0.5])
-        heading = math.atan2(rov[1] - far_side[1], rov[0] - far_side[0])
-        view = follower.planner.view(far_side, heading, rov)
-        follower.station = Station(position_xy=far_side, heading_rad=heading, view=view)
-        follower._last_plan_s = math.inf  # keep this station (no replanning in this test)
-        nearest = math.inf
-        xy, hull = START.copy(), 0.0
-        for k in range(1, 1200):  # 120 s at 10 Hz; the hull goes where it is told
-            now = k * 0.1
-            follower.on_fix(now, rov)
-            follower.on_pose(xy, hull)
-            target = follower.step(now)
-            assert target is not None
-            xy, hull = target.position_xy, target.heading_rad
-            nearest = min(nearest, float(np.linalg.norm(xy - rov[:2])))
-        assert float(np.linalg.norm(xy - far_side)) < 0.05  # arrived
-        return nearest
+        way = _fly_to_station(planner, START, rov, far_side, heading, steps=1200)  # 120 s
+        assert float(np.linalg.norm(way[-1] - far_side)) < 0.05  # arrived
+        return min(float(np.linalg.norm(xy - rov[:2])) for xy in way)
 
     assert nearest_on_the_way() > 0.8 * 6.0 - 0.2
     monkeypatch.setattr(follower_module, "AROUND_WITHIN", 0.0)  # straight through
@@ -264,27 +278,13 @@ def test_the_way_to_a_station_beyond_the_rov_goes_round_it(
 
 
 def test_going_round_the_rov_keeps_the_hull_clear_of_the_walls() -> None:
-    """In a narrow tank one way round is closed: the other side, or straight."""
+    """In a narrow tank the way round is kept inside the walls' clearance box (or straight)."""
     tank = TankBounds(length_m=30.0, width_m=11.0)
     planner = StationPlanner(SonarMountConfig(), tank, StationSettings())
     rov = np.array([16.0, 7.5, -3.5])  # 3.5 m from the far wall: no room round that side
+    far_side = rov[:2] + np.array([6.0, 0.0])
     for start in (np.array([10.0, 7.0]), np.array([10.0, 8.0])):
-        follower = Follower(planner, FollowSettings())
-        follower.on_pose(start, 0.0)
-        follower.on_mode("GUIDED")
-        follower.on_fix(0.0, rov)
-        assert follower.step(0.0) is not None
-        far_side = rov[:2] + np.array([6.0, 0.0])
-        view = follower.planner.view(far_side, math.pi, rov)
-        follower.station = Station(position_xy=far_side, heading_rad=math.pi, view=view)
-        follower._last_plan_s = math.inf
-        xy, hull = start.copy(), 0.0
-        for k in range(1, 1500):
-            now = k * 0.1
-            follower.on_fix(now, rov)
-            follower.on_pose(xy, hull)
-            target = follower.step(now)
-            assert target is not None
-            xy, hull = target.position_xy, target.heading_rad
+        way = _fly_to_station(planner, start, rov, far_side, math.pi, steps=1500)
+        for k, xy in enumerate(way):
             assert planner.clear(xy), (start, k, xy)
-        assert float(np.linalg.norm(xy - far_side)) < 0.05
+        assert float(np.linalg.norm(way[-1] - far_side)) < 0.05

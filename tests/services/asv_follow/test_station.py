@@ -170,3 +170,16 @@ def test_a_view_where_a_rack_shares_the_rovs_range_cell_is_avoided() -> None:
     assert planner.view_is_good(chosen.view)
     # Open water: the same view is not masked.
     assert not _planner().masked(free.position_xy, free.heading_rad, rov)
+
+
+def test_within_walls_moves_a_point_the_least_into_the_clearance_box() -> None:
+    planner = StationPlanner(
+        SonarMountConfig(), TankBounds(length_m=20.0, width_m=10.0), StationSettings()
+    )
+    s = planner.settings
+    c = s.wall_clearance_m + s.hull_radius_m + s.tracking_margin_m
+    inside = np.array([8.0, 5.0])
+    assert np.allclose(planner.within_walls(inside), inside)
+    assert np.allclose(planner.within_walls(np.array([-3.0, 5.0])), [c, 5.0])
+    assert np.allclose(planner.within_walls(np.array([25.0, 12.0])), [20.0 - c, 10.0 - c])
+    assert planner.clear(planner.within_walls(np.array([19.9, 0.1])))
