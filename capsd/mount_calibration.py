@@ -42,10 +42,13 @@ MIN_CONTRAST = 25.0  # 8-bit levels between the water before the wall and the wa
 MIN_MEASUREMENTS = 200
 # A correction is "determined" (and applied) when its 1-sigma is within what a fix can bear:
 # 0.1 deg of heading is 14 mm at 8 m; tilt matters far less (the depth constraint forgives it).
+# The 1-sigma is the marginal one (fit_mount: the wider of two estimates): it already carries
+# how much yaw and roll trade off against each other. (A cut on their correlation alone, 0.95,
+# refused a mockup's yaw known to 0.07 deg, and 0.06 deg right.)
 YAW_SIGMA_MAX_DEG = 0.1
 ROLL_SIGMA_MAX_DEG = 0.3
 SHIFT_SIGMA_MAX_M = 0.015
-MAX_CORRELATION = 0.95
+F_SCALE_M = 0.05  # the robust loss's scale: edges further off than this count less
 
 
 @dataclass(frozen=True)
@@ -309,7 +312,7 @@ def fit_mount(
             return edges.residuals(p)
 
         result = least_squares(
-            residuals, params[free_i], loss="soft_l1", f_scale=0.05, x_scale=X_SCALE[free_i]
+            residuals, params[free_i], loss="soft_l1", f_scale=F_SCALE_M, x_scale=X_SCALE[free_i]
         )
         params[free_i] = result.x
     assert edges is not None
@@ -319,15 +322,21 @@ def fit_mount(
     jac = np.asarray(result.jac, dtype=np.float64)
     dof = max(n - len(free_i), 1)
     s2 = float(np.sum(res**2) / dof)
+    # Two estimates of the covariance, the larger 1-sigma kept: every edge independent, scaled
+    # by the residuals' spread (outliers and all), and the sandwich over frames (a frame's
+    # edges sharing their errors, the robust loss's weights). Neither holds what the model
+    # itself gets wrong (the beam's pattern), so the wider is what is reported.
     cov = np.zeros((len(PARAMETERS), len(PARAMETERS)))
+    framed = np.zeros_like(cov)
     try:
         cov[np.ix_(free_i, free_i)] = np.linalg.inv(jac.T @ jac) * s2
+        framed[np.ix_(free_i, free_i)] = _frame_covariance(jac, res, edges.frames)
     except np.linalg.LinAlgError:
         cov[np.ix_(free_i, free_i)] = np.inf
-    sig = np.sqrt(np.clip(np.diag(cov), 0.0, np.inf))
-    corr = float(cov[0, 1] / (sig[0] * sig[1])) if sig[0] > 0 and sig[1] > 0 else 0.0
+    sig = np.sqrt(np.clip(np.maximum(np.diag(cov), np.diag(framed)), 0.0, np.inf))
+    both = float(cov[0, 0] * cov[1, 1])
+    corr = float(cov[0, 1]) / math.sqrt(both) if math.isfinite(both) and both > 0 else 0.0
     yaw_sigma, roll_sigma = math.degrees(float(sig[0])), math.degrees(float(sig[1]))
-    seen = abs(corr) < MAX_CORRELATION
     return MountFit(
         yaw_deg=math.degrees(params[0]),
         yaw_sigma_deg=yaw_sigma,
@@ -341,10 +350,28 @@ def fit_mount(
         measurements=n,
         frames=len(np.unique(edges.frames)),
         residual_rms_m=float(np.sqrt(np.mean(res**2))),
-        yaw_determined=bool(seen and 0 < yaw_sigma <= YAW_SIGMA_MAX_DEG),
-        roll_determined=bool(seen and 0 < roll_sigma <= ROLL_SIGMA_MAX_DEG),
+        yaw_determined=bool(0 < yaw_sigma <= YAW_SIGMA_MAX_DEG),
+        roll_determined=bool(0 < roll_sigma <= ROLL_SIGMA_MAX_DEG),
         shift_determined=bool("y" in free and 0 < sig[6] <= SHIFT_SIGMA_MAX_M),
     )
+
+
+def _frame_covariance(jac: Floats, residuals: Floats, frames: npt.NDArray[np.int_]) -> Floats:
+    """The fit's covariance with each frame's edges allowed to share their errors.
+
+    A frame's edges are not independent (one pose, one ping's noise): the sandwich estimate
+    over frames, (J'J)^-1 (sum over frames of J_f' r_f r_f' J_f) (J'J)^-1, with the robust
+    loss's weights (jac is least_squares' weighted Jacobian, so the residuals are weighted
+    alike).
+    """
+    weighted = residuals / np.sqrt(np.sqrt(1.0 + (residuals / F_SCALE_M) ** 2))
+    bread = np.linalg.inv(jac.T @ jac)
+    meat = np.zeros_like(bread)
+    for f in np.unique(frames):
+        score = jac[frames == f].T @ weighted[frames == f]
+        meat += np.outer(score, score)
+    out: Floats = bread @ meat @ bread
+    return out
 
 
 def corrected(mount: SonarMountConfig, fit: MountFit) -> SonarMountConfig:

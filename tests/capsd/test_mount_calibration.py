@@ -106,6 +106,23 @@ def test_a_known_heading_and_roll_error_is_recovered(yaw_deg: float, roll_deg: f
     assert abs(fit.yaw_deg - yaw_deg) < 4 * fit.yaw_sigma_deg + 0.01  # an honest sigma
 
 
+def test_from_one_heading_it_says_what_it_cannot_tell() -> None:
+    # Without the turn, with one wall in view, heading, roll and position move its edge
+    # nearly alike: their 1-sigma (what they trade against each other) is too wide to write.
+    true_sonar = _mount_with(MOUNT, math.radians(0.6), math.radians(-0.5), (0.0, 0.02))
+    rng = np.random.default_rng(3)
+    asv = _asv(1.0)
+    still = [Observation(_frame(asv, true_sonar, rng, k), asv) for k in range(24)]
+    fit = fit_mount(still, mount=MOUNT, tank=TANK)
+    assert not fit.yaw_determined
+    assert not fit.roll_determined
+    assert not fit.shift_determined
+    turned = fit_mount(_spin(true_sonar), mount=MOUNT, tank=TANK)
+    assert turned.yaw_determined
+    assert turned.roll_determined
+    assert turned.shift_determined
+
+
 def test_without_walls_in_view_it_refuses() -> None:
     rng = np.random.default_rng(1)
     true_sonar = _mount_with(MOUNT, 0.0, 0.0)
