@@ -16,7 +16,8 @@ only), or, where no such bearing has a station (a corner of a small tank), from 
 station there is, and again every `reacquire_after_s`. A ROV holding without positions
 wanders (dead reckoning, `lost_drift_m_s`), so each further look aims at a point on a circle
 around where it stopped that grows with the time lost, a sixth of a turn further round each
-time.
+time (clipped to the tank: the ROV is in it), trying the next direction at once where an aim
+has no station.
 The target sent to the autopilot is a carrot that walks from where the ASV was told to be
 towards the station, speed and acceleration limited, turning at a bounded rate; it starts where
 the ASV is when the pilot hands over (GUIDED) and nothing is sent in any other mode. On the
@@ -43,6 +44,10 @@ ARRIVED_M = 1.0  # this near its station the hull takes the station's heading
 # from it goes round instead, heading at most this much bearing ahead round the ROV.
 AROUND_WITHIN = 0.8
 AROUND_STEP_RAD = math.radians(30.0)
+# A lost ROV is looked for in six directions round where it stopped, its centre at least
+# this far from a wall (half a BlueROV2's length).
+SEARCH_DIRECTIONS = 6
+SEARCH_WALL_MARGIN_M = 0.3
 
 
 @dataclass(frozen=True)
@@ -97,6 +102,7 @@ class Follower:
         self._carrot_heading = 0.0
         self._last_plan_s = -math.inf
         self.looks = 0  # stations chosen to look again at a lost ROV
+        self._search_turns = 0  # search directions tried (a sixth of a turn further each)
         self._aim: Array | None = None  # where the station was chosen to look
         self._last_step_s: float | None = None
 
@@ -173,18 +179,22 @@ class Follower:
             and now_s - self._last_plan_s >= self.settings.reacquire_after_s
         ):
             self._last_plan_s = now_s
-            aim = self._search_point(lost_for)
-            chosen = self.planner.choose(
-                aim,
-                self._carrot,
-                self._carrot_heading,
-                avoid_bearing_rad=self.station.heading_rad + self.planner.mount_yaw,
-            ) or self.planner.choose(aim, self._carrot, self._carrot_heading)
-            if chosen is not None:
-                self.station = chosen
-                self._aim = aim
-                self.looks += 1
-                replanned = True
+            # Round the circle until an aim has a station (in a small tank many have none).
+            for _ in range(SEARCH_DIRECTIONS):
+                aim = self._search_point(lost_for)
+                self._search_turns += 1
+                chosen = self.planner.choose(
+                    aim,
+                    self._carrot,
+                    self._carrot_heading,
+                    avoid_bearing_rad=self.station.heading_rad + self.planner.mount_yaw,
+                ) or self.planner.choose(aim, self._carrot, self._carrot_heading)
+                if chosen is not None:
+                    self.station = chosen
+                    self._aim = aim
+                    self.looks += 1
+                    replanned = True
+                    break
         state: FollowState
         if self.station is None:
             state = "no_station" if fresh else "holding"
@@ -267,8 +277,13 @@ class Follower:
         radius = s.lost_drift_m_s * max(0.0, lost_for_s - s.stop_within_s)
         if radius < 0.05:
             return held
-        angle = self.looks * math.pi / 3.0
-        return held + radius * np.array([math.cos(angle), math.sin(angle), 0.0])
+        angle = self._search_turns * math.tau / SEARCH_DIRECTIONS
+        aim = held + radius * np.array([math.cos(angle), math.sin(angle), 0.0])
+        # The ROV is in the tank: a circle grown past a wall aims at the wall's side instead.
+        tank, m = self.planner.tank, SEARCH_WALL_MARGIN_M
+        aim[0] = min(max(float(aim[0]), m), max(m, tank.length_m - m))
+        aim[1] = min(max(float(aim[1]), m), max(m, tank.width_m - m))
+        return aim
 
     def _ahead(self) -> Array:
         """Where the ROV will be `lead_s` from now, at its horizontal tracked velocity."""

@@ -288,3 +288,29 @@ def test_going_round_the_rov_keeps_the_hull_clear_of_the_walls() -> None:
         for k, xy in enumerate(way):
             assert planner.clear(xy), (start, k, xy)
         assert float(np.linalg.norm(way[-1] - far_side)) < 0.05
+
+
+def test_in_a_small_tank_the_search_goes_on_after_its_circle_outgrows_the_tank() -> None:
+    """A mockup-sized tank: every look's aim stays in the tank, so stations keep being found."""
+    tank = TankBounds(length_m=4.8, width_m=3.6, depth_m=2.0)
+    settings = StationSettings(
+        min_range_m=1.0, max_range_m=6.0, hull_radius_m=0.3, tracking_margin_m=0.2
+    )
+    planner = StationPlanner(SonarMountConfig(pitch_deg=45.0), tank, settings)
+    follower = Follower(planner, FollowSettings(fix_timeout_s=0.5, reacquire_after_s=6.0))
+    follower.on_pose(np.array([1.6, 1.6]), 0.0)
+    follower.on_mode("GUIDED")
+    follower.on_fix(0.0, np.array([2.84, 1.53, -1.0]))  # its last good fix
+    looked_at: list[float] = []
+    for k in range(1, 1500):  # 300 s lost
+        t = 0.2 * k
+        looks = follower.looks
+        follower.step(t)
+        if follower.looks > looks:
+            looked_at.append(t)
+            aim = follower._aim
+            assert aim is not None
+            assert 0.0 < aim[0] < tank.length_m
+            assert 0.0 < aim[1] < tank.width_m
+    # Long after the circle (growing 2 cm/s) is wider than the tank: a look every 6 s.
+    assert sum(1 for t in looked_at if t > 200.0) >= 15
