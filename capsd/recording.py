@@ -27,14 +27,15 @@ import queue
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import msgspec
 import zenoh
-from mcap.reader import make_reader
+from mcap.reader import McapReader, make_reader
 from mcap.summary import Summary
 from mcap.writer import CompressionType, Writer
 
@@ -271,14 +272,12 @@ class Recorded:
     log_time_ns: int
 
 
-def read(path: Path) -> Iterable[Recorded]:
-    """Messages of a recording in log-time order."""
+@contextmanager
+def _opened(path: Path) -> Iterator[McapReader]:
+    """A reader of the recording at `path`; a missing or unreadable file is an error naming it."""
     try:
         with path.open("rb") as stream:
-            reader = make_reader(stream)
-            for _schema, channel, message in reader.iter_messages(log_time_order=True):
-                encoding = channel.metadata.get("zenoh_encoding", "")
-                yield Recorded(channel.topic, encoding, message.data, message.log_time)
+            yield make_reader(stream)
     except FileNotFoundError:
         raise CapsdError(f"{path}: no such recording") from None
     except CapsdError:
@@ -287,15 +286,18 @@ def read(path: Path) -> Iterable[Recorded]:
         raise CapsdError(f"{path}: not a readable MCAP recording ({exc})") from exc
 
 
+def read(path: Path) -> Iterable[Recorded]:
+    """Messages of a recording in log-time order."""
+    with _opened(path) as reader:
+        for _schema, channel, message in reader.iter_messages(log_time_order=True):
+            encoding = channel.metadata.get("zenoh_encoding", "")
+            yield Recorded(channel.topic, encoding, message.data, message.log_time)
+
+
 def summary_of(path: Path) -> Summary:
     """The file's summary with its statistics (what `mcap info` prints); a clear error else."""
-    try:
-        with path.open("rb") as stream:
-            summary = make_reader(stream).get_summary()
-    except FileNotFoundError:
-        raise CapsdError(f"{path}: no such recording") from None
-    except Exception as exc:  # mcap raises several types for a bad file
-        raise CapsdError(f"{path}: not a readable MCAP recording ({exc})") from exc
+    with _opened(path) as reader:
+        summary = reader.get_summary()
     if summary is None or summary.statistics is None:
         raise CapsdError(f"{path}: MCAP without a summary (was the recording cut short?)")
     return summary
@@ -304,15 +306,10 @@ def summary_of(path: Path) -> Summary:
 def attachment(path: Path, name: str) -> bytes | None:
     """The recording's attachment of that name (the last, if several), or None."""
     found: bytes | None = None
-    try:
-        with path.open("rb") as stream:
-            for item in make_reader(stream).iter_attachments():
-                if item.name == name:
-                    found = bytes(item.data)
-    except FileNotFoundError:
-        raise CapsdError(f"{path}: no such recording") from None
-    except Exception as exc:  # mcap raises several types for a bad file
-        raise CapsdError(f"{path}: not a readable MCAP recording ({exc})") from exc
+    with _opened(path) as reader:
+        for item in reader.iter_attachments():
+            if item.name == name:
+                found = bytes(item.data)
     return found
 
 

@@ -151,6 +151,22 @@ def test_bad_recordings_are_named(tmp_path: Path) -> None:
     assert "no such recording" in proc.stderr
 
 
+@pytest.mark.parametrize(
+    "reader",
+    [lambda p: list(read(p)), channel_counts, lambda p: attachment(p, LOCATOR_CONFIG_ATTACHMENT)],
+    ids=["read", "channel_counts", "attachment"],
+)
+def test_every_reader_names_a_bad_or_missing_recording(
+    tmp_path: Path, reader: Callable[[Path], object]
+) -> None:
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"not an mcap file" * 10)
+    with pytest.raises(CapsdError, match=r"junk\.mcap: not a readable MCAP"):
+        reader(junk)
+    with pytest.raises(CapsdError, match=r"missing\.mcap: no such recording"):
+        reader(tmp_path / "missing.mcap")
+
+
 def _fix(stamp: int, *, pose_stamp: int, x: float, tracked_x: float) -> RovFix:
     return RovFix(
         stamp_ns=stamp,
