@@ -5,19 +5,19 @@ No chasing of noise: the station is kept while the ROV, seen from the station, s
 range band, and no mapped fixture shares its range cell (capsd.echo_cell); only then (and at
 most every `replan_after_s`) is a new one chosen, from good fixes only, for where the ROV will
 be `lead_s` later at its tracked velocity (a ROV flying a survey leg would otherwise leave
-every station as soon as it is reached). Without a good fix for `fix_timeout_s` the ROV is
-looked for where it will hold: a ROV on a mission stops within a second or two of losing its
-fix, so the last good fix carried on at the tracked velocity for up to `stop_within_s`. If
-that point lies outside the station's view (the ROV left the aperture faster than the ASV
-moved), a station for it is chosen at once; else the ASV holds its station, and still without
-a fix after `reacquire_after_s` it takes another look from a bearing at least 40 deg from the
-one that lost it (clutter behind or under the ROV, or its own shadow, hide it from one side
-only), or, where no such bearing has a station (a corner of a small tank), from the best
-station there is, and again every `reacquire_after_s`. A ROV holding without positions
-wanders (dead reckoning, `lost_drift_m_s`), so each further look aims at a point on a circle
-around where it stopped that grows with the time lost, a sixth of a turn further round each
-time (clipped to the tank: the ROV is in it), trying the next direction at once where an aim
-has no station.
+every station as soon as it is reached), but not past the waypoint its mission sent it to.
+Without a good fix for `fix_timeout_s` the ROV is looked for where it will hold: a ROV on a
+mission stops within a second or two of losing its fix, so the last good fix carried on at the
+tracked velocity for up to `stop_within_s`. If that point lies outside the station's view (the
+ROV left the aperture faster than the ASV moved), a station for it is chosen at once; else the
+ASV holds its station, and still without a fix after `reacquire_after_s` it takes another look
+from a bearing at least 40 deg from the one that lost it (clutter behind or under the ROV, or
+its own shadow, hide it from one side only), or, where no such bearing has a station (a corner
+of a small tank), from the best station there is, and again every `reacquire_after_s`. A ROV
+holding without positions wanders (dead reckoning, `lost_drift_m_s`), so each further look aims
+at a point on a circle around where it stopped that grows with the time lost, a sixth of a turn
+further round each time (clipped to the tank: the ROV is in it), trying the next direction at
+once where an aim has no station.
 The target sent to the autopilot is a carrot that walks from where the ASV was told to be
 towards the station, speed and acceleration limited, turning at a bounded rate; it starts where
 the ASV is when the pilot hands over (GUIDED) and nothing is sent in any other mode. On the
@@ -48,6 +48,9 @@ AROUND_STEP_RAD = math.radians(30.0)
 # this far from a wall (half a BlueROV2's length).
 SEARCH_DIRECTIONS = 6
 SEARCH_WALL_MARGIN_M = 0.3
+# A mission repeats its waypoint twice a second: one not heard for this long is forgotten
+# (the mission ended, or a pilot flies by hand).
+LEG_END_VALID_S = 5.0
 
 
 @dataclass(frozen=True)
@@ -105,6 +108,13 @@ class Follower:
         self._search_turns = 0  # search directions tried (a sixth of a turn further each)
         self._aim: Array | None = None  # where the station was chosen to look
         self._last_step_s: float | None = None
+        self.leg_end: Array | None = None  # where the ROV's mission sends it now (W)
+        self._leg_end_s = -math.inf
+
+    def on_leg_end(self, now_s: float, position_m: Array | None) -> None:
+        """The waypoint the ROV's mission sent it to (None: it holds where it is)."""
+        self.leg_end = None if position_m is None else np.asarray(position_m, dtype=np.float64)
+        self._leg_end_s = now_s
 
     def on_pose(self, xy: Array, heading_rad: float) -> None:
         self.asv_xy = np.asarray(xy[:2], dtype=np.float64)
@@ -125,6 +135,8 @@ class Follower:
     def step(self, now_s: float) -> Target | None:
         dt = 0.0 if self._last_step_s is None else max(0.0, now_s - self._last_step_s)
         self._last_step_s = now_s
+        if now_s - self._leg_end_s > LEG_END_VALID_S:
+            self.leg_end = None
         if self.mode != "GUIDED" or self.asv_xy is None:
             return None
         if self._carrot is None:
@@ -286,10 +298,24 @@ class Follower:
         return aim
 
     def _ahead(self) -> Array:
-        """Where the ROV will be `lead_s` from now, at its horizontal tracked velocity."""
+        """Where the ROV will be `lead_s` from now, at its horizontal tracked velocity.
+
+        Not past the waypoint its mission sent it to: there it stops (a short survey leg
+        would otherwise be watched from a station for a point beyond its end).
+        """
         assert self.rov_m is not None
         v = self._horizontal_velocity()
-        return self.rov_m if v is None else self.rov_m + v * self.settings.lead_s
+        if v is None:
+            return self.rov_m
+        lead = v * self.settings.lead_s
+        if self.leg_end is not None:
+            speed = float(np.linalg.norm(v))
+            left = float((self.leg_end[:2] - self.rov_m[:2]) @ v[:2]) / speed  # along its way
+            length = float(np.linalg.norm(lead))
+            if left < length:
+                lead = lead * (max(left, 0.0) / length)
+        out: Array = self.rov_m + lead
+        return out
 
     def _in_view_of_station(self, rov_m: Array) -> bool:
         assert self.station is not None

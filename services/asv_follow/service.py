@@ -4,8 +4,9 @@ It runs beside the locator (topside namespace, where the site lets that computer
 puts signed `follow/command` goto commands (position and heading) that the ASV's bridge
 (`role: asv`) passes to ArduRover while its pilot keeps it in GUIDED; it never changes the
 ASV's mode. Where to go: capsd.services.asv_follow.station; when and how fast:
-capsd.services.asv_follow.follower. Health counts stations chosen, commands put, and says
-when no station can see the ROV.
+capsd.services.asv_follow.follower. It also hears the ROV mission's signed commands (where
+the mission sends the ROV). Health counts stations chosen, commands put, mission commands
+heard, and says when no station can see the ROV.
 """
 
 from __future__ import annotations
@@ -113,6 +114,9 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     vehicle: str = "topside"
     locator_vehicle: str = "topside"
     asv_vehicle: str = "asv"
+    # Whose ROV mission commands say where the ROV is going (`mission/command`): the follower
+    # does not lead the ROV past its waypoint.
+    mission_vehicle: str = "topside"
     sonar: SonarMountConfig = SonarMountConfig()
     tank: TankBounds = TankBounds()
     station: StationConfig = StationConfig()
@@ -124,7 +128,7 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        for name in ("locator_vehicle", "asv_vehicle"):
+        for name in ("locator_vehicle", "asv_vehicle", "mission_vehicle"):
             try:
                 check_name("vehicle", getattr(self, name))
             except ValueError as exc:
@@ -145,7 +149,20 @@ class FollowNode:
         self.commands = commands
         self.lock = threading.Lock()
         self.put_count = 0
+        self.mission_commands = 0
         self.state: str | None = None  # the last one logged
+
+    def on_mission(self, command: VehicleCommand) -> None:
+        """A ROV mission's command: where it sends the ROV (engage, goto) or that it holds."""
+        if command.kind in ("engage", "goto") and command.position_m is not None:
+            position = np.array(command.position_m)
+        elif command.kind == "hold":
+            position = None
+        else:
+            return
+        with self.lock:
+            self.mission_commands += 1
+            self.follower.on_leg_end(time.monotonic(), position)
 
     def on_fix(self, fix: RovFix) -> None:
         if fix.quality != "good":
@@ -211,6 +228,7 @@ class FollowNode:
             "commands_put": self.put_count,
             "stations_chosen": self.follower.replans,
             "looks_for_a_lost_rov": self.follower.looks,
+            "mission_commands": self.mission_commands,
         }
 
 
@@ -223,6 +241,9 @@ def main(config: Config) -> int:
         runner.add_counters(node.counters)
         runner.subscribe(topics.ROV_FIX, node.on_fix, vehicle=config.locator_vehicle, verifier=key)
         runner.subscribe(topics.ASV_POSE, node.on_pose, vehicle=config.asv_vehicle)
+        runner.subscribe(
+            topics.ROV_COMMAND, node.on_mission, vehicle=config.mission_vehicle, verifier=key
+        )
         runner.subscribe(topics.ASV_AUTOPILOT, node.on_status, vehicle=config.asv_vehicle)
         logger.info("follower ready")
         runner.run(node.step, period_s=1.0 / config.command_rate_hz)

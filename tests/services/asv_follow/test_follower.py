@@ -314,3 +314,27 @@ def test_in_a_small_tank_the_search_goes_on_after_its_circle_outgrows_the_tank()
             assert 0.0 < aim[1] < tank.width_m
     # Long after the circle (growing 2 cm/s) is wider than the tank: a look every 6 s.
     assert sum(1 for t in looked_at if t > 200.0) >= 15
+
+
+def test_the_rov_is_not_led_past_the_waypoint_its_mission_sent_it_to() -> None:
+    """3 s of lead at 0.25 m/s is 0.75 m: a leg ending 0.5 m ahead caps it there."""
+    follower = _follower(lead_s=3.0)
+    follower.on_mode("GUIDED")
+    rov = np.array([16.0, 8.0, -3.5])
+    velocity = np.array([0.25, 0.0, 0.0])
+    follower.on_fix(0.0, rov, velocity)
+    assert np.allclose(follower._ahead(), [16.75, 8.0, -3.5])  # no mission heard
+    follower.on_leg_end(0.0, np.array([16.5, 8.0, -3.5]))
+    assert np.allclose(follower._ahead(), [16.5, 8.0, -3.5])
+    follower.on_leg_end(0.0, np.array([20.0, 8.0, -3.5]))  # far ahead: the full lead
+    assert np.allclose(follower._ahead(), [16.75, 8.0, -3.5])
+    follower.on_leg_end(0.0, np.array([15.0, 8.0, -3.5]))  # behind it (turning back): no lead
+    assert np.allclose(follower._ahead(), rov)
+    follower.on_leg_end(0.0, None)  # the mission holds it: as without a mission
+    assert np.allclose(follower._ahead(), [16.75, 8.0, -3.5])
+    # A waypoint not repeated for 5 s (the mission ended) is forgotten.
+    follower.on_leg_end(0.0, np.array([16.5, 8.0, -3.5]))
+    follower.step(6.0)
+    follower.on_fix(6.0, rov, velocity)
+    assert follower.leg_end is None
+    assert np.allclose(follower._ahead(), [16.75, 8.0, -3.5])
