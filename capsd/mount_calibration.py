@@ -329,8 +329,9 @@ def fit_mount(
     cov = np.zeros((len(PARAMETERS), len(PARAMETERS)))
     framed = np.zeros_like(cov)
     try:
-        cov[np.ix_(free_i, free_i)] = np.linalg.inv(jac.T @ jac) * s2
-        framed[np.ix_(free_i, free_i)] = _frame_covariance(jac, res, edges.frames)
+        bread: Floats = np.linalg.inv(jac.T @ jac).astype(np.float64)
+        cov[np.ix_(free_i, free_i)] = bread * s2
+        framed[np.ix_(free_i, free_i)] = _frame_covariance(bread, jac, res, edges.frames)
     except np.linalg.LinAlgError:
         cov[np.ix_(free_i, free_i)] = np.inf
     sig = np.sqrt(np.clip(np.maximum(np.diag(cov), np.diag(framed)), 0.0, np.inf))
@@ -356,21 +357,21 @@ def fit_mount(
     )
 
 
-def _frame_covariance(jac: Floats, residuals: Floats, frames: npt.NDArray[np.int_]) -> Floats:
+def _frame_covariance(
+    bread: Floats, jac: Floats, residuals: Floats, frames: npt.NDArray[np.int_]
+) -> Floats:
     """The fit's covariance with each frame's edges allowed to share their errors.
 
     A frame's edges are not independent (one pose, one ping's noise): the sandwich estimate
-    over frames, (J'J)^-1 (sum over frames of J_f' r_f r_f' J_f) (J'J)^-1, with the robust
-    loss's weights (jac is least_squares' weighted Jacobian, so the residuals are weighted
-    alike).
+    over frames, (J'J)^-1 (sum over frames of J_f' r_f r_f' J_f) (J'J)^-1 (`bread` is
+    (J'J)^-1), with the robust loss's weights (jac is least_squares' weighted Jacobian, so the
+    residuals are weighted alike: soft_l1's).
     """
     weighted = residuals / np.sqrt(np.sqrt(1.0 + (residuals / F_SCALE_M) ** 2))
-    bread = np.linalg.inv(jac.T @ jac)
-    meat = np.zeros_like(bread)
-    for f in np.unique(frames):
-        score = jac[frames == f].T @ weighted[frames == f]
-        meat += np.outer(score, score)
-    out: Floats = bread @ meat @ bread
+    _, frame_of = np.unique(frames, return_inverse=True)
+    scores = np.zeros((int(frame_of.max()) + 1, jac.shape[1]))
+    np.add.at(scores, frame_of, jac * weighted[:, None])
+    out: Floats = bread @ (scores.T @ scores) @ bread
     return out
 
 

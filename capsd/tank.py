@@ -47,6 +47,13 @@ class TankBounds(ConfigSection, frozen=True, kw_only=True):
             and -self.depth_m + c <= p[2] <= -c
         )
 
+    def within_walls_xy(self, xy: Array, clearance_m: float) -> tuple[float, float]:
+        """`xy` moved the least to where it is `clearance_m` inside the walls."""
+        c = clearance_m
+        x = min(max(float(xy[0]), c), max(c, self.length_m - c))
+        y = min(max(float(xy[1]), c), max(c, self.width_m - c))
+        return x, y
+
     def contains(self, p: Array | tuple[float, float, float]) -> bool:
         m = self.margin_m
         return bool(

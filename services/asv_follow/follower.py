@@ -292,9 +292,7 @@ class Follower:
         angle = self._search_turns * math.tau / SEARCH_DIRECTIONS
         aim = held + radius * np.array([math.cos(angle), math.sin(angle), 0.0])
         # The ROV is in the tank: a circle grown past a wall aims at the wall's side instead.
-        tank, m = self.planner.tank, SEARCH_WALL_MARGIN_M
-        aim[0] = min(max(float(aim[0]), m), max(m, tank.length_m - m))
-        aim[1] = min(max(float(aim[1]), m), max(m, tank.width_m - m))
+        aim[:2] = self.planner.tank.within_walls_xy(aim, SEARCH_WALL_MARGIN_M)
         return aim
 
     def _ahead(self) -> Array:

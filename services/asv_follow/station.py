@@ -136,10 +136,7 @@ class StationPlanner:
 
     def within_walls(self, asv_xy: Array) -> Array:
         """`asv_xy` moved the least to where the hull keeps its clearance from the walls."""
-        c = self._wall_clearance()
-        x = min(max(float(asv_xy[0]), c), max(c, self.tank.length_m - c))
-        y = min(max(float(asv_xy[1]), c), max(c, self.tank.width_m - c))
-        return np.array([x, y])
+        return np.array(self.tank.within_walls_xy(asv_xy, self._wall_clearance()))
 
     def clear(self, asv_xy: Array) -> bool:
         """Whether the hull at `asv_xy` keeps its clearance from walls and keep-out boxes."""
