@@ -19,6 +19,7 @@ without bound where the depth plane grazes the beam surface, and such fixes are 
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
@@ -137,9 +138,15 @@ def _candidates(
         # The beam surface is (nearly) parallel to the depth plane: depth says (almost)
         # nothing about the elevation, and rounding decides whether the roots exist.
         return (), None, "ill_conditioned"
-    ratio = c / rho
-    if abs(ratio) > 1.0 + 1e-12:
+    # c carries the rounding of the heights it is made of (metres of z over the range): a
+    # tangent (the depth plane touching the beam's arc) may come out a hair beyond it.
+    rounding = 8.0 * sys.float_info.epsilon
+    rounding *= (abs(rov_z_m) + abs(float(sonar_pose.translation[2])) + range_m) / range_m
+    if abs(c) > rho + rounding * abs(dc_dz) * range_m + 1e-12 * rho:
         return (), None, "no_intersection"
+    if abs(c) > rho:
+        return (), None, "ill_conditioned"  # tangent within rounding: depth fixes no elevation
+    ratio = c / rho
     delta = math.atan2(b, a)
     alpha = math.acos(max(-1.0, min(1.0, ratio)))
     out: list[Candidate] = []

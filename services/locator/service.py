@@ -156,6 +156,9 @@ class ClutterConfig(ConfigSection, frozen=True, kw_only=True):
     # from wherever a static source of its first sighting would now appear.
     moving_min_age_s: Annotated[float, msgspec.Meta(ge=0.1, le=60.0)] = 1.0
     moving_shift_m: Annotated[float, msgspec.Meta(ge=0.05, le=5.0)] = 0.3
+    # ... and its latest sightings within this (RMS) of a straight line: a ROV's path is
+    # smooth, a fixture's brightest point jumps about it (capsd.services.locator.moving_echo).
+    moving_max_scatter_m: Annotated[float, msgspec.Meta(ge=0.01, le=5.0)] = 0.1
     cell_m: Annotated[float, msgspec.Meta(ge=0.1, le=5.0)] = 0.5
     static_after_s: Annotated[float, msgspec.Meta(gt=0.0, le=600.0)] = 5.0
     min_sightings: Annotated[int, msgspec.Meta(ge=1)] = 10
@@ -164,7 +167,11 @@ class ClutterConfig(ConfigSection, frozen=True, kw_only=True):
     clear_of_track_m: Annotated[float, msgspec.Meta(gt=0.0, le=10.0)] = 1.0
 
     def moving_settings(self) -> MovingEchoSettings:
-        return MovingEchoSettings(min_age_s=self.moving_min_age_s, min_shift_m=self.moving_shift_m)
+        return MovingEchoSettings(
+            min_age_s=self.moving_min_age_s,
+            min_shift_m=self.moving_shift_m,
+            max_scatter_m=self.moving_max_scatter_m,
+        )
 
     def settings(self) -> ClutterSettings:
         return ClutterSettings(

@@ -11,7 +11,8 @@ the gate re-initialises the track (a relocalisation, counted in `resets`).
 A new track (first start, after a loss, after a relocalisation) is "tentative" until
 `confirm_after` fixes fell inside its gate: one stray echo is never called the ROV. The caller
 may mark candidates that must not start a track (static clutter, capsd.services.locator.clutter);
-they are still associated with an existing track.
+they are still associated with an existing track, but do not count towards confirming a
+tentative one.
 """
 
 from __future__ import annotations
@@ -166,7 +167,11 @@ class Tracker:
         self.stamp_ns = self.last_update_ns = stamp_ns
         self.state = "tracking"
         self._outside = 0
-        self._hits += 1
+        if self.confirmed or starters[index]:
+            # A new track is confirmed only by fixes that could each have started it: an echo
+            # that may not start one (static or mapped clutter) still moves a tentative track
+            # but does not vouch for it.
+            self._hits += 1
         return Association(index, distance2, reinitialised=False)
 
     def update_velocity(self, stamp_ns: int, velocity: Array, covariance: Array) -> None:

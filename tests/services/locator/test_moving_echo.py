@@ -117,3 +117,24 @@ def test_a_chain_not_seen_for_a_while_is_forgotten() -> None:
     # Seen again at 2.5 s: a new chain, judged no sooner than 1 s (10 sightings) later.
     assert not any(verdicts[:20])
     assert verdicts[-1]
+
+
+def test_an_echo_jumping_about_a_fixture_has_not_moved() -> None:
+    """A rack top's brightest point jumps from corner to corner: not a ROV, however far."""
+    sonar = _sonar(0.0, 0.0, 0.0)
+    rng = np.random.default_rng(5)
+    corners = np.array([[8.0, -0.6, -4.0], [8.4, -0.6, -4.0], [8.0, -0.2, -4.0], [8.4, -0.2, -4.0]])
+
+    def verdicts(settings: MovingEchoSettings) -> list[bool]:
+        echoes = MovingEchoes(settings, beam_model="conical", half_aperture_rad=HALF_APERTURE)
+        out = []
+        for k in range(60):  # 6 s at 10 Hz, each ping one corner (a few cm of noise)
+            point = corners[k % 4 if k < 4 else rng.integers(0, 4)] + rng.normal(0, 0.02, 3)
+            point[2] = -4.0
+            out.append(_sight(echoes, "conical", k * SECOND // 10, sonar, point))
+        return out
+
+    # The shift alone calls it moved (the corners are 0.4 m apart) ...
+    assert any(verdicts(MovingEchoSettings(max_scatter_m=10.0)))
+    # ... the path's scatter about a straight line does not.
+    assert not any(verdicts(MovingEchoSettings()))

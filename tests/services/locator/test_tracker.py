@@ -144,6 +144,24 @@ def test_candidates_that_may_not_start_are_still_associated() -> None:
     assert tracker.update(2 * SECOND, [near], may_start=[False]).index == 0
 
 
+def test_only_fixes_that_could_start_a_track_confirm_a_tentative_one() -> None:
+    """Mapped clutter after one stray start moves the tentative track but never confirms it."""
+    tracker = Tracker(TrackerSettings(confirm_after=3))
+    rack = np.array([9.4, 12.0, -4.0])
+    tracker.update(0, [(rack, np.eye(3) * 1e-4)], may_start=[True])  # the one "moved" sighting
+    for k in range(1, 40):  # 2 s of the same echo, each one refused as a start
+        jitter = np.array([0.02 * (-1) ** k, 0.0, 0.0])
+        association = tracker.update(
+            k * SECOND // 20, [(rack + jitter, np.eye(3) * 1e-4)], may_start=[False]
+        )
+        assert association.index == 0  # associated: the track follows it
+        assert tracker.estimate().state == "tentative"
+    # Two more that could each start a track (with the first): confirmed.
+    for k in range(40, 42):
+        tracker.update(k * SECOND // 20, [(rack, np.eye(3) * 1e-4)], may_start=[True])
+    assert tracker.estimate().state == "tracking"
+
+
 def test_consistent_jump_reinitialises_and_counts_a_reset() -> None:
     settings = TrackerSettings(reinit_after=3)
     tracker = Tracker(settings)
