@@ -1,8 +1,9 @@
 """When the ASV moves, and how: a station held until the ROV leaves its comfort zone.
 
 No chasing of noise: the station is kept while the ROV, seen from the station, stays within
-`elevation_tolerance` of the target elevation, `azimuth_tolerance` of the boresight and the
-range band, and no mapped fixture shares its range cell (capsd.echo_cell); only then (and at
+`elevation_tolerance` of the elevation the station was chosen for, `azimuth_tolerance` of the
+boresight and the range band, and no mapped fixture shares its range cell (capsd.echo_cell,
+also just beyond the aperture's edge); only then (and at
 most every `replan_after_s`) is a new one chosen, from good fixes only, for where the ROV will
 be `lead_s` later at its tracked velocity (a ROV flying a survey leg would otherwise leave
 every station as soon as it is reached), but not past the waypoint its mission sent it to.
@@ -24,7 +25,8 @@ the ASV is when the pilot hands over (GUIDED) and nothing is sent in any other m
 way the hull is to face the ROV (or where it is looked for), at the station the station's
 heading; ArduRover turns a hull only at its target, so while the hull faces more than
 `turn_first_rad` off that heading the carrot turns where the hull is, and only then walks;
-a way that would pass over the ROV (to a station on its other side) goes round it.
+a way that would pass over the ROV (to a station on its other side) goes round it, no nearer
+than where the ROV sits at the target elevation.
 """
 
 from __future__ import annotations
@@ -249,7 +251,16 @@ class Follower:
         step = math.copysign(AROUND_STEP_RAD, turn)
         # On the tangent, not the circle: heading for a point on the circle cuts inside it.
         radius = (r_here + (r_there - r_here) * step / turn) / math.cos(step)
-        point = centre + radius * np.array([math.cos(a_here + step), math.sin(a_here + step)])
+        direction = np.array([math.cos(a_here + step), math.sin(a_here + step)])
+        # No nearer than where the ROV sits at the target elevation where the walls leave room:
+        # a ROV flying towards the carrot, or a carrot that starts close, would otherwise take
+        # the way round under the aperture (the sonar a little ahead of the origin).
+        wide = max(radius, self.planner.ideal_distance(look) + float(self.planner.mount_xy[0]))
+        point = centre + wide * direction
+        if wide > radius and not (
+            self.planner.clear(point) and np.allclose(self.planner.within_walls(point), point)
+        ):
+            point = centre + radius * direction
         # Never nearer a wall than a station may be (closer to the ROV there, if need be); a
         # keep-out box in the way: straight.
         point = self.planner.within_walls(point)
@@ -327,9 +338,12 @@ class Follower:
         assert self.rov_m is not None
         s = self.settings
         view = self.planner.view(self.station.position_xy, self.station.heading_rad, self.rov_m)
-        target = self.planner.settings.target_elevation_rad
+        # The dead band is round the elevation the station was chosen for, not the target: a
+        # station chosen steeper than the target (the target's view masked by a rack) would
+        # otherwise be re-chosen every `replan_after_s`, and a ROV drifting back to the target
+        # elevation, into the masked view, would be kept there.
         return (
-            abs(view.elevation_rad - target) > s.elevation_tolerance_rad
+            abs(view.elevation_rad - self.station.view.elevation_rad) > s.elevation_tolerance_rad
             or abs(view.azimuth_rad) > s.azimuth_tolerance_rad
             or not self.planner.view_is_good(view)
             # The ROV moved into a cell a fixture shares: look from elsewhere if one is free.

@@ -49,6 +49,8 @@ class StationConfig(ConfigSection, frozen=True, kw_only=True):
     hull_radius_m: Annotated[float, msgspec.Meta(ge=0.0, le=10.0)] = 0.6
     tracking_margin_m: Annotated[float, msgspec.Meta(ge=0.0, le=10.0)] = 0.5
     max_conditioning: Positive = 2.0
+    # How far beyond the aperture's nominal edge a fixture still masks the ROV (beam skirts).
+    mask_skirt_deg: Annotated[float, msgspec.Meta(ge=0.0, le=30.0)] = 3.0
     # Where the ASV must not go, besides fixtures of the tank that reach the surface.
     keep_out: Annotated[tuple[TankFixture, ...], msgspec.Meta(max_length=100)] = ()
 
@@ -67,6 +69,7 @@ class StationConfig(ConfigSection, frozen=True, kw_only=True):
             hull_radius_m=self.hull_radius_m,
             tracking_margin_m=self.tracking_margin_m,
             max_conditioning=self.max_conditioning,
+            mask_skirt_rad=math.radians(self.mask_skirt_deg),
             keep_out=self.keep_out,
         )
 

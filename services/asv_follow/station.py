@@ -18,8 +18,10 @@ current one costs by the degree, so two near-equal stations on either side of th
 take turns. Masking: a 2D sonar image cannot tell echoes apart
 that share a range and bearing at any elevation, so a ROV whose range cell (at its bearing,
 over the whole vertical aperture) also holds a mapped fixture, the floor or a wall is hidden
-in that echo (a ROV passing over a rack, seen along it); such views cost `mask_cost_per_deg`
-degrees of elevation error, so another bearing is taken where one exists.
+in that echo (a ROV passing over a rack, seen along it), also where the fixture lies just
+beyond the aperture's nominal edge, in the beam pattern's skirt (`mask_skirt_rad`); such views
+cost `mask_cost_per_deg` degrees of elevation error, so another bearing or a steeper view is
+taken where one exists.
 """
 
 from __future__ import annotations
@@ -57,6 +59,10 @@ class StationSettings:
     turn_cost_per_deg: float = 0.02
     mask_cost_per_deg: float = 20.0
     mask_margin_m: float = 0.3  # range half-width of the ROV's cell, and fixtures' growth
+    # The vertical beam still hears a strong echo beyond its nominal (-3 dB) edge: a Gaussian
+    # pattern is -5 dB at 1.3 times the half-aperture. A rack top there, at the ROV's range,
+    # buries a ROV seen high in the aperture as surely as one inside it.
+    mask_skirt_rad: float = math.radians(3.0)
     # Per degree a second that the ROV's motion moves its elevation in the view, and per
     # degree of bearing away from the current station's.
     drift_cost_per_deg_s: float = 4.0
@@ -167,7 +173,7 @@ class StationPlanner:
             range_m=r,
             azimuth_rad=azimuth,
             beam_model=self.beam_model,
-            vertical_aperture_rad=2.0 * self.half_aperture,
+            vertical_aperture_rad=2.0 * (self.half_aperture + self.settings.mask_skirt_rad),
             half_width_m=m,
             skip_elevation_rad=elevation,
         )
@@ -255,8 +261,16 @@ class StationPlanner:
                     best = (cost, Station(origin, heading, view))
         return None if best is None else best[1]
 
+    def ideal_distance(self, rov_m: Array) -> float:
+        """The horizontal sonar-to-ROV distance that puts the ROV at the target elevation."""
+        drop = max(self.sonar_z - float(rov_m[2]), 0.0)
+        return self._ideal(drop)
+
+    def _ideal(self, drop: float) -> float:
+        s = self.settings
+        return drop / math.tan(max(self.pitch - s.target_elevation_rad, math.radians(1.0)))
+
     def _distances(self, drop: float) -> list[float]:
         """Horizontal sonar-to-ROV distances to try: the ideal one first, then either side."""
-        s = self.settings
-        ideal = drop / math.tan(max(self.pitch - s.target_elevation_rad, math.radians(1.0)))
+        ideal = self._ideal(drop)
         return [ideal * f for f in (1.0, 0.9, 1.1, 0.8, 1.25, 0.7, 1.4, 0.6, 1.6)]

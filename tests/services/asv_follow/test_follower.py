@@ -81,6 +81,30 @@ def test_small_rov_motion_does_not_move_the_station_and_large_motion_does() -> N
     assert follower.replans == chosen + 1
 
 
+def test_a_station_chosen_off_the_target_elevation_is_kept() -> None:
+    """The dead band is round the station's own view: no new station every replan period."""
+    rov = np.array([16.0, 8.0, -3.5])
+    # The target's view is not feasible (the target beyond the aperture): the planner can only
+    # choose views well off it, as where a rack masks the ROV at the target elevation.
+    planner = StationPlanner(
+        SonarMountConfig(),
+        TankBounds(),
+        StationSettings(target_elevation_rad=math.radians(-12.0)),
+    )
+    follower = Follower(planner, FollowSettings(elevation_tolerance_rad=math.radians(2.0)))
+    follower.on_pose(START, 0.0)
+    follower.on_mode("GUIDED")
+    follower.on_fix(0.0, rov)
+    follower.step(0.0)
+    assert follower.station is not None
+    assert abs(follower.station.view.elevation_rad - math.radians(-12.0)) > math.radians(2.0)
+    chosen = follower.replans
+    for k in range(1, 100):  # 10 s of the ROV hovering where it was
+        follower.on_fix(k * 0.1, rov)
+        follower.step(k * 0.1)
+    assert follower.replans == chosen
+
+
 def test_without_a_fix_it_holds_then_looks_again_from_another_bearing() -> None:
     follower = _follower(fix_timeout_s=1.0, reacquire_after_s=6.0)
     follower.on_mode("GUIDED")
@@ -275,6 +299,25 @@ def test_the_way_to_a_station_beyond_the_rov_goes_round_it(
     assert nearest_on_the_way() > 0.8 * 6.0 - 0.2
     monkeypatch.setattr(follower_module, "AROUND_WITHIN", 0.0)  # straight through
     assert nearest_on_the_way() < 1.0
+
+
+def test_the_way_round_a_close_rov_widens_to_where_the_sonar_sees_it() -> None:
+    """Starting too close (the ROV under the aperture), the way round widens to see it."""
+    rov = np.array([14.0, 8.0, -3.5])  # 4 m ahead of the ASV at START: under the aperture
+    planner = StationPlanner(
+        SonarMountConfig(), TankBounds(length_m=40.0, width_m=30.0), StationSettings()
+    )
+    far_side = rov[:2] + np.array([4.0, 0.3])
+    heading = math.atan2(rov[1] - far_side[1], rov[0] - far_side[0])
+    way = _fly_to_station(planner, START, rov, far_side, heading, steps=1500)
+    arrived = next(k for k, xy in enumerate(way) if float(np.linalg.norm(xy - far_side)) < 1.0)
+    half = math.radians(SonarMountConfig().vertical_aperture_deg) / 2.0
+    below = [
+        planner.view(xy, math.atan2(rov[1] - xy[1], rov[0] - xy[0]), rov).elevation_rad < -half
+        for xy in way[:arrived]
+    ]
+    # The spiral from 4 m to 4 m alone keeps it under the aperture the whole way.
+    assert sum(below) < 0.5 * len(below)
 
 
 def test_going_round_the_rov_keeps_the_hull_clear_of_the_walls() -> None:

@@ -172,6 +172,39 @@ def test_a_view_where_a_rack_shares_the_rovs_range_cell_is_avoided() -> None:
     assert not _planner().masked(free.position_xy, free.heading_rad, rov)
 
 
+def test_a_rack_just_beyond_the_apertures_edge_masks_the_rov() -> None:
+    """A fixture in the beam pattern's skirt at the ROV's range masks it; without a skirt not."""
+    rov = np.array([16.0, 8.0, -3.5])
+    planner = _planner()
+    # The sonar looking along +x at the ROV from where it sits mid aperture.
+    free = planner.choose(rov, np.array([10.0, 8.0]), 0.0)
+    assert free is not None
+    sonar = Transform.from_euler_zyx(
+        (float(free.position_xy[0]), float(free.position_xy[1]), 0.0),
+        yaw_rad=free.heading_rad,
+        pitch_rad=0.0,
+        roll_rad=0.0,
+    ).compose(MOUNT.transform())
+    r = free.view.range_m
+    half = math.radians(MOUNT.vertical_aperture_deg) / 2.0
+    # A small box at the ROV's range, 1.5 deg below the aperture's lower edge.
+    local = np.array(
+        [r * math.cos(half + math.radians(1.5)), 0.0, r * math.sin(half + math.radians(1.5))]
+    )
+    centre = sonar.apply(local)
+    box = TankFixture(
+        name="rack",
+        lo_m=(float(centre[0]) - 0.05, float(centre[1]) - 0.05, float(centre[2]) - 0.05),
+        hi_m=(float(centre[0]) + 0.05, float(centre[1]) + 0.05, float(centre[2]) + 0.05),
+    )
+    skirted = StationPlanner(MOUNT, TankBounds(fixtures=(box,)), StationSettings(mask_margin_m=0.0))
+    nominal = StationPlanner(
+        MOUNT, TankBounds(fixtures=(box,)), StationSettings(mask_margin_m=0.0, mask_skirt_rad=0.0)
+    )
+    assert skirted.masked(free.position_xy, free.heading_rad, rov)
+    assert not nominal.masked(free.position_xy, free.heading_rad, rov)
+
+
 def test_within_walls_moves_a_point_the_least_into_the_clearance_box() -> None:
     planner = StationPlanner(
         SonarMountConfig(), TankBounds(length_m=20.0, width_m=10.0), StationSettings()
