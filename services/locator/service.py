@@ -234,6 +234,10 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     tracking: TrackingConfig = TrackingConfig()
     clutter: ClutterConfig = ClutterConfig()
     max_conditioning: Positive = 10.0
+    # A fix is taken up to this far beyond the aperture's nominal (-3 dB) edge, where the
+    # other root is not: the vertical beam pattern still returns a strong echo there (a
+    # Gaussian pattern is -5 dB at 1.3 times the half-aperture), and the detector did see it.
+    aperture_skirt_deg: Annotated[float, msgspec.Meta(ge=0.0, le=15.0)] = 3.0
     min_confidence: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.5
     # Added (per axis, in quadrature) to the covariances a fix reports, not to the filter's:
     # errors no model here carries, correlated over seconds so the filter cannot average them
@@ -414,7 +418,8 @@ class Locator:
             range_m=detection.range_m,
             azimuth_rad=detection.azimuth_rad,
             rov_z_m=rov_centre_z(depth[0], quat_to_matrix(attitude), self.lever_arm),
-            vertical_aperture_rad=self.aperture_rad,
+            vertical_aperture_rad=self.aperture_rad
+            + 2.0 * math.radians(self.config.aperture_skirt_deg),
             beam_model=self.config.sonar.beam_model,
             max_conditioning=self.config.max_conditioning,
             uncertainty=FixUncertainty(

@@ -114,6 +114,30 @@ def test_fix_at_the_true_position_good_once_the_track_is_confirmed() -> None:
     assert interpolating.locate(ping, seq=0).asv_pose_stamp_ns == SECOND // 2
 
 
+def test_a_rov_in_the_beams_skirt_is_fixed_and_beyond_it_refused() -> None:
+    """1.5 deg below the aperture's nominal edge: fixed (skirt 3 deg), refused without a skirt."""
+    mount = Config().sonar
+    sonar_xy = ASV[:2] + np.array(mount.position_m[:2])
+    drop = float(ASV[2] + mount.position_m[2] - ROV[2])
+    half = mount.vertical_aperture_deg / 2.0
+
+    def rov_at(elevation_deg: float) -> np.ndarray:
+        depression = math.radians(mount.pitch_deg - elevation_deg)
+        return np.array([sonar_xy[0] + drop / math.tan(depression), sonar_xy[1], ROV[2]])
+
+    def fix_of(locator: Locator, point: np.ndarray) -> RovFix:
+        _feed_inputs(locator, until_s=1.0)
+        return locator.locate(_ping(SECOND // 2, _detection_of(locator, point)), seq=0)
+
+    in_skirt = rov_at(-(half + 1.5))
+    fix = fix_of(_locator(), in_skirt)
+    assert fix.raw_position_m is not None
+    assert np.allclose(fix.raw_position_m, in_skirt, atol=1e-6)
+    assert fix_of(_locator(aperture_skirt_deg=0.0), in_skirt).no_fix_reason == "outside_aperture"
+    beyond = rov_at(-(half + 4.0))
+    assert fix_of(_locator(), beyond).no_fix_reason == "outside_aperture"
+
+
 def test_an_extrapolated_depth_widens_the_vertical_uncertainty() -> None:
     """Depth readings stop at 0.5 s: a ping 0.1 s later uses one extrapolated 5 gaps on."""
     locator = _locator()
