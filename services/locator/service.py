@@ -234,10 +234,13 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     tracking: TrackingConfig = TrackingConfig()
     clutter: ClutterConfig = ClutterConfig()
     max_conditioning: Positive = 10.0
-    # A fix is taken up to this far beyond the aperture's nominal (-3 dB) edge, where the
-    # other root is not: the vertical beam pattern still returns a strong echo there (a
-    # Gaussian pattern is -5 dB at 1.3 times the half-aperture), and the detector did see it.
-    aperture_skirt_deg: Annotated[float, msgspec.Meta(ge=0.0, le=15.0)] = 3.0
+    # A fix may be taken up to this far beyond the aperture's nominal (-3 dB) edge, where the
+    # other root is not: the vertical beam pattern still returns an echo there (a Gaussian
+    # pattern is -5 dB at 1.3 times the half-aperture). Off by default: such fixes are biased
+    # (only the part of the ROV inside the beam echoes; in `capsd bench accuracy`'s mockup
+    # and pond random runs, by hand, the fixes 3 deg allowed had MEDs of 64 and 109 mm), though
+    # in the closed loop they raised availability (README, "ROV missions on CAP-SD fixes").
+    aperture_skirt_deg: Annotated[float, msgspec.Meta(ge=0.0, le=15.0)] = 0.0
     min_confidence: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.5
     # Added (per axis, in quadrature) to the covariances a fix reports, not to the filter's:
     # errors no model here carries, correlated over seconds so the filter cannot average them

@@ -115,7 +115,7 @@ def test_fix_at_the_true_position_good_once_the_track_is_confirmed() -> None:
 
 
 def test_a_rov_in_the_beams_skirt_is_fixed_and_beyond_it_refused() -> None:
-    """1.5 deg below the aperture's nominal edge: fixed (skirt 3 deg), refused without a skirt."""
+    """1.5 deg below the aperture's nominal edge: fixed with a 3 deg skirt, refused without."""
     mount = Config().sonar
     sonar_xy = ASV[:2] + np.array(mount.position_m[:2])
     drop = float(ASV[2] + mount.position_m[2] - ROV[2])
@@ -130,12 +130,12 @@ def test_a_rov_in_the_beams_skirt_is_fixed_and_beyond_it_refused() -> None:
         return locator.locate(_ping(SECOND // 2, _detection_of(locator, point)), seq=0)
 
     in_skirt = rov_at(-(half + 1.5))
-    fix = fix_of(_locator(), in_skirt)
+    fix = fix_of(_locator(aperture_skirt_deg=3.0), in_skirt)
     assert fix.raw_position_m is not None
     assert np.allclose(fix.raw_position_m, in_skirt, atol=1e-6)
-    assert fix_of(_locator(aperture_skirt_deg=0.0), in_skirt).no_fix_reason == "outside_aperture"
+    assert fix_of(_locator(), in_skirt).no_fix_reason == "outside_aperture"
     beyond = rov_at(-(half + 4.0))
-    assert fix_of(_locator(), beyond).no_fix_reason == "outside_aperture"
+    assert fix_of(_locator(aperture_skirt_deg=3.0), beyond).no_fix_reason == "outside_aperture"
 
 
 def test_an_extrapolated_depth_widens_the_vertical_uncertainty() -> None:
