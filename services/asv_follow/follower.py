@@ -3,10 +3,10 @@
 No chasing of noise: the station is kept while the ROV, seen from the station, stays within
 `elevation_tolerance` of the elevation the station was chosen for, `azimuth_tolerance` of the
 boresight and the range band, and no mapped fixture shares its range cell (capsd.echo_cell,
-also just beyond the aperture's edge); only then (and at
-most every `replan_after_s`) is a new one chosen, from good fixes only, for where the ROV will
-be `lead_s` later at its tracked velocity (a ROV flying a survey leg would otherwise leave
-every station as soon as it is reached), but not past the waypoint its mission sent it to.
+also just beyond the aperture's edge); only then (and at most every `replan_after_s`) is a new
+one chosen, from good fixes only, for where the ROV will be `lead_s` later at its tracked
+velocity (a ROV flying a survey leg would otherwise leave every station as soon as it is
+reached), but not past the waypoint its mission sent it to.
 Without a good fix for `fix_timeout_s` the ROV is looked for where it will hold: a ROV on a
 mission stops within a second or two of losing its fix, so the last good fix carried on at the
 tracked velocity for up to `stop_within_s`. If that point lies outside the station's view (the
