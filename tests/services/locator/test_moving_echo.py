@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections import deque
 
 import numpy as np
 import pytest
@@ -10,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from capsd.geometry import Array, Transform, euler_zyx_to_matrix
-from capsd.services.locator.moving_echo import MovingEchoes, MovingEchoSettings
+from capsd.services.locator.moving_echo import MovingEchoes, MovingEchoSettings, _scatter_m
 from capsd.sonar_geometry import BeamModel, to_polar
 
 SECOND = 1_000_000_000
@@ -138,3 +139,27 @@ def test_an_echo_jumping_about_a_fixture_has_not_moved() -> None:
     assert any(verdicts(MovingEchoSettings(max_scatter_m=10.0)))
     # ... the path's scatter about a straight line does not.
     assert not any(verdicts(MovingEchoSettings()))
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    start=st.tuples(*[st.floats(-20.0, 20.0)] * 2),
+    velocity=st.tuples(*[st.floats(-1.0, 1.0)] * 2),
+    wobble_m=st.floats(0.0, 0.5),
+)
+def test_the_path_scatter_is_the_rms_off_a_straight_line(
+    start: tuple[float, float], velocity: tuple[float, float], wobble_m: float
+) -> None:
+    """Any straight, steady path scatters 0; alternating +-w across it scatters w."""
+    direction = np.array(velocity)
+    across = (
+        np.array([-direction[1], direction[0]]) / float(np.linalg.norm(direction))
+        if float(np.linalg.norm(direction)) > 1e-3
+        else np.array([0.0, 1.0])
+    )
+    path: deque[tuple[float, float, float, float]] = deque()
+    for k in range(40):  # 2 s at 20 Hz; an even count keeps the wobble off the fitted line
+        t = k / 20
+        xy = np.array(start) + direction * t + across * wobble_m * (-1) ** k
+        path.append((t, float(xy[0]), float(xy[1]), -4.0))
+    assert math.isclose(_scatter_m(path), wobble_m, rel_tol=0.05, abs_tol=1e-6)
