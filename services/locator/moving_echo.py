@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -60,7 +60,7 @@ class _Chain:
     last_position_m: Array
     sightings: int
     # The latest sightings, (seconds since the first, x, y, z), for the smoothness test.
-    path: deque[tuple[float, float, float, float]] = field(default_factory=deque)
+    path: deque[tuple[float, float, float, float]]
 
 
 class MovingEchoes:
@@ -92,8 +92,10 @@ class MovingEchoes:
         if chain is None:
             if len(self._chains) >= s.max_chains:
                 self._chains.remove(min(self._chains, key=lambda c: c.last_ns))
-            chain = _Chain(stamp_ns, sonar_pose, range_m, azimuth_rad, stamp_ns, position_m, 0)
-            chain.path = deque(maxlen=max(s.scatter_window, 3))
+            path = deque[tuple[float, float, float, float]](maxlen=max(s.scatter_window, 3))
+            chain = _Chain(
+                stamp_ns, sonar_pose, range_m, azimuth_rad, stamp_ns, position_m, 0, path
+            )
             self._chains.append(chain)
         chain.last_ns = stamp_ns
         chain.last_position_m = position_m
@@ -102,9 +104,10 @@ class MovingEchoes:
         chain.path.append(((stamp_ns - chain.first_ns) / 1e9, x, y, z))
         if chain.sightings < s.min_sightings or stamp_ns - chain.first_ns < s.min_age_s * 1e9:
             return False
+        # The scatter first: it is the cheaper test, and the one a fixture's echo fails.
         return (
-            self._shift_m(chain, sonar_pose, range_m, azimuth_rad) >= s.min_shift_m
-            and _scatter_m(chain.path) <= s.max_scatter_m
+            _scatter_m(chain.path) <= s.max_scatter_m
+            and self._shift_m(chain, sonar_pose, range_m, azimuth_rad) >= s.min_shift_m
         )
 
     def _nearest(self, stamp_ns: int, position_m: Array) -> _Chain | None:
