@@ -2,8 +2,10 @@
 
 One simulated run feeds, in time order, the same components the processes host: the ASV pose
 estimator (IMU + LiDAR; ours or the paper's accelerometer-trusting tilt), the detector (the
-polar CNN, the classical one, or the paper's box centre given a perfect box) and one Locator per
-method variant, so a baseline, ours and every ablation are measured on the very same pings.
+polar CNN, the classical one, or the paper's box centre given a perfect box) with the depth gate
+the detection service applies (the newest estimated ASV pose and depth reading, its default
+settings) and one Locator per method variant, so a baseline, ours and every ablation are
+measured on the very same pings.
 Every fix is paired with the label of its ping. Nothing is taken from truth except the heading
 prior the pose service is configured with (the start heading, deliberately 20 deg off) and, for
 the paper's box-centre detector, the perfect box the paper's YOLO is granted.
@@ -42,6 +44,7 @@ from capsd.services.asv_pose.tilt import TiltSettings
 from capsd.services.locator.service import Config as LocatorConfig
 from capsd.services.locator.service import InstallationConfig, Locator, MethodConfig
 from capsd.services.sonar_detect.paper_box import box_centre
+from capsd.services.sonar_detect.service import DepthGateConfig, Detector, GateInputs, detect_gated
 from capsd.simulator.config import OFFLINE_START_NS
 from capsd.simulator.config import Config as SimConfig
 from capsd.simulator.sim import Simulation
@@ -120,18 +123,16 @@ def _estimator(kind: TiltKind, sim: SimConfig, heading_prior_rad: float) -> AsvP
     )
 
 
-def _detectors(
-    kinds: set[DetectorKind],
-) -> dict[DetectorKind, Callable[[SonarFrame], list[Detection]]]:
-    out: dict[DetectorKind, Callable[[SonarFrame], list[Detection]]] = {}
+def _detectors(kinds: set[DetectorKind]) -> dict[DetectorKind, Detector]:
+    out: dict[DetectorKind, Detector] = {}
     if "cnn" in kinds:
         from capsd.services.sonar_detect.cnn import CnnDetector
 
-        out["cnn"] = CnnDetector().detect
+        out["cnn"] = CnnDetector()
     if "classical" in kinds:
         from capsd.services.sonar_detect.classical import ClassicalDetector
 
-        out["classical"] = ClassicalDetector().detect
+        out["classical"] = ClassicalDetector()
     return out
 
 
@@ -143,9 +144,12 @@ def run(
     progress: Progress | None = None,
     progress_offset_s: float = 0.0,
     sink: Callable[[Payload], None] | None = None,
+    depth_gate: Literal["reject", "off"] = "reject",
 ) -> dict[str, Accuracy]:
     """Simulate `duration_s` and score every variant on the same pings.
 
+    `depth_gate` as the detection service's (`reject`, its default, or `off`): it reads the
+    ASV pose of our estimator (the first variant's, without one of ours) and the depth as read.
     `sink` sees what a recording of the live system would hold: the sonar frames, the first
     variant's ASV poses (one per LiDAR scan) and its fixes, the ROV's depth and attitude.
     """
@@ -165,6 +169,8 @@ def run(
     tilts = {v.tilt for v in variants}
     estimators = {k: _estimator(k, config, start_yaw + HEADING_PRIOR_ERROR_RAD) for k in tilts}
     detect = _detectors({v.detector for v in variants})
+    gating = GateInputs(DepthGateConfig(mode=depth_gate, sonar=config.sonar))
+    gate_tilt: TiltKind = "ours" if "ours" in tilts else variants[0].tilt
     locators = {v.name: Locator(locator_config(v, config)) for v in variants}
     accuracy = {v.name: Accuracy() for v in variants}
     by_tilt = {k: [locators[v.name] for v in variants if v.tilt == k] for k in tilts}
@@ -184,6 +190,8 @@ def run(
                 )
                 for locator in by_tilt[kind]:
                     locator.on_pose(pose)
+                if kind == gate_tilt:
+                    gating.pose = pose
             pose_seq += 1
         elif isinstance(p, LidarScan):
             ranges = np.array(p.ranges_m)
@@ -196,6 +204,7 @@ def run(
                 first = estimators[variants[0].tilt]
                 sink(pose_payload(first.estimate(p.stamp_ns), seq=pose_seq, source="scan_match"))
         elif isinstance(p, RovDepth):
+            gating.depth = p
             for locator in every:
                 locator.on_depth(p)
             if sink is not None:
@@ -210,7 +219,10 @@ def run(
                 locator.on_velocity(p)
         elif isinstance(p, SonarFrame):
             frame = p
-            found = {kind: d(p) for kind, d in detect.items()}
+            gate = gating.gate(p.stamp_ns)
+            found = {
+                kind: detect_gated(d, p, gate, min_confidence=0.5)[0] for kind, d in detect.items()
+            }
             if sink is not None:
                 sink(p)
         elif isinstance(p, SonarLabel) and frame is not None and frame.stamp_ns == p.stamp_ns:

@@ -76,6 +76,27 @@ class Detector(Protocol):
     ) -> list[Detection]: ...
 
 
+def detect_gated(
+    detector: Detector, frame: SonarFrame, gate: DepthGate | None, *, min_confidence: float
+) -> tuple[list[Detection], int]:
+    """(kept, rejected by depth): the frame's confident candidates as the service finds them.
+
+    With a gate, proposals only at the ranges where the ROV's depth plane crosses the fan, and
+    candidates that cannot lie on that plane inside the aperture rejected (depth-aware search).
+    """
+    window = None
+    if gate is not None:
+        half_fov = max(abs(a) for a in frame.azimuths_rad)
+        window = gate.range_window(half_fov) or (0.0, 0.0)
+    found = [
+        d for d in detector.detect(frame, range_window=window) if d.confidence >= min_confidence
+    ]
+    if gate is None:
+        return found, 0
+    kept = [d for d in found if gate.plausible(d.range_m, d.azimuth_rad)]
+    return kept, len(found) - len(kept)
+
+
 class DepthGateConfig(ConfigSection, frozen=True, kw_only=True):
     """Depth-aware search: what cannot lie on the ROV's depth plane is not the ROV."""
 
@@ -221,7 +242,7 @@ def main(config: Config) -> int:
         age_at_start = runner.latency("frame age at detection start")
         # Frame arrival to detections put: decoding, waiting for the worker, detecting, encoding.
         stage = runner.latency("detection")
-        inference = runner.latency("detector compute")  # the detect() call alone
+        inference = runner.latency("detector compute")  # the detector and its depth gate
         runner.subscribe(
             topics.SONAR_FRAME,
             lambda frame: mailbox.put((frame, runner.received_ns())),
@@ -255,19 +276,14 @@ def main(config: Config) -> int:
                 age_at_start.record_ns(age_ns)
                 try:
                     gate = inputs.gate(frame.stamp_ns)
-                    window = None
-                    if gate is not None:
-                        half_fov = max(abs(a) for a in frame.azimuths_rad)
-                        window = gate.range_window(half_fov) or (0.0, 0.0)
                     started_ns = time.time_ns()
-                    candidates = detector.detect(frame, range_window=window)
+                    found, rejected = detect_gated(
+                        detector, frame, gate, min_confidence=config.min_confidence
+                    )
                     inference.record_ns(time.time_ns() - started_ns)
-                    found = [d for d in candidates if d.confidence >= config.min_confidence]
                     if gate is not None:
-                        kept = [d for d in found if gate.plausible(d.range_m, d.azimuth_rad)]
                         counts["depth_gated_frames"] += 1
-                        counts["rejected_by_depth"] += len(found) - len(kept)
-                        found = kept
+                        counts["rejected_by_depth"] += rejected
                     out.put(
                         SonarDetections(
                             stamp_ns=frame.stamp_ns,

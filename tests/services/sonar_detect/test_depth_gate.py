@@ -7,10 +7,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from capsd.geometry import Transform
+from capsd.payloads import Detection, SonarFrame
 from capsd.services.sonar_detect.depth_gate import DepthGate
+from capsd.services.sonar_detect.service import detect_gated
 from capsd.sonar_geometry import BeamModel, beam_direction, to_polar
+from tests.capsd.samples import SAMPLES
 
 HALF_APERTURE = math.radians(10.0)
+SAMPLES_FRAME = next(p for p in SAMPLES if isinstance(p, SonarFrame))
 
 
 def _sonar(pitch_deg: float, yaw_deg: float, roll_deg: float) -> Transform:
@@ -81,3 +85,52 @@ def test_window_spans_near_and_far_edges_of_the_aperture() -> None:
     far = depth_below / math.sin(math.radians(20.0))
     assert np.isclose(window[0], near, rtol=1e-3)
     assert np.isclose(window[1], far, rtol=1e-3)
+
+
+class _Fixed:
+    """A detector that finds the same candidates in every frame and notes the window asked."""
+
+    def __init__(self, found: list[Detection]):
+        self.found = found
+        self.windows: list[tuple[float, float] | None] = []
+
+    def detect(
+        self, frame: SonarFrame, *, range_window: tuple[float, float] | None = None
+    ) -> list[Detection]:
+        self.windows.append(range_window)
+        return list(self.found)
+
+
+def _candidate(range_m: float, confidence: float = 0.9) -> Detection:
+    return Detection(
+        range_m=range_m,
+        azimuth_rad=0.0,
+        range_sigma_m=0.02,
+        azimuth_sigma_rad=0.003,
+        confidence=confidence,
+    )
+
+
+def test_detect_gated_searches_the_window_and_rejects_what_is_off_the_rov_plane() -> None:
+    # Sonar 0.2 m under the surface, 30 deg down; ROV 4.5 m deep: on the boresight at about
+    # 8.6 m; at 3 m the aperture (+-15 deg with the skirts) reaches 1.5-2.4 m deep only.
+    gate = DepthGate(
+        sonar_in_world=_sonar(30.0, 0.0, 0.0),
+        rov_z_m=-4.5,
+        tolerance_m=0.6,
+        half_aperture_rad=math.radians(15.0),
+        beam_model="conical",
+    )
+    frame = SAMPLES_FRAME
+    on_plane, near, faint = _candidate(8.6), _candidate(3.0), _candidate(8.6, confidence=0.3)
+    detector = _Fixed([on_plane, near, faint])
+    kept, rejected = detect_gated(detector, frame, gate, min_confidence=0.5)
+    assert kept == [on_plane]
+    assert rejected == 1  # the faint one is below the confidence, not rejected by depth
+    window = detector.windows[-1]
+    assert window is not None
+    assert 3.0 < window[0] < 8.6 < window[1]
+    kept, rejected = detect_gated(detector, frame, None, min_confidence=0.5)
+    assert kept == [on_plane, near]
+    assert rejected == 0
+    assert detector.windows[-1] is None
