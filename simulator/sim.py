@@ -234,9 +234,16 @@ class Simulation:
     # ------------------------------------------------------------------ the stream
 
     def labelled_pings(
-        self, *, start_ns: int, duration_s: float
+        self, *, start_ns: int, duration_s: float, from_s: float = 0.0
     ) -> Iterator[tuple[float, SonarFrame, SonarLabel]]:
-        """(sim time, frame, its label) for every ping: what detector training and scoring read."""
+        """(sim time, frame, its label) for every ping: what detector training and scoring read.
+
+        With `from_s`, the pings of sim time `from_s` to `from_s + duration_s` alone (the
+        vehicles' paths are functions of time; no other stream is made).
+        """
+        if from_s > 0.0:
+            yield from self._pings_from(start_ns=start_ns, from_s=from_s, duration_s=duration_s)
+            return
         frame: SonarFrame | None = None
         for event in self.events(start_ns=start_ns, duration_s=duration_s):
             payload = event.payload
@@ -246,6 +253,25 @@ class Simulation:
                 if payload.stamp_ns == frame.stamp_ns:
                     yield event.t_s, frame, payload
                 frame = None
+
+    def _pings_from(
+        self, *, start_ns: int, from_s: float, duration_s: float
+    ) -> Iterator[tuple[float, SonarFrame, SonarLabel]]:
+        clocks = {
+            "asv": VehicleClock(self.config.clocks.asv.model(), start_ns, self._clock_rng),
+            "rov": VehicleClock(self.config.clocks.rov.model(), start_ns, self._clock_rng),
+        }
+        period = 1.0 / self.config.rates.sonar_hz
+        k = math.ceil(from_s / period)
+        while k * period <= from_s + duration_s:
+            t = k * period
+            k += 1
+            frame: SonarFrame | None = None
+            for event in self._emit_sonar(t, start_ns + round(t * 1e9), clocks):
+                if isinstance(event.payload, SonarFrame):
+                    frame = event.payload
+                elif isinstance(event.payload, SonarLabel) and frame is not None:
+                    yield t, frame, event.payload
 
     def events(self, *, start_ns: int, duration_s: float | None = None) -> Iterator[Event]:
         """Every payload in time order from sim time 0; true time is `start_ns` + sim time."""

@@ -71,6 +71,11 @@ def _cmd_train_detector(args: argparse.Namespace) -> int:
 
     if not 0.0 <= args.far_share <= 1.0:
         return fail(f"train detector: --far-share {args.far_share}: between 0 and 1", EXIT_CONFIG)
+    if not 0.0 <= args.start_spread <= 1500.0:
+        return fail(
+            f"train detector: --start-spread {args.start_spread}: between 0 and 1500 s",
+            EXIT_CONFIG,
+        )
     config = TrainConfig(
         seed=args.seed,
         runs=args.runs,
@@ -82,6 +87,7 @@ def _cmd_train_detector(args: argparse.Namespace) -> int:
         mining_runs=args.mining_runs,
         hard_runs=args.hard_runs,
         far_share=args.far_share,
+        start_spread_s=args.start_spread,
         hard_rounds=args.hard_rounds,
         hard_epochs=args.hard_epochs,
         eval_duration_s=args.eval_duration,
@@ -117,6 +123,13 @@ def register(sub: Subcommands) -> None:
         help="share of runs far off (the ROV 10-20 m away, the sonar 8-20 deg down; default 0)",
     )
     tdet.add_argument("--run-duration", type=positive_float, default=60.0, help="seconds per run")
+    tdet.add_argument(
+        "--start-spread",
+        type=float,
+        default=0.0,
+        help="runs start at a time drawn from 0 to this many seconds into the vehicles' paths "
+        "(default 0: every run from the start)",
+    )
     tdet.add_argument("--workers", type=int, default=2, help="rendering processes")
     tdet.add_argument("--threads", type=int, default=2, help="torch threads for training")
     tdet.add_argument("--proposal-epochs", type=int, default=6)

@@ -76,6 +76,7 @@ class RunPlan:
     sonar_hz: float
     variety: Variety = "train"
     sonar_pitch_deg: float | None = None  # None: the simulator's default mount (30 deg down)
+    start_s: float = 0.0  # where in the vehicles' paths the run starts (sim seconds)
 
     def config(self) -> Config:
         sonar = SonarMountConfig()
@@ -105,7 +106,13 @@ class RunPlan:
 
 
 def plan_runs(
-    *, runs: int, seed: int, duration_s: float, sonar_hz: float, far_share: float = 0.0
+    *,
+    runs: int,
+    seed: int,
+    duration_s: float,
+    sonar_hz: float,
+    far_share: float = 0.0,
+    start_spread_s: float = 0.0,
 ) -> list[RunPlan]:
     """`runs` varied runs drawn from `seed` (both tanks, every trajectory, both ASV modes).
 
@@ -114,6 +121,8 @@ def plan_runs(
     A `far_share` of the runs (drawn from a stream of their own, so that 0 plans as before) is
     far instead: the nfp tank, the ASV following FAR_STANDOFF_M off with its sonar
     FAR_PITCH_DEG down, so that the ROV is in the aperture 10-20 m away.
+    With `start_spread_s`, each run starts at a time drawn from 0 to that (a stream of its
+    own again): short runs then see every part of the paths, not only their first seconds.
     """
     rng = np.random.default_rng(seed)
     plans = []
@@ -149,6 +158,12 @@ def plan_runs(
                     standoff_m=float(far_rng.uniform(*FAR_STANDOFF_M)),
                     sonar_pitch_deg=float(far_rng.uniform(*FAR_PITCH_DEG)),
                 )
+    if start_spread_s > 0.0:
+        start_rng = np.random.default_rng([seed, 0x57A7])
+        plans = [
+            dataclasses.replace(plan, start_s=float(start_rng.uniform(0.0, start_spread_s)))
+            for plan in plans
+        ]
     return plans
 
 
@@ -333,10 +348,10 @@ def render_run(job: tuple[RunPlan, bytes | None]) -> Samples:
     plan, state = job
     proposal = _proposal_net(state) if state is not None else None
     rng = np.random.default_rng(plan.seed + 17)
-    sim = Simulation(plan.config(), horizon_s=plan.duration_s + 5.0)
+    sim = Simulation(plan.config(), horizon_s=plan.start_s + plan.duration_s + 5.0)
     out = Samples()
     for _, frame, label in sim.labelled_pings(
-        start_ns=OFFLINE_START_NS, duration_s=plan.duration_s
+        start_ns=OFFLINE_START_NS, duration_s=plan.duration_s, from_s=plan.start_s
     ):
         out.extend(samples_of_ping(frame, label, rng, proposal=proposal))
     return out

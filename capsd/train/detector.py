@@ -66,6 +66,8 @@ class TrainConfig:
     hard_lr: float = 5e-4
     # The share of runs far off (the ROV 10-20 m away, the sonar shallower; data.plan_runs).
     far_share: float = 0.0
+    # Runs start at a time drawn from 0 to this into the vehicles' paths (data.plan_runs).
+    start_spread_s: float = 0.0
     eval_duration_s: float = 20.0
     # Where the networks train (rendering and calibration stay on the CPU). "cuda" is for a
     # machine with a GPU: the same steps, not bit-identical to the CPU's.
@@ -261,6 +263,7 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
         duration_s=config.duration_s,
         sonar_hz=config.sonar_hz,
         far_share=config.far_share,
+        start_spread_s=config.start_spread_s,
     )
     samples = render(plans, workers=config.workers)
     rendered_s = time.monotonic() - started
@@ -282,6 +285,7 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
         duration_s=config.duration_s,
         sonar_hz=config.sonar_hz,
         far_share=config.far_share,
+        start_spread_s=config.start_spread_s,
     )
     mined = render(mining, workers=config.workers, proposal_state=buffer.getvalue())
     samples.crops.extend(mined.crops)
@@ -296,6 +300,7 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
             duration_s=config.duration_s,
             sonar_hz=config.sonar_hz,
             far_share=config.far_share,
+            start_spread_s=config.start_spread_s,
         )
         fresh = render(hard_set, workers=config.workers, proposal_state=buffer.getvalue())
         hard = _hard_indices(

@@ -1,4 +1,4 @@
-"""The training plan: far runs on request, the plan otherwise as it was for a seed."""
+"""The training plan: far runs and later starts on request, the plan otherwise as it was."""
 
 from __future__ import annotations
 
@@ -52,3 +52,42 @@ def test_a_far_run_puts_the_rov_far_inside_the_aperture() -> None:
     ]
     assert far
     assert all(band_of(label.range_m) == "14-20 m" for label in far)
+
+
+def test_a_start_spread_moves_each_run_into_its_paths_and_leaves_the_rest_as_planned() -> None:
+    plain = plan_runs(runs=30, seed=4, duration_s=10.0, sonar_hz=2.0, far_share=0.2)
+    assert all(p.start_s == 0.0 for p in plain)
+    spread = plan_runs(
+        runs=30, seed=4, duration_s=10.0, sonar_hz=2.0, far_share=0.2, start_spread_s=300.0
+    )
+    starts = [q.start_s for q in spread]
+    assert all(0.0 <= s <= 300.0 for s in starts)
+    assert len(set(starts)) == len(starts)
+    assert max(starts) > 150.0
+    assert [dataclasses.replace(q, start_s=0.0) for q in spread] == plain
+
+
+def test_pings_from_a_later_time_are_that_time_s_pings() -> None:
+    plan = dataclasses.replace(
+        plan_runs(runs=1, seed=6, duration_s=3.0, sonar_hz=2.0)[0], start_s=40.25
+    )
+    horizon = plan.start_s + plan.duration_s + 5.0
+    whole = {
+        round(t, 6): label
+        for t, _, label in Simulation(plan.config(), horizon_s=horizon).labelled_pings(
+            start_ns=OFFLINE_START_NS, duration_s=plan.start_s + plan.duration_s
+        )
+    }
+    later = list(
+        Simulation(plan.config(), horizon_s=horizon).labelled_pings(
+            start_ns=OFFLINE_START_NS, duration_s=plan.duration_s, from_s=plan.start_s
+        )
+    )
+    end_s = plan.start_s + plan.duration_s
+    assert [round(t, 6) for t, _, _ in later] == [t for t in whole if plan.start_s <= t <= end_s]
+    for t, frame, label in later:
+        assert frame.stamp_ns == label.stamp_ns
+        same = whole[round(t, 6)]
+        assert label.rov_position_m == same.rov_position_m
+        assert label.range_m == same.range_m
+        assert label.azimuth_rad == same.azimuth_rad
