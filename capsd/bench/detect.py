@@ -169,8 +169,11 @@ def evaluate(
     runs: tuple[Any, ...] = RUNS,
     looks: tuple[Variety, ...] = LOOKS,
     look_seed: int | None = None,
+    start_s: float = 0.0,
 ) -> dict[str, Tally]:
     """Every detector on every held-out run in every look (drawn from `look_seed` if given).
+
+    Each run's pings from `start_s` s into its vehicles' paths, for `duration_s`.
 
     Tallies are keyed 'detector / look / group', group: clear, overlap (clutter overlapping
     the ROV), all, or a range band of the ROV's true range.
@@ -181,15 +184,15 @@ def evaluate(
     for look in looks:
         for tank, trajectory, asv_mode, seed in runs:
             config = sonar_only(tank, trajectory, asv_mode, seed, variety=look, look_seed=look_seed)
-            sim = Simulation(config, horizon_s=duration_s + 5)
+            sim = Simulation(config, horizon_s=start_s + duration_s + 5)
             for t_s, frame, label in sim.labelled_pings(
-                start_ns=OFFLINE_START_NS, duration_s=duration_s
+                start_ns=OFFLINE_START_NS, duration_s=duration_s, from_s=start_s
             ):
                 for name, detect in detectors.items():
                     found = [d for d in detect(frame) if d.confidence >= MIN_CONFIDENCE]
                     score(tallies, f"{name} / {look}", label, found)
                 score(tallies, f"paper: box centre / {look}", label, box_centre(label))
-                bar.update(done + t_s)
+                bar.update(done + t_s - start_s)
             done += duration_s
     bar.close()
     return dict(tallies)
@@ -321,22 +324,26 @@ def run(
     weights: list[Path] | None = None,
     json_out: Path | None = None,
     options: CnnOptions = CnnOptions(),
+    start_s: float = 0.0,
 ) -> int:
     detectors = _detectors(which, weights, options=options)
-    tallies = evaluate(detectors, duration_s=duration_s)
+    tallies = evaluate(detectors, duration_s=duration_s, start_s=start_s)
     if json_out is not None:
         json_out.parent.mkdir(parents=True, exist_ok=True)
         figures = {
             "runs": [list(r) for r in RUNS],
             "looks": list(LOOKS),
             "duration_s_per_run": duration_s,
+            **({"start_s_into_paths": start_s} if start_s > 0.0 else {}),
             "min_confidence": MIN_CONFIDENCE,
             "groups": {name: tally.summary() for name, tally in sorted(tallies.items())},
         }
         json_out.write_text(json.dumps(figures, indent=1) + "\n")
     print()
     print(
-        f"{len(RUNS)} held-out runs of {duration_s:g} s in each look ({', '.join(LOOKS)}): "
+        f"{len(RUNS)} held-out runs of {duration_s:g} s"
+        + (f" from {start_s:g} s into their paths" if start_s > 0.0 else "")
+        + f" in each look ({', '.join(LOOKS)}): "
         + ", ".join(f"{t}/{tr} ({m}) seed {s}" for t, tr, m, s in RUNS)
     )
     print(f"candidates with confidence >= {MIN_CONFIDENCE}; a match is within {MATCH_M} m")

@@ -44,6 +44,8 @@ def _cmd_bench_detect(args: argparse.Namespace) -> int:
     for weights in args.weights or []:
         if not weights.is_file():
             return fail(f"bench detect: --weights {weights}: no such file", EXIT_CONFIG)
+    if not 0.0 <= args.start <= 1500.0:
+        return fail(f"bench detect: --start {args.start}: between 0 and 1500 s", EXIT_CONFIG)
     return detect.run(
         duration_s=args.duration,
         which=args.detector,
@@ -51,6 +53,7 @@ def _cmd_bench_detect(args: argparse.Namespace) -> int:
         weights=args.weights,
         json_out=args.json,
         options=options,
+        start_s=args.start,
     )
 
 
@@ -171,6 +174,12 @@ def register(sub: Subcommands) -> None:
         "allowed); or time per frame.",
     )
     bdet.add_argument("--duration", type=positive_float, default=15.0, help="seconds per run")
+    bdet.add_argument(
+        "--start",
+        type=float,
+        default=0.0,
+        help="seconds into each run's paths where its pings begin (default 0: the start)",
+    )
     bdet.add_argument("--json", type=Path, default=None, help="also write the figures as JSON")
     bdet.add_argument(
         "--fixtures",
