@@ -254,13 +254,17 @@ class Simulation:
                     yield event.t_s, frame, payload
                 frame = None
 
-    def _pings_from(
-        self, *, start_ns: int, from_s: float, duration_s: float
-    ) -> Iterator[tuple[float, SonarFrame, SonarLabel]]:
-        clocks = {
+    def _clocks(self, start_ns: int) -> dict[str, VehicleClock]:
+        """Each vehicle's clock, true time `start_ns` at sim time 0."""
+        return {
             "asv": VehicleClock(self.config.clocks.asv.model(), start_ns, self._clock_rng),
             "rov": VehicleClock(self.config.clocks.rov.model(), start_ns, self._clock_rng),
         }
+
+    def _pings_from(
+        self, *, start_ns: int, from_s: float, duration_s: float
+    ) -> Iterator[tuple[float, SonarFrame, SonarLabel]]:
+        clocks = self._clocks(start_ns)
         period = 1.0 / self.config.rates.sonar_hz
         k = math.ceil(from_s / period)
         while k * period <= from_s + duration_s:
@@ -276,10 +280,7 @@ class Simulation:
     def events(self, *, start_ns: int, duration_s: float | None = None) -> Iterator[Event]:
         """Every payload in time order from sim time 0; true time is `start_ns` + sim time."""
         cfg = self.config
-        clocks = {
-            "asv": VehicleClock(cfg.clocks.asv.model(), start_ns, self._clock_rng),
-            "rov": VehicleClock(cfg.clocks.rov.model(), start_ns, self._clock_rng),
-        }
+        clocks = self._clocks(start_ns)
         periods: dict[str, float] = {
             "pose": 1.0 / cfg.rates.asv_pose_hz if cfg.streams.asv_pose_truth_noise == "on" else 0,
             "depth": 1.0 / cfg.rates.depth_hz,
