@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import itertools
 from pathlib import Path
 
 from capsd.cli.common import Subcommands, fail
@@ -39,21 +40,35 @@ def _cmd_bench_detect(args: argparse.Namespace) -> int:
     if args.throughput:
         return detect.run_throughput(frames=args.frames, which=args.detector)
     options = detect.CnnOptions(search_refines=args.search_refines, track_hold_s=args.track_hold)
+    starts = tuple(args.start) if args.start is not None else detect.BENCH_STARTS_S
+    duration_s = args.duration if args.duration is not None else detect.BENCH_WINDOW_S
+    for start in starts:
+        if not 0.0 <= start <= 1500.0:
+            return fail(f"bench detect: --start {start:g}: between 0 and 1500 s", EXIT_CONFIG)
+    if len(set(starts)) != len(starts):
+        return fail("bench detect: --start: each stretch once", EXIT_CONFIG)
+    starts = tuple(sorted(starts))
+    if any(b - a < duration_s for a, b in itertools.pairwise(starts)):
+        return fail(
+            f"bench detect: --start {' '.join(f'{s:g}' for s in starts)}: stretches of "
+            f"{duration_s:g} s overlap",
+            EXIT_CONFIG,
+        )
     if args.prior_sweep:
-        return detect.sweep_prior(args.prior_sweep, duration_s=args.duration, options=options)
+        return detect.sweep_prior(
+            args.prior_sweep, duration_s=duration_s, options=options, starts_s=starts
+        )
     for weights in args.weights or []:
         if not weights.is_file():
             return fail(f"bench detect: --weights {weights}: no such file", EXIT_CONFIG)
-    if not 0.0 <= args.start <= 1500.0:
-        return fail(f"bench detect: --start {args.start}: between 0 and 1500 s", EXIT_CONFIG)
     return detect.run(
-        duration_s=args.duration,
+        duration_s=duration_s,
         which=args.detector,
         fixtures=args.fixtures,
         weights=args.weights,
         json_out=args.json,
         options=options,
-        start_s=args.start,
+        starts_s=starts,
     )
 
 
@@ -173,12 +188,20 @@ def register(sub: Subcommands) -> None:
         "paper's box-centre pipeline as the baseline; detections on real Oculus pings (none "
         "allowed); or time per frame.",
     )
-    bdet.add_argument("--duration", type=positive_float, default=15.0, help="seconds per run")
+    bdet.add_argument(
+        "--duration",
+        type=positive_float,
+        default=None,
+        help="seconds per stretch of each run (default 5)",
+    )
     bdet.add_argument(
         "--start",
         type=float,
-        default=0.0,
-        help="seconds into each run's paths where its pings begin (default 0: the start)",
+        nargs="+",
+        default=None,
+        metavar="S",
+        help="seconds into each run's paths where each scored stretch begins "
+        "(default 0 120 240: the start and two later stretches)",
     )
     bdet.add_argument("--json", type=Path, default=None, help="also write the figures as JSON")
     bdet.add_argument(

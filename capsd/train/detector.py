@@ -24,6 +24,7 @@ import json
 import math
 import platform
 import time
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -35,6 +36,7 @@ from torch.nn import functional
 
 from capsd.bench.detect import Run
 from capsd.errors import CapsdError
+from capsd.payloads import SonarFrame, SonarLabel
 from capsd.progress import Progress
 from capsd.services.sonar_detect.polar_input import NORM_HIGH, NORM_LOW, U8_SCALE
 from capsd.services.sonar_detect.polar_net import OFFSET_SCALE_M, PolarNet, save
@@ -389,15 +391,42 @@ def operating_offset(false_logits: list[float], frames: int, max_per_frame: floa
     return ordered[allowed] + 1e-6 if len(ordered) > allowed else 0.0
 
 
+def validation_pings(
+    duration_s: float,
+) -> Iterator[tuple[float, float, SonarFrame, SonarLabel]]:
+    """(sim s done, sim time, frame, label) of every validation run's pings in both looks.
+
+    Each run's `duration_s` is split over stretches at the start and later in its paths (the
+    bench's BENCH_STARTS_S), so what is set on them is not set on the first seconds alone.
+    """
+    from capsd.bench.detect import BENCH_STARTS_S, sonar_only
+    from capsd.simulator.config import OFFLINE_START_NS
+    from capsd.simulator.sim import Simulation
+
+    # Each validation run twice: the simulator's fixed look and a look drawn for training.
+    runs = [
+        (run, variety, start_s)
+        for run in VALIDATION_RUNS
+        for variety in VARIETIES
+        for start_s in BENCH_STARTS_S
+    ]
+    stretch_s = duration_s / len(BENCH_STARTS_S)
+    for k, (run, variety, start_s) in enumerate(runs):
+        sim = Simulation(sonar_only(*run, variety=variety), horizon_s=start_s + stretch_s + 5)
+        for t_s, frame, label in sim.labelled_pings(
+            start_ns=OFFLINE_START_NS, duration_s=stretch_s, from_s=start_s
+        ):
+            yield k * stretch_s + t_s - start_s, t_s, frame, label
+
+
 def calibrate(net: PolarNet, *, duration_s: float) -> dict[str, Any]:
     """Set the operating point on the validation runs (the refiner logit's offset).
 
-    Confidence 0.5 becomes the lowest threshold with at most MAX_FALSE_ALARMS_PER_FRAME.
+    Confidence 0.5 becomes the lowest threshold with at most MAX_FALSE_ALARMS_PER_FRAME, on
+    `validation_pings(duration_s)`.
     """
-    from capsd.bench.detect import MATCH_M, sonar_only
+    from capsd.bench.detect import BENCH_STARTS_S, MATCH_M
     from capsd.services.sonar_detect.cnn import NETWORK_ALONE, CnnDetector
-    from capsd.simulator.config import OFFLINE_START_NS
-    from capsd.simulator.sim import Simulation
 
     net.logit_offset.zero_()
     # The refiner's own logits on every proposal of every frame.
@@ -405,30 +434,27 @@ def calibrate(net: PolarNet, *, duration_s: float) -> dict[str, Any]:
     false_logits: list[float] = []
     hit_logits: list[float] = []  # per visible ping: the best matching candidate, or -inf
     frames = 0
-    # Each validation run twice: the simulator's fixed look and a look drawn for training.
-    runs = [(run, variety) for run in VALIDATION_RUNS for variety in VARIETIES]
-    bar = Progress(duration_s * len(runs), label="calibrating", unit=" sim s")
-    for k, (run, variety) in enumerate(runs):
-        sim = Simulation(sonar_only(*run, variety=variety), horizon_s=duration_s + 5)
-        for t_s, frame, p in sim.labelled_pings(start_ns=OFFLINE_START_NS, duration_s=duration_s):
-            frames += 1
-            best = -math.inf
-            for d in detector.detect(frame):
-                c = min(max(d.confidence, 1e-12), 1 - 1e-12)
-                logit = math.log(c / (1 - c))
-                near = p.visible and (
-                    abs(d.range_m - p.range_m) < MATCH_M
-                    and abs(d.azimuth_rad - p.azimuth_rad) * p.range_m < MATCH_M
-                )
-                if near and logit > best:
-                    if best > -math.inf:
-                        false_logits.append(best)  # a second ROV candidate is a false alarm
-                    best = logit
-                else:
-                    false_logits.append(logit)
-            if p.visible:
-                hit_logits.append(best)
-            bar.update(k * duration_s + t_s)
+    total_s = duration_s * len(VALIDATION_RUNS) * len(VARIETIES)
+    bar = Progress(total_s, label="calibrating", unit=" sim s")
+    for done, _t_s, frame, p in validation_pings(duration_s):
+        frames += 1
+        best = -math.inf
+        for d in detector.detect(frame):
+            c = min(max(d.confidence, 1e-12), 1 - 1e-12)
+            logit = math.log(c / (1 - c))
+            near = p.visible and (
+                abs(d.range_m - p.range_m) < MATCH_M
+                and abs(d.azimuth_rad - p.azimuth_rad) * p.range_m < MATCH_M
+            )
+            if near and logit > best:
+                if best > -math.inf:
+                    false_logits.append(best)  # a second ROV candidate is a false alarm
+                best = logit
+            else:
+                false_logits.append(logit)
+        if p.visible:
+            hit_logits.append(best)
+        bar.update(done)
     bar.close()
     # Never below the raw 50%: the offset only ever makes the detector more cautious.
     offset = max(0.0, operating_offset(false_logits, frames, MAX_FALSE_ALARMS_PER_FRAME))
@@ -446,6 +472,10 @@ def calibrate(net: PolarNet, *, duration_s: float) -> dict[str, Any]:
         "logit_offset": round(offset, 4),
         "validation_runs": [list(r) for r in VALIDATION_RUNS],
         "validation_looks": list(VARIETIES),
+        "validation_stretches": {
+            "start_s": list(BENCH_STARTS_S),
+            "duration_s": duration_s / len(BENCH_STARTS_S),
+        },
         "frames": frames,
         "max_false_alarms_per_frame": MAX_FALSE_ALARMS_PER_FRAME,
         "at_raw_0.5": rates(0.0),

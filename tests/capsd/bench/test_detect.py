@@ -24,7 +24,9 @@ class _Stamps:
 def test_a_later_start_scores_that_stretch_of_every_run() -> None:
     first, later = _Stamps(), _Stamps()
     from_start = evaluate({"none": first}, duration_s=1.0, runs=RUNS[:1], looks=("off",))
-    from_40 = evaluate({"none": later}, duration_s=1.0, runs=RUNS[:1], looks=("off",), start_s=40.0)
+    from_40 = evaluate(
+        {"none": later}, duration_s=1.0, runs=RUNS[:1], looks=("off",), starts_s=(40.0,)
+    )
     assert from_start["none / off / all"].frames == len(first.stamps) > 0
     assert from_40["none / off / all"].frames == len(later.stamps) == len(first.stamps)
     # Sim time in the stamps (the sonar's clock may be off by less than a second).
@@ -32,9 +34,27 @@ def test_a_later_start_scores_that_stretch_of_every_run() -> None:
     assert min(later.stamps) - OFFLINE_START_NS > 39e9
 
 
-@pytest.mark.parametrize("start", ["-1", "nan", "2000"])
-def test_a_start_outside_the_paths_is_refused(
-    start: str, capfd: pytest.CaptureFixture[str]
+def test_several_starts_score_each_stretch_of_every_run() -> None:
+    one, both = _Stamps(), _Stamps()
+    evaluate({"none": one}, duration_s=1.0, runs=RUNS[:1], looks=("off",), starts_s=(30.0,))
+    tallies = evaluate(
+        {"none": both}, duration_s=1.0, runs=RUNS[:1], looks=("off",), starts_s=(0.0, 30.0)
+    )
+    assert tallies["none / off / all"].frames == len(both.stamps) > len(one.stamps) > 0
+    seconds = sorted((s - OFFLINE_START_NS) / 1e9 for s in both.stamps)
+    assert seconds[0] < 2.0
+    assert seconds[-1] > 29.0
+    # Nothing between the stretches: each is its own 1 s of the paths.
+    assert not any(3.0 < s < 29.0 for s in seconds)
+    # The later stretch is the same pings whether scored alone or after another.
+    assert sorted(both.stamps)[-len(one.stamps) :] == sorted(one.stamps)
+
+
+@pytest.mark.parametrize(
+    "starts", [["-1"], ["nan"], ["2000"], ["0", "0"], ["0", "3"], ["60", "0", "62"]]
+)
+def test_a_start_outside_the_paths_or_overlapping_is_refused(
+    starts: list[str], capfd: pytest.CaptureFixture[str]
 ) -> None:
-    assert main(["bench", "detect", "--start", start]) == 2
+    assert main(["bench", "detect", "--duration", "5", "--start", *starts]) == 2
     assert "--start" in capfd.readouterr().err
