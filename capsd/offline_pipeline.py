@@ -7,8 +7,9 @@ the detection service applies (the newest estimated ASV pose and depth reading, 
 settings) and one Locator per method variant, so a baseline, ours and every ablation are
 measured on the very same pings.
 Every fix is paired with the label of its ping. Nothing is taken from truth except the heading
-prior the pose service is configured with (the start heading, deliberately 20 deg off) and, for
-the paper's box-centre detector, the perfect box the paper's YOLO is granted.
+prior the pose service is configured with (the start heading, deliberately 20 deg off), for
+the paper's box-centre detector, the perfect box the paper's YOLO is granted, and for the
+"perfect detector" ablation the ROV's true centre (what the rest of the pipeline costs).
 """
 
 from __future__ import annotations
@@ -50,9 +51,14 @@ from capsd.simulator.config import Config as SimConfig
 from capsd.simulator.sim import Simulation
 from capsd.simulator.world import make_tank, tank_bounds
 
-DetectorKind = Literal["cnn", "classical", "box_centre"]
+# truth: the label's ROV centre as the one candidate, told tight sigmas (a perfect detector:
+# what the rest of our pipeline costs without any detector error; never in a service).
+DetectorKind = Literal["cnn", "classical", "box_centre", "truth"]
+TRUTH_RANGE_SIGMA_M = 0.005
+TRUTH_AZIMUTH_SIGMA_RAD = math.radians(0.05)
 TiltKind = Literal["ours", "paper"]
 HEADING_PRIOR_ERROR_RAD = math.radians(20.0)
+PERFECT_DETECTOR = "ours, a perfect detector"
 
 
 @dataclass(frozen=True)
@@ -231,9 +237,12 @@ def run(
                 for bias in {v.box_range_bias_m for v in variants if v.detector == "box_centre"}
             }
             for v in variants:
-                candidates = (
-                    boxes[v.box_range_bias_m] if v.detector == "box_centre" else found[v.detector]
-                )
+                if v.detector == "box_centre":
+                    candidates = boxes[v.box_range_bias_m]
+                elif v.detector == "truth":
+                    candidates = true_centre(p)
+                else:
+                    candidates = found[v.detector]
                 detections = SonarDetections(
                     stamp_ns=frame.stamp_ns,
                     seq=frame.seq,
@@ -250,6 +259,21 @@ def run(
             if progress is not None:
                 progress.update(progress_offset_s + event.t_s)
     return accuracy
+
+
+def true_centre(label: SonarLabel) -> list[Detection]:
+    """A perfect detector's output: the ROV centre where the label says it is, if in view."""
+    if not label.visible or label.range_m <= 0.0:
+        return []
+    return [
+        Detection(
+            range_m=label.range_m,
+            azimuth_rad=label.azimuth_rad,
+            range_sigma_m=TRUTH_RANGE_SIGMA_M,
+            azimuth_sigma_rad=TRUTH_AZIMUTH_SIGMA_RAD,
+            confidence=1.0,
+        )
+    ]
 
 
 def ablations(*, box_range_bias_m: float | None = None) -> list[Variant]:
@@ -292,6 +316,7 @@ def ablations(*, box_range_bias_m: float | None = None) -> list[Variant]:
         Variant("ours - polar CNN (box centre)", detector="box_centre"),
         Variant("ours - tracking filter", method=replace_method(custom, tracking="per_frame")),
         Variant("ours - gyro-dominant tilt", tilt="paper"),
+        Variant(PERFECT_DETECTOR, detector="truth"),
     ]
 
 

@@ -83,21 +83,30 @@ def accuracy_table(figures: dict[str, Any]) -> list[str]:
 def accuracy_common(figures: dict[str, Any]) -> list[str]:
     """Ours against the calibrated baseline on common pings, with bootstrap intervals."""
     lines = [
-        "| run | common pings | ours | paper, calibrated | ours / calibrated |",
-        "|---|---:|---:|---:|---:|",
+        "| run | common pings | ours | paper, calibrated | ours / calibrated "
+        "| a perfect detector / calibrated |",
+        "|---|---:|---:|---:|---:|---:|",
     ]
+    perfect = figures.get("perfect_detector", {})
     for name, against in _in_order(figures["common"]):
         c = against[CALIBRATED]
         if "ratio" not in c:
-            lines.append(f"| {_run_name(name)} | 0 | - | - | - |")
+            lines.append(f"| {_run_name(name)} | 0 | - | - | - | {_ratio(perfect.get(name))} |")
             continue
         lines.append(
             f"| {_run_name(name)} | {c['common_pings']} "
             f"| {c['ours_med_mm']:.1f} {_ci(c['ours_med_ci_mm'])} "
             f"| {c['other_med_mm']:.1f} {_ci(c['other_med_ci_mm'])} "
-            f"| {c['ratio']:.2f} {_ci(c['ratio_ci'], 2)} |"
+            f"| {c['ratio']:.2f} {_ci(c['ratio_ci'], 2)} | {_ratio(perfect.get(name))} |"
         )
     return lines
+
+
+def _ratio(comparison: dict[str, Any] | None) -> str:
+    """A comparison's ratio with its interval, or '-' (none, or figures from before it)."""
+    if not comparison or "ratio" not in comparison:
+        return "-"
+    return f"{comparison['ratio']:.2f} {_ci(comparison['ratio_ci'], 2)}"
 
 
 def demo_summary(figures: dict[str, Any]) -> list[str]:
@@ -299,15 +308,19 @@ def self_calibrated_table(figures: dict[str, Any]) -> list[str]:
         "| run | ours uncalibrated | yaw fitted / wanted (deg) | depth offset fitted / wanted "
         "(mm) | range offset fitted / wanted (mm) | ours "
         "| baseline (box range, mount, depth and range calibrated) | ratio "
-        "| ours: mean NEES, share within the 95 % bound |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "| ours: mean NEES, share within the 95 % bound | a perfect detector: ratio |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
+    perfect = figures.get("perfect_detector_self_calibrated", {})
     for name, c in _in_order(figures["common_self_calibrated"]):
         cal = figures["self_calibration"][name]
         before = figures["runs"][name][OURS].get("med_mm")
         before_cell = "-" if before is None else f"{before:.1f}"
         if "ratio" not in c:
-            lines.append(f"| {_run_name(name)} | {before_cell} | - | - | - | - | - | - | - |")
+            lines.append(
+                f"| {_run_name(name)} | {before_cell} | - | - | - | - | - | - | - "
+                f"| {_ratio(perfect.get(name))} |"
+            )
             continue
         ours = figures["runs"][name][OURS_SELF_CALIBRATED]
         lines.append(
@@ -316,7 +329,8 @@ def self_calibrated_table(figures: dict[str, Any]) -> list[str]:
             f"| {cal.get('along_mm', '-')} / {cal.get('along_wanted_mm', '-')} "
             f"| {c['ours_med_mm']:.1f} | {c['other_med_mm']:.1f} "
             f"| {c['ratio']:.2f} {_ci(c['ratio_ci'], 2)} "
-            f"| {ours['nees_mean']}, {_pct(ours['nees_within_95'])} |"
+            f"| {ours['nees_mean']}, {_pct(ours['nees_within_95'])} "
+            f"| {_ratio(perfect.get(name))} |"
         )
     return lines
 

@@ -289,15 +289,20 @@ def _detectors(
 
 
 def evaluate_cnn(net: Any, *, duration_s: float) -> dict[str, Any]:
-    """The evaluation stored with trained weights: the CNN and the baseline, as JSON figures."""
+    """The evaluation stored with trained weights: the CNN and the baseline, as JSON figures.
+
+    Each run's `duration_s` split over the bench's stretches (BENCH_STARTS_S).
+    """
     from capsd.services.sonar_detect.cnn import NETWORK_ALONE, CnnDetector
 
     detector = CnnDetector(NETWORK_ALONE, net=net)
-    tallies = evaluate({"cnn": detector.detect}, duration_s=duration_s)
+    stretch_s = duration_s / len(BENCH_STARTS_S)
+    tallies = evaluate({"cnn": detector.detect}, duration_s=stretch_s, starts_s=BENCH_STARTS_S)
     return {
         "runs": [list(r) for r in RUNS],
         "looks": list(LOOKS),
-        "duration_s_per_run": duration_s,
+        "duration_s_per_stretch": stretch_s,
+        "stretches_start_s_into_paths": list(BENCH_STARTS_S),
         "min_confidence": MIN_CONFIDENCE,
         "groups": {name: tally.summary() for name, tally in sorted(tallies.items())},
     }
