@@ -260,6 +260,9 @@ def write_configs(
             "heading_prior_deg": round(heading, 1),
             "tank_length_m": t.length_m,
             "tank_width_m": t.width_m,
+            # The scanner where the simulated ASV carries it (on its mast), as a team measures it.
+            "lidar_xy_m": list(run.lidar.position_m[:2]),
+            "lidar_height_m": run.lidar.position_m[2],
         },
         "sonar_detect": {"bus": bus},
         "locator": {

@@ -122,7 +122,7 @@ def _estimator(kind: TiltKind, sim: SimConfig, heading_prior_rad: float) -> AsvP
         tank_walls(tank.length_m, tank.width_m),
         heading_prior_rad=heading_prior_rad,
         settings=EstimatorSettings(
-            lidar_xy_m=(sim.lidar.position_m[0], sim.lidar.position_m[1]),
+            lidar_position_m=sim.lidar.position_m,
             accel_compensation=compensation,
         ),
         tilt=tilt,

@@ -48,7 +48,8 @@ class EstimatorSettings:
     coast_degraded_s: float = 0.25
     coast_limit_s: float = 1.0
     search_interval_s: float = 1.0
-    lidar_xy_m: tuple[float, float] = (0.0, 0.0)
+    # The scanner's position in the body frame, its height above the origin included.
+    lidar_position_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     track_fit_scans: int = 11  # ~0.7 s at 15 Hz
     # "track": the tilt filter is told the ASV's own acceleration (from the scan track), so
     # manoeuvres do not read as tilt; "none": the paper's filter, which is not.
@@ -143,7 +144,7 @@ class AsvPoseEstimator:
             angles_rad,
             roll_rad=self.tilt.roll_rad,
             pitch_rad=self.tilt.pitch_rad,
-            mount_xy=s.lidar_xy_m,
+            mount_m=s.lidar_position_m,
         )
         if len(points) < 20:
             return self._reject("too_few_returns")

@@ -52,14 +52,19 @@ def level_points(
     *,
     roll_rad: float,
     pitch_rad: float,
-    mount_xy: tuple[float, float] = (0.0, 0.0),
+    mount_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
 ) -> Array:
-    """Scan points (returns only) in the levelled body frame's x-y plane."""
+    """Scan points (returns only) in the levelled body frame's x-y plane.
+
+    `mount_m` is the scanner's position in the body frame. Its height counts: a scanner on a
+    mast sways with the hull's roll and pitch (0.4 m at 1.5 deg: 10 mm), so the points are
+    levelled about the body's origin, not the scanner's, and the match is the body's pose.
+    """
     ok = np.isfinite(ranges_m) & (ranges_m > 0.0)  # NaN, inf and 0 (no return) dropped
     r, a = ranges_m[ok], angles_rad[ok]
-    pts = np.column_stack([r * np.cos(a), r * np.sin(a), np.zeros_like(r)])
+    pts = np.column_stack([r * np.cos(a), r * np.sin(a), np.zeros_like(r)]) + np.array(mount_m)
     levelled = pts @ euler_zyx_to_matrix(0.0, pitch_rad, roll_rad).T
-    return np.asarray(levelled[:, :2] + np.array(mount_xy), dtype=np.float64)
+    return np.asarray(levelled[:, :2], dtype=np.float64)
 
 
 def _nearest(points_w: Array, segments: tuple[Segment, ...]) -> tuple[Array, Array, Array]:

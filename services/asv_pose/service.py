@@ -48,6 +48,9 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     heading_prior_deg: Annotated[float, msgspec.Meta(ge=-360.0, le=360.0)] | None = 0.0
     heading_prior_tolerance_deg: Annotated[float, msgspec.Meta(gt=0.0, lt=90.0)] = 60.0
     lidar_xy_m: tuple[float, float] = (0.0, 0.0)
+    # The scanner's height above the ASV's origin (the point the pose is of): on a mast it
+    # sways with roll and pitch, which the scan matching takes out.
+    lidar_height_m: Annotated[float, msgspec.Meta(ge=-5.0, le=5.0)] = 0.0
     imu_mount_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
     tilt_kp: Annotated[float, msgspec.Meta(gt=0.0, le=10.0)] = 0.2
     tilt_ki: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.03
@@ -70,7 +73,7 @@ def main(config: Config) -> int:
         settings=EstimatorSettings(
             min_inlier_ratio=config.min_inlier_ratio,
             max_jump_m=config.max_jump_m,
-            lidar_xy_m=config.lidar_xy_m,
+            lidar_position_m=(*config.lidar_xy_m, config.lidar_height_m),
         ),
         tilt=TiltSettings(kp=config.tilt_kp, ki=config.tilt_ki, mounting=r_b_i),
     )

@@ -71,3 +71,31 @@ def test_one_wall_only_is_degenerate() -> None:
     result = match(body, tank_walls(28.0, 16.0), x_m=7.2, y_m=3.1, yaw_rad=0.0)
     assert result.degeneracy < 1e-6
     assert not np.all(np.isfinite(result.covariance)) or result.covariance[0, 0] > 1.0
+
+
+@pytest.mark.parametrize(("roll_deg", "pitch_deg"), [(1.5, 0.0), (0.0, -1.0), (1.2, 0.8)])
+def test_a_scanner_on_a_mast_gives_the_hull_s_pose_when_its_height_is_known(
+    roll_deg: float, pitch_deg: float
+) -> None:
+    # The hull at (14, 8), the scanner 0.4 m above its origin: rolled 1.5 deg, the scanner
+    # sits 10 mm to one side of the hull's origin.
+    x, y, yaw = 14.0, 8.0, 0.3
+    roll, pitch = math.radians(roll_deg), math.radians(pitch_deg)
+    hull = Transform(euler_zyx_to_matrix(yaw, pitch, roll), np.array([x, y, 0.0]))
+    mast = (0.0, 0.0, 0.4)
+    scanner = Transform(hull.rotation, hull.apply(np.array(mast)))
+    ranges = scan(
+        LidarModel(sigma_m=0.0), scanner, make_tank("nfp", clutter="off"), np.random.default_rng(1)
+    )
+    walls = tank_walls(28.0, 16.0)
+
+    def offset_mm(mount: tuple[float, float, float]) -> float:
+        points = level_points(
+            ranges, LidarModel().angles(), roll_rad=roll, pitch_rad=pitch, mount_m=mount
+        )
+        found = match(points, walls, x_m=x + 0.1, y_m=y - 0.1, yaw_rad=yaw + 0.02)
+        return 1000.0 * math.hypot(found.x_m - x, found.y_m - y)
+
+    sway_mm = 400.0 * math.sin(math.hypot(roll, pitch))
+    assert offset_mm(mast) < 1.0
+    assert offset_mm((0.0, 0.0, 0.0)) == pytest.approx(sway_mm, rel=0.1)
