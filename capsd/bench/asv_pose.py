@@ -17,7 +17,7 @@ import numpy as np
 from capsd.geometry import matrix_to_euler_zyx
 from capsd.payloads import ImuSample, LidarScan
 from capsd.progress import Progress
-from capsd.services.asv_pose.estimator import AsvPoseEstimator
+from capsd.services.asv_pose.estimator import AsvPoseEstimator, EstimatorSettings
 from capsd.services.asv_pose.scan_match import tank_walls
 from capsd.simulator.config import Config, Streams
 from capsd.simulator.install_errors import InstallErrorsConfig
@@ -56,6 +56,8 @@ def rms_errors(
     estimator = AsvPoseEstimator(
         tank_walls(t.length_m, t.width_m),
         heading_prior_rad=matrix_to_euler_zyx(start.rotation)[0] + math.radians(20.0),
+        # Where the scanner sits on the hull (on its mast), as the service is configured.
+        settings=EstimatorSettings(lidar_position_m=config.lidar.position_m),
     )
     angles = LidarModel().angles()
     errors = []
