@@ -3,10 +3,14 @@
 The map is a set of line segments in the world's x-y plane (the tank's walls above the water,
 plus any straight features). Each scan point, levelled with the filter's roll and pitch and
 placed by the current pose guess, is paired with its nearest segment; pairs further than the
-gate are outliers. Gauss-Newton on (x, y, yaw) minimises the point-to-line distances; the gate
-shrinks as the fit converges. Reported with the pose: inlier ratio, residual rms, the smallest
-eigenvalue of J^T J (degeneracy: a scan that sees one wall only cannot fix the position along
-it) and the covariance sigma^2 (J^T J)^-1.
+gate are outliers. Gauss-Newton on (x, y, yaw) minimises the point-to-line distances, each
+pair weighted by Tukey's biweight with the gate as its scale; the gate shrinks as the fit
+converges. The weights matter where something not on the map stands just off a wall above the
+water (a pipe, a ladder, a rail a few centimetres out): inside the gate with equal weights it
+pulls the wall towards itself (5 mm on average, 11 mm at worst in the mockup tank's clutter
+with noise-free scans, before the weights). Reported with the pose: inlier ratio, residual
+rms, the smallest eigenvalue of J^T J (degeneracy: a scan that sees one wall only cannot fix
+the position along it) and the covariance sigma^2 (J^T J)^-1.
 
 This is the local matcher; seeding it (IMU-propagated prediction, global search, and the bare
 rectangle's 180-degree symmetry) is the pose service's job.
@@ -119,8 +123,9 @@ def match(
         residual = np.einsum("ij,ij->i", n, w - q)
         d_rot = np.array([[-s, -c], [c, -s]])  # dR/dyaw
         jac = np.column_stack([n[:, 0], n[:, 1], np.einsum("ij,ij->i", n, p @ d_rot.T)])
-        jtj = jac.T @ jac
-        step = np.linalg.lstsq(jtj, -jac.T @ residual, rcond=None)[0]
+        weight = np.square(1.0 - np.square(residual / gate))  # Tukey's biweight, scale: the gate
+        jtj = jac.T @ (jac * weight[:, None])
+        step = np.linalg.lstsq(jtj, -jac.T @ (weight * residual), rcond=None)[0]
         pose += step
         if np.linalg.norm(step[:2]) < 1e-5 and abs(step[2]) < 1e-6:
             break

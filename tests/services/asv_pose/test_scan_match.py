@@ -99,3 +99,21 @@ def test_a_scanner_on_a_mast_gives_the_hull_s_pose_when_its_height_is_known(
     sway_mm = 400.0 * math.sin(math.hypot(roll, pitch))
     assert offset_mm(mast) < 1.0
     assert offset_mm((0.0, 0.0, 0.0)) == pytest.approx(sway_mm, rel=0.1)
+
+
+def test_fixtures_just_off_the_walls_do_not_pull_the_match() -> None:
+    # The mockup tank's clutter stands above the water a few centimetres off its walls: inside
+    # the gate, unweighted, it pulled the walls (and the pose) 5 mm towards itself on average.
+    tank = make_tank("mockup")
+    walls = tank_walls(tank.length_m, tank.width_m)
+    x, y = tank.length_m / 2, tank.width_m / 2
+    rng = np.random.default_rng(0)
+    errors_mm = []
+    for yaw in np.linspace(-math.pi, math.pi, 24, endpoint=False):
+        hull = Transform(euler_zyx_to_matrix(float(yaw), 0.0, 0.0), np.array([x, y, 0.0]))
+        scanner = Transform(hull.rotation, hull.apply(np.array([0.0, 0.0, 0.4])))
+        ranges = scan(LidarModel(sigma_m=0.0), scanner, tank, rng)
+        points = level_points(ranges, LidarModel().angles(), roll_rad=0.0, pitch_rad=0.0)
+        found = match(points, walls, x_m=x + 0.05, y_m=y - 0.05, yaw_rad=float(yaw) + 0.01)
+        errors_mm.append(1000.0 * math.hypot(found.x_m - x, found.y_m - y))
+    assert max(errors_mm) < 1.0
