@@ -93,6 +93,7 @@ def _cmd_train_detector(args: argparse.Namespace) -> int:
         eval_duration_s=args.eval_duration,
         device=args.device,
         evaluate=args.evaluate,
+        range_input=args.range_input,
     )
     try:
         train(config, args.out)
@@ -121,6 +122,12 @@ def register(sub: Subcommands) -> None:
         type=float,
         default=0.0,
         help="share of runs far off (the ROV 10-20 m away, the sonar 8-20 deg down; default 0)",
+    )
+    tdet.add_argument(
+        "--range-input",
+        choices=["none", "channel"],
+        default="none",
+        help="channel: both networks also read each place's range (default none)",
     )
     tdet.add_argument("--run-duration", type=positive_float, default=60.0, help="seconds per run")
     tdet.add_argument(

@@ -33,7 +33,10 @@ from capsd.services.sonar_detect.polar_input import (
     crop_pair,
     normalised_image,
     to_u8,
+    with_range_plane,
+    with_range_rows,
 )
+from capsd.services.sonar_detect.polar_net import RangeInput
 from capsd.simulator.config import (
     OFFLINE_START_NS,
     Config,
@@ -204,17 +207,20 @@ def samples_of_ping(
     rng: np.random.Generator,
     *,
     proposal: Any = None,
+    range_input: RangeInput = "none",
 ) -> Samples:
     """The grid and crops of one labelled ping.
 
     With a trained `proposal` network (hard-negative mining), its own peaks away from the ROV
-    are added as negatives: the sandbags and rack corners it mistakes for an ROV.
+    are added as negatives: the sandbags and rack corners it mistakes for an ROV. With
+    `range_input: channel` grids and crops carry the range plane (polar_net).
     """
     out = Samples()
     image = normalised_image(frame)
     grid = Grid.of(frame)
     coarse = coarse_input(image, grid)
-    out.grids.append(to_u8(coarse))
+    ranged = range_input == "channel"
+    out.grids.append(to_u8(with_range_rows(coarse, frame, grid) if ranged else coarse))
     table = BeamTable(frame.azimuths_rad)
     truth: tuple[float, float] | None = None
     if (
@@ -251,6 +257,8 @@ def samples_of_ping(
             if centre_range <= 0.2:
                 continue
             patch = crop_pair(image, frame, table, range_m=centre_range, azimuth_rad=centre_az)
+            if ranged:
+                patch = with_range_plane(patch, centre_range)
             # The target offset is measured at the crop's own range (its cross-range scale).
             out.crops.append(to_u8(patch))
             out.crop_targets.append(
@@ -269,12 +277,22 @@ def samples_of_ping(
     if proposal is not None:
         from capsd.services.sonar_detect.cnn import propose
 
-        peaks = propose(proposal, frame, image, table, threshold=0.05, max_candidates=3)
+        peaks = propose(
+            proposal,
+            frame,
+            image,
+            table,
+            threshold=0.05,
+            max_candidates=3,
+            range_input=range_input,
+        )
         places += [(c.range_m, c.azimuth_rad) for c in peaks]
     for range_m, azimuth in places:
         if truth is not None and _distance(truth, (range_m, azimuth)) < NEGATIVE_MIN_DISTANCE_M:
             continue
         patch = crop_pair(image, frame, table, range_m=range_m, azimuth_rad=azimuth)
+        if ranged:
+            patch = with_range_plane(patch, range_m)
         out.crops.append(to_u8(patch))
         out.crop_targets.append((0.0, 0.0, 0.0, 0.0, 0.0, float(label.overlap)))
     return out
@@ -325,7 +343,7 @@ def _negative_places(
 _PROPOSAL_CACHE: dict[bytes, Any] = {}
 
 
-def _proposal_net(state: bytes) -> Any:
+def _proposal_net(state: bytes, range_input: RangeInput) -> Any:
     """A worker's copy of the proposal network (loaded once per process)."""
     if state not in _PROPOSAL_CACHE:
         import io
@@ -335,7 +353,7 @@ def _proposal_net(state: bytes) -> Any:
         from capsd.services.sonar_detect.polar_net import ProposalNet
 
         torch.set_num_threads(1)
-        net = ProposalNet()
+        net = ProposalNet(channels=3 if range_input == "channel" else 2)
         net.load_state_dict(torch.load(io.BytesIO(state), weights_only=True))
         net.eval()
         _PROPOSAL_CACHE.clear()
@@ -343,26 +361,32 @@ def _proposal_net(state: bytes) -> Any:
     return _PROPOSAL_CACHE[state]
 
 
-def render_run(job: tuple[RunPlan, bytes | None]) -> Samples:
+def render_run(job: tuple[RunPlan, bytes | None, RangeInput]) -> Samples:
     """Render one run into samples (runs in a worker process); mine with a proposal state."""
-    plan, state = job
-    proposal = _proposal_net(state) if state is not None else None
+    plan, state, range_input = job
+    proposal = _proposal_net(state, range_input) if state is not None else None
     rng = np.random.default_rng(plan.seed + 17)
     sim = Simulation(plan.config(), horizon_s=plan.start_s + plan.duration_s + 5.0)
     out = Samples()
     for _, frame, label in sim.labelled_pings(
         start_ns=OFFLINE_START_NS, duration_s=plan.duration_s, from_s=plan.start_s
     ):
-        out.extend(samples_of_ping(frame, label, rng, proposal=proposal))
+        out.extend(samples_of_ping(frame, label, rng, proposal=proposal, range_input=range_input))
     return out
 
 
-def render(plans: list[RunPlan], *, workers: int, proposal_state: bytes | None = None) -> Samples:
+def render(
+    plans: list[RunPlan],
+    *,
+    workers: int,
+    proposal_state: bytes | None = None,
+    range_input: RangeInput = "none",
+) -> Samples:
     """Every run's samples, in plan order, with a progress line."""
     out = Samples()
     what = "mining hard negatives" if proposal_state is not None else "rendering training runs"
     bar = Progress(len(plans), label=what, unit=" runs")
-    jobs = [(plan, proposal_state) for plan in plans]
+    jobs = [(plan, proposal_state, range_input) for plan in plans]
     with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
         for done, samples in enumerate(pool.map(render_run, jobs), start=1):
             out.extend(samples)

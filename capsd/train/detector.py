@@ -39,7 +39,7 @@ from capsd.errors import CapsdError
 from capsd.payloads import SonarFrame, SonarLabel
 from capsd.progress import Progress
 from capsd.services.sonar_detect.polar_input import NORM_HIGH, NORM_LOW, U8_SCALE
-from capsd.services.sonar_detect.polar_net import OFFSET_SCALE_M, PolarNet, save
+from capsd.services.sonar_detect.polar_net import OFFSET_SCALE_M, PolarNet, RangeInput, save
 from capsd.simulator.sonar_look import Variety
 from capsd.train.data import Samples, plan_runs, render
 
@@ -74,17 +74,25 @@ class TrainConfig:
     # Where the networks train (rendering and calibration stay on the CPU). "cuda" is for a
     # machine with a GPU: the same steps, not bit-identical to the CPU's.
     device: Literal["cpu", "cuda"] = "cpu"
+    # "channel": both networks also read the range (polar_net), so a far ROV's look is learned
+    # apart from near speckle's.
+    range_input: RangeInput = "none"
     # "none" leaves the held-out evaluation to `capsd train calibrate` or `capsd bench detect`.
     evaluate: Literal["heldout", "none"] = "heldout"
 
 
-def _augment(x: torch.Tensor, gen: torch.Generator) -> torch.Tensor:
-    """Gain (offset) and contrast changes per sample, in the normalised units."""
+def _augment(x: torch.Tensor, gen: torch.Generator, *, image_planes: int) -> torch.Tensor:
+    """Gain (offset) and contrast changes per sample, in the normalised units.
+
+    Only the first `image_planes` planes: a range plane after them is geometry, not echo.
+    """
     n = x.shape[0]
     shape = (n,) + (1,) * (x.dim() - 1)
     scale = 0.85 + 0.3 * torch.rand(shape, generator=gen)
     offset = -0.08 + 0.16 * torch.rand(shape, generator=gen)
-    return torch.clamp(x * scale + offset, NORM_LOW, NORM_HIGH)
+    out = x.clone()
+    out[:, :image_planes] = torch.clamp(x[:, :image_planes] * scale + offset, NORM_LOW, NORM_HIGH)
+    return out
 
 
 def _heat_target(
@@ -150,7 +158,7 @@ def _train_proposal(
                 x[torch.from_numpy(flipped)] = torch.flip(x[torch.from_numpy(flipped)], dims=[-1])
             else:
                 flipped[:] = False
-            x = _augment(x, gen).to(config.device)
+            x = _augment(x, gen, image_planes=2).to(config.device)
             logits = net.proposal(x)
             target = _heat_target(targets[batch], logits.shape[1], logits.shape[2], flipped=flipped)
             loss = focal_loss(logits, target.to(config.device))
@@ -242,7 +250,7 @@ def _train_refine(
             flip = torch.rand(len(idx), generator=gen) < 0.5
             x[flip] = torch.flip(x[flip], dims=[-1])
             t[flip, 2] = -t[flip, 2]
-            x = _augment(x, gen).to(config.device)
+            x = _augment(x, gen, image_planes=net.refine_channels).to(config.device)
             loss = refine_loss(net.refine(x), t.to(config.device))
             losses.append(_step(opt, sched, loss))
             bar.update(len(losses))
@@ -267,7 +275,7 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
         far_share=config.far_share,
         start_spread_s=config.start_spread_s,
     )
-    samples = render(plans, workers=config.workers)
+    samples = render(plans, workers=config.workers, range_input=config.range_input)
     rendered_s = time.monotonic() - started
     n_visible = int(sum(t[0] for t in samples.grid_targets))
     n_pos = int(sum(t[0] for t in samples.crop_targets))
@@ -275,7 +283,7 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
         f"{len(samples.grids)} frames ({n_visible} with the ROV), {len(samples.crops)} crops "
         f"({n_pos} on the ROV), rendered in {rendered_s:.0f} s"
     )
-    net = PolarNet().to(config.device)
+    net = PolarNet(range_input=config.range_input).to(config.device)
     proposal_losses = _train_proposal(net, samples, config, gen)
     # Hard negatives: fresh runs seen through the trained proposal network; its peaks away
     # from the ROV (sandbags, rack corners) become refiner negatives.
@@ -289,7 +297,12 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
         far_share=config.far_share,
         start_spread_s=config.start_spread_s,
     )
-    mined = render(mining, workers=config.workers, proposal_state=buffer.getvalue())
+    mined = render(
+        mining,
+        workers=config.workers,
+        proposal_state=buffer.getvalue(),
+        range_input=config.range_input,
+    )
     samples.crops.extend(mined.crops)
     samples.crop_targets.extend(mined.crop_targets)
     refine_losses = _train_refine(net, samples, config, gen)
@@ -304,7 +317,12 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
             far_share=config.far_share,
             start_spread_s=config.start_spread_s,
         )
-        fresh = render(hard_set, workers=config.workers, proposal_state=buffer.getvalue())
+        fresh = render(
+            hard_set,
+            workers=config.workers,
+            proposal_state=buffer.getvalue(),
+            range_input=config.range_input,
+        )
         hard = _hard_indices(
             net,
             torch.from_numpy(np.stack(fresh.crops)),

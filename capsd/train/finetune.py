@@ -117,7 +117,9 @@ def finetune(
     samples = Samples()
     for frame, label in frames_of(labels):
         ping = _label_of(frame.stamp_ns, frame.ping_id, label.range_m, label.azimuth_rad)
-        samples.extend(samples_of_ping(frame, ping, rng, proposal=net.proposal))
+        samples.extend(
+            samples_of_ping(frame, ping, rng, proposal=net.proposal, range_input=net.range_input)
+        )
     site_crops = len(samples.crops)
     plans = plan_runs(
         runs=config.replay_runs,
@@ -125,7 +127,7 @@ def finetune(
         duration_s=config.replay_duration_s,
         sonar_hz=2.0,
     )
-    samples.extend(render(plans, workers=config.workers))
+    samples.extend(render(plans, workers=config.workers, range_input=net.range_input))
     train_config = TrainConfig(
         seed=config.seed,
         threads=config.threads,

@@ -37,10 +37,13 @@ from capsd.services.sonar_detect.polar_input import (
     crop,
     crop_pair,
     normalised_image,
+    with_range_plane,
+    with_range_rows,
 )
 from capsd.services.sonar_detect.polar_net import (
     OFFSET_SCALE_M,
     PolarNet,
+    RangeInput,
     fused_for_inference,
     load,
 )
@@ -228,25 +231,13 @@ class CnnDetector:
             threshold=s.proposal_threshold,
             max_candidates=s.max_candidates,
             range_window=range_window,
+            range_input=self.net.range_input,
         )
 
     def _refine(
         self, frame: SonarFrame, image: Image, table: BeamTable, candidates: list[Candidate]
     ) -> list[Detection]:
-        if self.net.refine_channels == 2:
-            crops = np.stack(
-                [
-                    crop_pair(image, frame, table, range_m=c.range_m, azimuth_rad=c.azimuth_rad)
-                    for c in candidates
-                ]
-            )
-        else:
-            crops = np.stack(
-                [
-                    crop(image, frame, table, range_m=c.range_m, azimuth_rad=c.azimuth_rad)
-                    for c in candidates
-                ]
-            )[:, None]
+        crops = np.stack([refine_input(self.net, image, frame, table, c) for c in candidates])
         with torch.inference_mode():
             out = self._refine_net(torch.from_numpy(crops)).numpy().astype(np.float64)
         half_fov = table.half_fov_rad
@@ -284,6 +275,23 @@ class CnnDetector:
         return kept
 
 
+def refine_input(
+    net: PolarNet, image: Image, frame: SonarFrame, table: BeamTable, at: Candidate
+) -> Image:
+    """What the refiner reads around `at`: the detail crop (and context, and range plane)."""
+    if net.refine_channels == 2:
+        out = crop_pair(image, frame, table, range_m=at.range_m, azimuth_rad=at.azimuth_rad)
+    else:
+        out = crop(image, frame, table, range_m=at.range_m, azimuth_rad=at.azimuth_rad)[None]
+    return with_range_plane(out, at.range_m) if net.range_input == "channel" else out
+
+
+def proposal_input(image: Image, frame: SonarFrame, grid: Grid, range_input: RangeInput) -> Image:
+    """What the proposal network reads: the coarse grid (and its range plane)."""
+    coarse = coarse_input(image, grid)
+    return with_range_rows(coarse, frame, grid) if range_input == "channel" else coarse
+
+
 def propose(
     proposal: torch.nn.Module,
     frame: SonarFrame,
@@ -293,6 +301,7 @@ def propose(
     threshold: float,
     max_candidates: int,
     range_window: tuple[float, float] | None = None,
+    range_input: RangeInput = "none",
 ) -> list[Candidate]:
     """Local maxima of the proposal heatmap above `threshold`, strongest first.
 
@@ -301,7 +310,7 @@ def propose(
     grid = Grid.of(frame)
     if grid.rows < 4 or grid.cols < 4:
         return []
-    coarse = torch.from_numpy(coarse_input(image, grid))[None]
+    coarse = torch.from_numpy(proposal_input(image, frame, grid, range_input))[None]
     with torch.inference_mode():
         heat = torch.sigmoid(proposal(coarse))[0]
         if range_window is not None:

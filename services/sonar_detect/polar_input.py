@@ -60,6 +60,31 @@ def normalised_image(frame: SonarFrame) -> Image:
     return out
 
 
+# The range plane (polar_net's `range_input: channel`): 0 to RANGE_PLANE_M mapped onto the
+# normalised span, so that it survives the 8-bit training sets like an image plane.
+RANGE_PLANE_M = 30.0
+
+
+def range_value(range_m: npt.ArrayLike) -> npt.NDArray[np.float32]:
+    """Ranges (m) in the range plane's units."""
+    share = np.clip(np.asarray(range_m, dtype=np.float64) / RANGE_PLANE_M, 0.0, 1.0)
+    return np.asarray(NORM_LOW + (NORM_HIGH - NORM_LOW) * share, dtype=np.float32)
+
+
+def with_range_rows(coarse: Image, frame: SonarFrame, grid: Grid) -> Image:
+    """The coarse grid with a third plane: each row's centre range."""
+    rows = np.arange(grid.rows, dtype=np.float64)
+    ranges = frame.range_start_m + (rows + 0.5) * grid.range_factor * frame.range_resolution_m
+    plane = np.broadcast_to(range_value(ranges)[:, None], (grid.rows, grid.cols))
+    return np.concatenate([coarse, plane[None]]).astype(np.float32, copy=False)
+
+
+def with_range_plane(crops: Image, range_m: float) -> Image:
+    """Crops (channels x N x N) with one more plane: the crop's centre range, constant."""
+    plane = np.full((1, *crops.shape[1:]), range_value(range_m), dtype=np.float32)
+    return np.concatenate([crops, plane]).astype(np.float32, copy=False)
+
+
 def to_u8(a: Image) -> npt.NDArray[np.uint8]:
     """A normalised image (or crop, or grid) as 8 bits for training sets; `from_u8` inverts."""
     scaled = (a - NORM_LOW) * (255.0 / (NORM_HIGH - NORM_LOW)) + 0.5

@@ -8,13 +8,16 @@
   an ROV/not-ROV logit, the centre's offset from the crop centre in range and cross-range
   (metres), the log scale of a Laplace error for each (the sigma we report), and the log of the
   echo's extent in range and cross-range.
+With `range_input: channel` both read one more plane: the range in metres (each grid row's,
+the crop's centre), so that what an ROV looks like may depend on how far it is (a faint
+dash at 16 m, a wide blob at 2 m), where without it a far ROV and near speckle compete.
 Weights are a plain state dict with a format tag, loaded with `weights_only=True`.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, get_args
 
 import torch
 from torch import nn
@@ -24,6 +27,7 @@ from capsd.errors import CapsdError
 FORMAT = "capsd-polar-net"
 VERSION = 1
 OFFSET_SCALE_M = 0.1  # offsets are regressed in units of 10 cm
+RangeInput = Literal["none", "channel"]
 
 
 def _conv(c_in: int, c_out: int, *, stride: int = 1, dilation: int = 1) -> list[nn.Module]:
@@ -37,10 +41,10 @@ def _conv(c_in: int, c_out: int, *, stride: int = 1, dilation: int = 1) -> list[
 class ProposalNet(nn.Module):
     """Coarse grid -> heatmap logit at stride 2."""
 
-    def __init__(self, width: int = 32):
+    def __init__(self, width: int = 32, channels: int = 2):
         super().__init__()
         self.body = nn.Sequential(
-            *_conv(2, 16, stride=2),
+            *_conv(channels, 16, stride=2),
             *_conv(16, width),
             *_conv(width, width, dilation=2),
             *_conv(width, width, dilation=4),
@@ -115,12 +119,16 @@ class PolarNet(nn.Module):
 
     logit_offset: torch.Tensor
 
-    def __init__(self, *, crop_size: int = 96, refine_channels: int = 2):
+    def __init__(
+        self, *, crop_size: int = 96, refine_channels: int = 2, range_input: RangeInput = "none"
+    ):
         super().__init__()
         self.crop_size = crop_size
         self.refine_channels = refine_channels  # 1: detail crop only; 2: detail and context
-        self.proposal = ProposalNet()
-        self.refine = RefineNet(crop_size, refine_channels)
+        self.range_input: RangeInput = range_input
+        extra = 1 if range_input == "channel" else 0
+        self.proposal = ProposalNet(channels=2 + extra)
+        self.refine = RefineNet(crop_size, refine_channels + extra)
         # The operating point: subtracted from the refiner's logit so that confidence 0.5 is
         # the threshold chosen on validation runs (train.calibrate), not the raw 50%.
         self.register_buffer("logit_offset", torch.zeros(()))
@@ -135,6 +143,7 @@ def save(net: PolarNet, path: Path, *, meta: dict[str, Any]) -> None:
             "version": VERSION,
             "crop_size": net.crop_size,
             "refine_channels": net.refine_channels,
+            "range_input": net.range_input,
             "state": state,
             "meta": meta,
         },
@@ -154,8 +163,15 @@ def load(path: Path) -> PolarNet:
         raise CapsdError(f"{path}: not a {FORMAT} weights file")
     if blob.get("version") != VERSION:
         raise CapsdError(f"{path}: weights version {blob.get('version')}, expected {VERSION}")
+    range_input = blob.get("range_input", "none")  # weights saved before it existed: none
+    if range_input not in get_args(RangeInput):
+        raise CapsdError(
+            f"{path}: range_input {range_input!r}, expected one of {get_args(RangeInput)}"
+        )
     net = PolarNet(
-        crop_size=int(blob["crop_size"]), refine_channels=int(blob.get("refine_channels", 1))
+        crop_size=int(blob["crop_size"]),
+        refine_channels=int(blob.get("refine_channels", 1)),
+        range_input=range_input,
     )
     state = dict(blob["state"])
     state.setdefault("logit_offset", torch.zeros(()))  # weights saved before calibration

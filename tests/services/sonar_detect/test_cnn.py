@@ -14,8 +14,17 @@ import torch
 from capsd.errors import CapsdError
 from capsd.geometry import Transform, euler_zyx_to_matrix
 from capsd.payloads import SonarFrame
-from capsd.services.sonar_detect.cnn import DEFAULT_WEIGHTS, CnnDetector, CnnSettings
-from capsd.services.sonar_detect.polar_net import PolarNet, load
+from capsd.services.sonar_detect.cnn import (
+    DEFAULT_WEIGHTS,
+    NETWORK_ALONE,
+    Candidate,
+    CnnDetector,
+    CnnSettings,
+    proposal_input,
+    refine_input,
+)
+from capsd.services.sonar_detect.polar_input import BeamTable, Grid, normalised_image
+from capsd.services.sonar_detect.polar_net import PolarNet, load, save
 from capsd.simulator.scene import BLUEROV2_SEMI_AXES, Ellipsoid
 from capsd.simulator.sonar import SonarModel, SonarRenderer
 from capsd.simulator.world import make_tank
@@ -170,6 +179,50 @@ def test_bad_weights_files_are_named(tmp_path: Path) -> None:
     torch.save({"format": "something-else"}, other)
     with pytest.raises(CapsdError, match="not a capsd-polar-net"):
         load(other)
+
+
+def test_a_network_reading_the_range_keeps_it_through_save_and_load(tmp_path: Path) -> None:
+    """`range_input: channel`: three planes in each stage, named in the file, used in `detect`."""
+    torch.manual_seed(3)
+    net = PolarNet(range_input="channel")
+    assert net.proposal.body[0].in_channels == 3
+    assert net.refine.features[0].in_channels == 3
+    path = tmp_path / "ranged.pt"
+    save(net, path, meta={})
+    back = load(path)
+    assert back.range_input == "channel"
+    state, loaded = net.state_dict(), back.state_dict()
+    assert all(torch.equal(state[k], loaded[k]) for k in state)
+    # Weights written before the option read as "none"; an unknown value is named.
+    blob = torch.load(path, weights_only=True)
+    del blob["range_input"]
+    blob["state"] = PolarNet().state_dict()
+    torch.save(blob, tmp_path / "old.pt")
+    assert load(tmp_path / "old.pt").range_input == "none"
+    blob["range_input"] = "metres"
+    torch.save(blob, tmp_path / "odd.pt")
+    with pytest.raises(CapsdError, match=r"odd\.pt: range_input 'metres'"):
+        load(tmp_path / "odd.pt")
+    # The detector feeds both stages three planes, and what they answer depends on the third.
+    tank = make_tank("nfp", clutter="off")
+    renderer = SonarRenderer(SonarModel(range_max_m=20.0, n_ranges=1000), tank)
+    sonar = Transform(euler_zyx_to_matrix(0.0, math.radians(30.0), 0.0), np.array([6.0, 8.0, -0.2]))
+    frame = _frame(renderer, sonar, None, 1)
+    assert CnnDetector(replace(NETWORK_ALONE, proposal_threshold=0.0), net=back).detect(frame)
+    image = normalised_image(frame)
+    grid = Grid.of(frame)
+    coarse = torch.from_numpy(proposal_input(image, frame, grid, back.range_input))[None]
+    crops = torch.from_numpy(
+        refine_input(back, image, frame, BeamTable(frame.azimuths_rad), Candidate(12.0, 0.1))
+    )[None]
+    assert coarse.shape[1] == 3
+    assert crops.shape[1] == 3
+    with torch.inference_mode():
+        heat, out = back.proposal(coarse), back.refine(crops)
+        coarse[:, 2] -= 0.5
+        crops[:, 2] -= 0.5
+        assert not torch.allclose(back.proposal(coarse), heat)
+        assert not torch.allclose(back.refine(crops), out)
 
 
 def test_losses_prefer_the_truth() -> None:

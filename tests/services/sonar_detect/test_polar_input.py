@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -12,10 +13,16 @@ from capsd.payloads import SonarFrame
 from capsd.services.sonar_detect.polar_input import (
     CROP_SIZE,
     CROP_STEP_M,
+    NORM_HIGH,
+    NORM_LOW,
+    RANGE_PLANE_M,
     BeamTable,
     Grid,
     coarse_input,
     crop,
+    range_value,
+    with_range_plane,
+    with_range_rows,
 )
 from capsd.sonar_image import unit_image
 
@@ -52,6 +59,29 @@ def test_coarse_grid_is_the_mean_and_max_of_each_cell() -> None:
     cells = raw[:1000].reshape(250, 4, 128, 4) / 255.0
     np.testing.assert_allclose(out[0], cells.mean(axis=(1, 3)), atol=1e-5)
     np.testing.assert_allclose(out[1], cells.max(axis=(1, 3)), atol=1e-6)
+
+
+def test_the_range_plane_gives_each_row_its_range() -> None:
+    frame = _frame(np.zeros((1000, 512)), resolution_m=0.02)
+    grid = Grid.of(frame)
+    coarse = coarse_input(unit_image(frame), grid)
+    out = with_range_rows(coarse, frame, grid)
+    assert out.shape == (3, grid.rows, grid.cols)
+    np.testing.assert_array_equal(out[:2], coarse)
+    # Row i spans bins 4i .. 4i + 3 of 2 cm: its centre is (i + 0.5) x 8 cm.
+    centres = (np.arange(grid.rows) + 0.5) * 0.08
+    wanted = np.asarray(range_value(centres), dtype=np.float64)
+    np.testing.assert_allclose(np.asarray(out[2, :, 0], dtype=np.float64), wanted, atol=1e-6)
+    assert np.all(out[2] == out[2, :, :1])  # the same along a row
+    assert np.all(np.diff(out[2, :, 0]) > 0)  # growing with range
+    assert range_value(0.0) == NORM_LOW
+    assert range_value(RANGE_PLANE_M) == NORM_HIGH
+    assert range_value(2 * RANGE_PLANE_M) == NORM_HIGH  # beyond: the top, never outside
+    crops = np.zeros((2, 96, 96), dtype=np.float32)
+    ranged = with_range_plane(crops, 15.0)
+    assert ranged.shape == (3, 96, 96)
+    assert np.all(ranged[2] == range_value(15.0))
+    assert float(range_value(15.0)) == pytest.approx((NORM_LOW + NORM_HIGH) / 2)
 
 
 def test_grid_follows_the_sonar_settings() -> None:
