@@ -94,6 +94,7 @@ def _cmd_train_detector(args: argparse.Namespace) -> int:
         device=args.device,
         evaluate=args.evaluate,
         range_input=args.range_input,
+        coarse_beams=args.coarse_beams,
     )
     try:
         train(config, args.out)
@@ -128,6 +129,12 @@ def register(sub: Subcommands) -> None:
         choices=["none", "channel"],
         default="none",
         help="channel: both networks also read each place's range (default none)",
+    )
+    tdet.add_argument(
+        "--coarse-beams",
+        type=positive_int,
+        default=128,
+        help="the proposal grid's width in cells (default 128; 256 resolves a far ROV's beams)",
     )
     tdet.add_argument("--run-duration", type=positive_float, default=60.0, help="seconds per run")
     tdet.add_argument(

@@ -27,8 +27,10 @@ from capsd.mounts import SonarMountConfig
 from capsd.payloads import SonarFrame, SonarLabel
 from capsd.progress import Progress
 from capsd.services.sonar_detect.polar_input import (
+    DEFAULT_INPUTS,
     BeamTable,
     Grid,
+    Inputs,
     coarse_input,
     crop_pair,
     normalised_image,
@@ -36,7 +38,6 @@ from capsd.services.sonar_detect.polar_input import (
     with_range_plane,
     with_range_rows,
 )
-from capsd.services.sonar_detect.polar_net import RangeInput
 from capsd.simulator.config import (
     OFFLINE_START_NS,
     Config,
@@ -207,19 +208,19 @@ def samples_of_ping(
     rng: np.random.Generator,
     *,
     proposal: Any = None,
-    range_input: RangeInput = "none",
+    inputs: Inputs = DEFAULT_INPUTS,
 ) -> Samples:
     """The grid and crops of one labelled ping.
 
     With a trained `proposal` network (hard-negative mining), its own peaks away from the ROV
     are added as negatives: the sandbags and rack corners it mistakes for an ROV. With
-    `range_input: channel` grids and crops carry the range plane (polar_net).
+    `inputs` the grid's width and whether grids and crops carry the range plane.
     """
     out = Samples()
     image = normalised_image(frame)
-    grid = Grid.of(frame)
+    grid = Grid.of(frame, beams=inputs.coarse_beams)
     coarse = coarse_input(image, grid)
-    ranged = range_input == "channel"
+    ranged = inputs.range_input == "channel"
     out.grids.append(to_u8(with_range_rows(coarse, frame, grid) if ranged else coarse))
     table = BeamTable(frame.azimuths_rad)
     truth: tuple[float, float] | None = None
@@ -284,7 +285,7 @@ def samples_of_ping(
             table,
             threshold=0.05,
             max_candidates=3,
-            range_input=range_input,
+            inputs=inputs,
         )
         places += [(c.range_m, c.azimuth_rad) for c in peaks]
     for range_m, azimuth in places:
@@ -343,7 +344,7 @@ def _negative_places(
 _PROPOSAL_CACHE: dict[bytes, Any] = {}
 
 
-def _proposal_net(state: bytes, range_input: RangeInput) -> Any:
+def _proposal_net(state: bytes, inputs: Inputs) -> Any:
     """A worker's copy of the proposal network (loaded once per process)."""
     if state not in _PROPOSAL_CACHE:
         import io
@@ -353,7 +354,7 @@ def _proposal_net(state: bytes, range_input: RangeInput) -> Any:
         from capsd.services.sonar_detect.polar_net import ProposalNet
 
         torch.set_num_threads(1)
-        net = ProposalNet(channels=3 if range_input == "channel" else 2)
+        net = ProposalNet(channels=3 if inputs.range_input == "channel" else 2)
         net.load_state_dict(torch.load(io.BytesIO(state), weights_only=True))
         net.eval()
         _PROPOSAL_CACHE.clear()
@@ -361,17 +362,17 @@ def _proposal_net(state: bytes, range_input: RangeInput) -> Any:
     return _PROPOSAL_CACHE[state]
 
 
-def render_run(job: tuple[RunPlan, bytes | None, RangeInput]) -> Samples:
+def render_run(job: tuple[RunPlan, bytes | None, Inputs]) -> Samples:
     """Render one run into samples (runs in a worker process); mine with a proposal state."""
-    plan, state, range_input = job
-    proposal = _proposal_net(state, range_input) if state is not None else None
+    plan, state, inputs = job
+    proposal = _proposal_net(state, inputs) if state is not None else None
     rng = np.random.default_rng(plan.seed + 17)
     sim = Simulation(plan.config(), horizon_s=plan.start_s + plan.duration_s + 5.0)
     out = Samples()
     for _, frame, label in sim.labelled_pings(
         start_ns=OFFLINE_START_NS, duration_s=plan.duration_s, from_s=plan.start_s
     ):
-        out.extend(samples_of_ping(frame, label, rng, proposal=proposal, range_input=range_input))
+        out.extend(samples_of_ping(frame, label, rng, proposal=proposal, inputs=inputs))
     return out
 
 
@@ -380,13 +381,13 @@ def render(
     *,
     workers: int,
     proposal_state: bytes | None = None,
-    range_input: RangeInput = "none",
+    inputs: Inputs = DEFAULT_INPUTS,
 ) -> Samples:
     """Every run's samples, in plan order, with a progress line."""
     out = Samples()
     what = "mining hard negatives" if proposal_state is not None else "rendering training runs"
     bar = Progress(len(plans), label=what, unit=" runs")
-    jobs = [(plan, proposal_state, range_input) for plan in plans]
+    jobs = [(plan, proposal_state, inputs) for plan in plans]
     with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
         for done, samples in enumerate(pool.map(render_run, jobs), start=1):
             out.extend(samples)

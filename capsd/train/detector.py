@@ -38,8 +38,15 @@ from capsd.bench.detect import Run
 from capsd.errors import CapsdError
 from capsd.payloads import SonarFrame, SonarLabel
 from capsd.progress import Progress
-from capsd.services.sonar_detect.polar_input import NORM_HIGH, NORM_LOW, U8_SCALE
-from capsd.services.sonar_detect.polar_net import OFFSET_SCALE_M, PolarNet, RangeInput, save
+from capsd.services.sonar_detect.polar_input import (
+    COARSE_BEAMS,
+    NORM_HIGH,
+    NORM_LOW,
+    U8_SCALE,
+    Inputs,
+    RangeInput,
+)
+from capsd.services.sonar_detect.polar_net import OFFSET_SCALE_M, PolarNet, save
 from capsd.simulator.sonar_look import Variety
 from capsd.train.data import Samples, plan_runs, render
 
@@ -77,8 +84,15 @@ class TrainConfig:
     # "channel": both networks also read the range (polar_net), so a far ROV's look is learned
     # apart from near speckle's.
     range_input: RangeInput = "none"
+    # The proposal grid's width in cells (polar_input.Inputs): 256 resolves a far ROV's beams.
+    coarse_beams: int = COARSE_BEAMS
     # "none" leaves the held-out evaluation to `capsd train calibrate` or `capsd bench detect`.
     evaluate: Literal["heldout", "none"] = "heldout"
+
+    @property
+    def inputs(self) -> Inputs:
+        """What the networks read besides the image."""
+        return Inputs(range_input=self.range_input, coarse_beams=self.coarse_beams)
 
 
 def _augment(x: torch.Tensor, gen: torch.Generator, *, image_planes: int) -> torch.Tensor:
@@ -275,7 +289,7 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
         far_share=config.far_share,
         start_spread_s=config.start_spread_s,
     )
-    samples = render(plans, workers=config.workers, range_input=config.range_input)
+    samples = render(plans, workers=config.workers, inputs=config.inputs)
     rendered_s = time.monotonic() - started
     n_visible = int(sum(t[0] for t in samples.grid_targets))
     n_pos = int(sum(t[0] for t in samples.crop_targets))
@@ -283,7 +297,7 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
         f"{len(samples.grids)} frames ({n_visible} with the ROV), {len(samples.crops)} crops "
         f"({n_pos} on the ROV), rendered in {rendered_s:.0f} s"
     )
-    net = PolarNet(range_input=config.range_input).to(config.device)
+    net = PolarNet(inputs=config.inputs).to(config.device)
     proposal_losses = _train_proposal(net, samples, config, gen)
     # Hard negatives: fresh runs seen through the trained proposal network; its peaks away
     # from the ROV (sandbags, rack corners) become refiner negatives.
@@ -301,7 +315,7 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
         mining,
         workers=config.workers,
         proposal_state=buffer.getvalue(),
-        range_input=config.range_input,
+        inputs=config.inputs,
     )
     samples.crops.extend(mined.crops)
     samples.crop_targets.extend(mined.crop_targets)
@@ -321,7 +335,7 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
             hard_set,
             workers=config.workers,
             proposal_state=buffer.getvalue(),
-            range_input=config.range_input,
+            inputs=config.inputs,
         )
         hard = _hard_indices(
             net,

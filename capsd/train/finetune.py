@@ -117,9 +117,7 @@ def finetune(
     samples = Samples()
     for frame, label in frames_of(labels):
         ping = _label_of(frame.stamp_ns, frame.ping_id, label.range_m, label.azimuth_rad)
-        samples.extend(
-            samples_of_ping(frame, ping, rng, proposal=net.proposal, range_input=net.range_input)
-        )
+        samples.extend(samples_of_ping(frame, ping, rng, proposal=net.proposal, inputs=net.inputs))
     site_crops = len(samples.crops)
     plans = plan_runs(
         runs=config.replay_runs,
@@ -127,7 +125,7 @@ def finetune(
         duration_s=config.replay_duration_s,
         sonar_hz=2.0,
     )
-    samples.extend(render(plans, workers=config.workers, range_input=net.range_input))
+    samples.extend(render(plans, workers=config.workers, inputs=net.inputs))
     train_config = TrainConfig(
         seed=config.seed,
         threads=config.threads,

@@ -31,8 +31,10 @@ from torch.nn import functional
 
 from capsd.payloads import Detection, SonarFrame
 from capsd.services.sonar_detect.polar_input import (
+    DEFAULT_INPUTS,
     BeamTable,
     Grid,
+    Inputs,
     coarse_input,
     crop,
     crop_pair,
@@ -43,7 +45,6 @@ from capsd.services.sonar_detect.polar_input import (
 from capsd.services.sonar_detect.polar_net import (
     OFFSET_SCALE_M,
     PolarNet,
-    RangeInput,
     fused_for_inference,
     load,
 )
@@ -231,7 +232,7 @@ class CnnDetector:
             threshold=s.proposal_threshold,
             max_candidates=s.max_candidates,
             range_window=range_window,
-            range_input=self.net.range_input,
+            inputs=self.net.inputs,
         )
 
     def _refine(
@@ -283,13 +284,13 @@ def refine_input(
         out = crop_pair(image, frame, table, range_m=at.range_m, azimuth_rad=at.azimuth_rad)
     else:
         out = crop(image, frame, table, range_m=at.range_m, azimuth_rad=at.azimuth_rad)[None]
-    return with_range_plane(out, at.range_m) if net.range_input == "channel" else out
+    return with_range_plane(out, at.range_m) if net.inputs.range_input == "channel" else out
 
 
-def proposal_input(image: Image, frame: SonarFrame, grid: Grid, range_input: RangeInput) -> Image:
+def proposal_input(image: Image, frame: SonarFrame, grid: Grid, inputs: Inputs) -> Image:
     """What the proposal network reads: the coarse grid (and its range plane)."""
     coarse = coarse_input(image, grid)
-    return with_range_rows(coarse, frame, grid) if range_input == "channel" else coarse
+    return with_range_rows(coarse, frame, grid) if inputs.range_input == "channel" else coarse
 
 
 def propose(
@@ -301,16 +302,16 @@ def propose(
     threshold: float,
     max_candidates: int,
     range_window: tuple[float, float] | None = None,
-    range_input: RangeInput = "none",
+    inputs: Inputs = DEFAULT_INPUTS,
 ) -> list[Candidate]:
     """Local maxima of the proposal heatmap above `threshold`, strongest first.
 
     With `range_window` (metres), heat cells outside it are not candidates (depth-aware search).
     """
-    grid = Grid.of(frame)
+    grid = Grid.of(frame, beams=inputs.coarse_beams)
     if grid.rows < 4 or grid.cols < 4:
         return []
-    coarse = torch.from_numpy(proposal_input(image, frame, grid, range_input))[None]
+    coarse = torch.from_numpy(proposal_input(image, frame, grid, inputs))[None]
     with torch.inference_mode():
         heat = torch.sigmoid(proposal(coarse))[0]
         if range_window is not None:

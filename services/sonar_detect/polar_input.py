@@ -16,6 +16,7 @@ numpy and OpenCV only: the training data generator and the detector share this c
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -60,7 +61,25 @@ def normalised_image(frame: SonarFrame) -> Image:
     return out
 
 
-# The range plane (polar_net's `range_input: channel`): 0 to RANGE_PLANE_M mapped onto the
+RangeInput = Literal["none", "channel"]
+
+
+@dataclass(frozen=True)
+class Inputs:
+    """What a network's weights expect besides the image (stored with them, polar_net).
+
+    `range_input: channel` adds the range plane to the grid and the crops; `coarse_beams` is
+    the grid's width in cells (a finer grid resolves a far ROV's few beams).
+    """
+
+    range_input: RangeInput = "none"
+    coarse_beams: int = COARSE_BEAMS
+
+
+DEFAULT_INPUTS = Inputs()  # what weights saved before `Inputs` existed expect
+
+
+# The range plane (`range_input: channel`): 0 to RANGE_PLANE_M mapped onto the
 # normalised span, so that it survives the 8-bit training sets like an image plane.
 RANGE_PLANE_M = 30.0
 
@@ -104,9 +123,9 @@ class Grid:
     cols: int
 
     @staticmethod
-    def of(frame: SonarFrame) -> Grid:
+    def of(frame: SonarFrame, *, beams: int = COARSE_BEAMS) -> Grid:
         fr = max(1, round(COARSE_RANGE_M / frame.range_resolution_m))
-        fb = max(1, round(frame.n_beams / COARSE_BEAMS))
+        fb = max(1, round(frame.n_beams / beams))
         return Grid(fr, fb, frame.n_ranges // fr, frame.n_beams // fb)
 
 

@@ -17,17 +17,22 @@ Weights are a plain state dict with a format tag, loaded with `weights_only=True
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Literal, get_args
+from typing import Any, get_args
 
 import torch
 from torch import nn
 
 from capsd.errors import CapsdError
+from capsd.services.sonar_detect.polar_input import (
+    COARSE_BEAMS,
+    DEFAULT_INPUTS,
+    Inputs,
+    RangeInput,
+)
 
 FORMAT = "capsd-polar-net"
 VERSION = 1
 OFFSET_SCALE_M = 0.1  # offsets are regressed in units of 10 cm
-RangeInput = Literal["none", "channel"]
 
 
 def _conv(c_in: int, c_out: int, *, stride: int = 1, dilation: int = 1) -> list[nn.Module]:
@@ -120,13 +125,13 @@ class PolarNet(nn.Module):
     logit_offset: torch.Tensor
 
     def __init__(
-        self, *, crop_size: int = 96, refine_channels: int = 2, range_input: RangeInput = "none"
+        self, *, crop_size: int = 96, refine_channels: int = 2, inputs: Inputs = DEFAULT_INPUTS
     ):
         super().__init__()
         self.crop_size = crop_size
         self.refine_channels = refine_channels  # 1: detail crop only; 2: detail and context
-        self.range_input: RangeInput = range_input
-        extra = 1 if range_input == "channel" else 0
+        self.inputs = inputs
+        extra = 1 if inputs.range_input == "channel" else 0
         self.proposal = ProposalNet(channels=2 + extra)
         self.refine = RefineNet(crop_size, refine_channels + extra)
         # The operating point: subtracted from the refiner's logit so that confidence 0.5 is
@@ -143,7 +148,8 @@ def save(net: PolarNet, path: Path, *, meta: dict[str, Any]) -> None:
             "version": VERSION,
             "crop_size": net.crop_size,
             "refine_channels": net.refine_channels,
-            "range_input": net.range_input,
+            "range_input": net.inputs.range_input,
+            "coarse_beams": net.inputs.coarse_beams,
             "state": state,
             "meta": meta,
         },
@@ -163,15 +169,19 @@ def load(path: Path) -> PolarNet:
         raise CapsdError(f"{path}: not a {FORMAT} weights file")
     if blob.get("version") != VERSION:
         raise CapsdError(f"{path}: weights version {blob.get('version')}, expected {VERSION}")
-    range_input = blob.get("range_input", "none")  # weights saved before it existed: none
+    # Weights saved before these existed: no range plane, the grid 128 cells wide.
+    range_input = blob.get("range_input", "none")
     if range_input not in get_args(RangeInput):
         raise CapsdError(
             f"{path}: range_input {range_input!r}, expected one of {get_args(RangeInput)}"
         )
+    coarse_beams = blob.get("coarse_beams", COARSE_BEAMS)
+    if not isinstance(coarse_beams, int) or not 16 <= coarse_beams <= 1024:
+        raise CapsdError(f"{path}: coarse_beams {coarse_beams!r}, expected 16 to 1024 cells")
     net = PolarNet(
         crop_size=int(blob["crop_size"]),
         refine_channels=int(blob.get("refine_channels", 1)),
-        range_input=range_input,
+        inputs=Inputs(range_input=range_input, coarse_beams=coarse_beams),
     )
     state = dict(blob["state"])
     state.setdefault("logit_offset", torch.zeros(()))  # weights saved before calibration

@@ -23,7 +23,7 @@ from capsd.services.sonar_detect.cnn import (
     proposal_input,
     refine_input,
 )
-from capsd.services.sonar_detect.polar_input import BeamTable, Grid, normalised_image
+from capsd.services.sonar_detect.polar_input import BeamTable, Grid, Inputs, normalised_image
 from capsd.services.sonar_detect.polar_net import PolarNet, load, save
 from capsd.simulator.scene import BLUEROV2_SEMI_AXES, Ellipsoid
 from capsd.simulator.sonar import SonarModel, SonarRenderer
@@ -181,28 +181,31 @@ def test_bad_weights_files_are_named(tmp_path: Path) -> None:
         load(other)
 
 
-def test_a_network_reading_the_range_keeps_it_through_save_and_load(tmp_path: Path) -> None:
-    """`range_input: channel`: three planes in each stage, named in the file, used in `detect`."""
+def test_a_network_s_inputs_are_kept_through_save_and_load(tmp_path: Path) -> None:
+    """A range plane and a finer grid: three planes in each stage, named in the file, used."""
     torch.manual_seed(3)
-    net = PolarNet(range_input="channel")
+    net = PolarNet(inputs=Inputs(range_input="channel", coarse_beams=256))
     assert net.proposal.body[0].in_channels == 3
     assert net.refine.features[0].in_channels == 3
     path = tmp_path / "ranged.pt"
     save(net, path, meta={})
     back = load(path)
-    assert back.range_input == "channel"
+    assert back.inputs == Inputs(range_input="channel", coarse_beams=256)
     state, loaded = net.state_dict(), back.state_dict()
     assert all(torch.equal(state[k], loaded[k]) for k in state)
-    # Weights written before the option read as "none"; an unknown value is named.
+    # Weights written before the options read as the defaults; unknown values are named.
     blob = torch.load(path, weights_only=True)
-    del blob["range_input"]
+    del blob["range_input"], blob["coarse_beams"]
     blob["state"] = PolarNet().state_dict()
     torch.save(blob, tmp_path / "old.pt")
-    assert load(tmp_path / "old.pt").range_input == "none"
-    blob["range_input"] = "metres"
-    torch.save(blob, tmp_path / "odd.pt")
-    with pytest.raises(CapsdError, match=r"odd\.pt: range_input 'metres'"):
-        load(tmp_path / "odd.pt")
+    assert load(tmp_path / "old.pt").inputs == Inputs()
+    for key, value, message in [
+        ("range_input", "metres", "range_input 'metres'"),
+        ("coarse_beams", 3, "coarse_beams 3"),
+    ]:
+        torch.save({**blob, key: value}, tmp_path / "odd.pt")
+        with pytest.raises(CapsdError, match=rf"odd\.pt: {message}"):
+            load(tmp_path / "odd.pt")
     # The detector feeds both stages three planes, and what they answer depends on the third.
     tank = make_tank("nfp", clutter="off")
     renderer = SonarRenderer(SonarModel(range_max_m=20.0, n_ranges=1000), tank)
@@ -210,8 +213,9 @@ def test_a_network_reading_the_range_keeps_it_through_save_and_load(tmp_path: Pa
     frame = _frame(renderer, sonar, None, 1)
     assert CnnDetector(replace(NETWORK_ALONE, proposal_threshold=0.0), net=back).detect(frame)
     image = normalised_image(frame)
-    grid = Grid.of(frame)
-    coarse = torch.from_numpy(proposal_input(image, frame, grid, back.range_input))[None]
+    grid = Grid.of(frame, beams=back.inputs.coarse_beams)
+    assert grid.cols == 256
+    coarse = torch.from_numpy(proposal_input(image, frame, grid, back.inputs))[None]
     crops = torch.from_numpy(
         refine_input(back, image, frame, BeamTable(frame.azimuths_rad), Candidate(12.0, 0.1))
     )[None]
