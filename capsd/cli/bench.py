@@ -37,8 +37,11 @@ def _cmd_bench_finetune(args: argparse.Namespace) -> int:
 def _cmd_bench_detect(args: argparse.Namespace) -> int:
     from capsd.bench import detect
 
+    for weights in args.weights or []:
+        if not weights.is_file():
+            return fail(f"bench detect: --weights {weights}: no such file", EXIT_CONFIG)
     if args.throughput:
-        return detect.run_throughput(frames=args.frames, which=args.detector)
+        return detect.run_throughput(frames=args.frames, which=args.detector, weights=args.weights)
     options = detect.CnnOptions(search_refines=args.search_refines, track_hold_s=args.track_hold)
     starts = tuple(args.start) if args.start is not None else detect.BENCH_STARTS_S
     duration_s = args.duration if args.duration is not None else detect.BENCH_WINDOW_S
@@ -57,9 +60,6 @@ def _cmd_bench_detect(args: argparse.Namespace) -> int:
         return detect.sweep_prior(
             args.prior_sweep, duration_s=duration_s, options=options, starts_s=starts
         )
-    for weights in args.weights or []:
-        if not weights.is_file():
-            return fail(f"bench detect: --weights {weights}: no such file", EXIT_CONFIG)
     return detect.run(
         duration_s=duration_s,
         which=args.detector,

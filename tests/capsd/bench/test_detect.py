@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from capsd.bench.detect import RUNS, evaluate
@@ -58,3 +60,12 @@ def test_a_start_outside_the_paths_or_overlapping_is_refused(
 ) -> None:
     assert main(["bench", "detect", "--duration", "5", "--start", *starts]) == 2
     assert "--start" in capfd.readouterr().err
+
+
+@pytest.mark.parametrize("throughput", [[], ["--throughput"]])
+def test_missing_weights_are_named_before_any_frame(
+    throughput: list[str], tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    missing = tmp_path / "none" / "polar_net.pt"
+    assert main(["bench", "detect", *throughput, "--weights", str(missing)]) == 2
+    assert f"--weights {missing}: no such file" in capfd.readouterr().err
