@@ -251,10 +251,15 @@ def _score(tally: Tally, label: SonarLabel, found: list[Detection]) -> None:
 
 @dataclass(frozen=True)
 class CnnOptions:
-    """The service's `cnn.search_refines` and `cnn.track_hold_s` for the CNN with its settings."""
+    """The service's `cnn.search_refines`, `cnn.track_hold_s` and `cnn.proposal_threshold`.
+
+    The threshold applies to the network searching every frame alone too: it is where its
+    candidates come from (a network on a finer grid gives lower heat).
+    """
 
     search_refines: Literal["proposals", "proposals_and_track"] = "proposals"
     track_hold_s: float = 0.0
+    proposal_threshold: float = 0.1  # the service's default
 
 
 def _detectors(
@@ -275,7 +280,9 @@ def _detectors(
         for path in choices:
             name = "cnn" if path is None else f"cnn ({path.parent.name})"
             service = CnnSettings(
-                search_refines=options.search_refines, track_hold_s=options.track_hold_s
+                search_refines=options.search_refines,
+                track_hold_s=options.track_hold_s,
+                proposal_threshold=options.proposal_threshold,
             )
             if path is not None:
                 service = replace(service, weights=path)
@@ -283,7 +290,11 @@ def _detectors(
             # prior), and the network searching every frame alone (the weights' evaluation).
             out[name] = CnnDetector(service).detect
             out[f"{name}, every frame alone"] = CnnDetector(
-                replace(NETWORK_ALONE, weights=service.weights)
+                replace(
+                    NETWORK_ALONE,
+                    weights=service.weights,
+                    proposal_threshold=options.proposal_threshold,
+                )
             ).detect
     return out
 
@@ -400,7 +411,8 @@ def sweep_prior(
         f"validation runs (seeds {', '.join(str(r[3]) for r in VALIDATION_RUNS)}), "
         f"{duration_s:g} s from each of {', '.join(f'{s:g}' for s in starts_s)} s, "
         f"search refines {options.search_refines}, "
-        f"track hold {options.track_hold_s:g} s"
+        f"track hold {options.track_hold_s:g} s, "
+        f"proposal threshold {options.proposal_threshold:g}"
     )
     print(f"{'prior':>6} {'look':<8} {'detected':>9} {'FA/frame':>9}")
     for prior in priors:
@@ -409,6 +421,7 @@ def sweep_prior(
                 track_prior_logit=prior,
                 search_refines=options.search_refines,
                 track_hold_s=options.track_hold_s,
+                proposal_threshold=options.proposal_threshold,
             )
         )
         tallies = evaluate(

@@ -42,7 +42,16 @@ def _cmd_bench_detect(args: argparse.Namespace) -> int:
             return fail(f"bench detect: --weights {weights}: no such file", EXIT_CONFIG)
     if args.throughput:
         return detect.run_throughput(frames=args.frames, which=args.detector, weights=args.weights)
-    options = detect.CnnOptions(search_refines=args.search_refines, track_hold_s=args.track_hold)
+    if not 0.0 < args.proposal_threshold < 1.0:
+        return fail(
+            f"bench detect: --proposal-threshold {args.proposal_threshold:g}: between 0 and 1",
+            EXIT_CONFIG,
+        )
+    options = detect.CnnOptions(
+        search_refines=args.search_refines,
+        track_hold_s=args.track_hold,
+        proposal_threshold=args.proposal_threshold,
+    )
     starts = tuple(args.start) if args.start is not None else detect.BENCH_STARTS_S
     duration_s = args.duration if args.duration is not None else detect.BENCH_WINDOW_S
     for start in starts:
@@ -248,6 +257,14 @@ def register(sub: Subcommands) -> None:
         default=0.0,
         metavar="S",
         help="the service's cnn.track_hold_s for the CNN with its settings (default: %(default)s)",
+    )
+    bdet.add_argument(
+        "--proposal-threshold",
+        type=float,
+        default=0.1,
+        metavar="P",
+        help="the service's cnn.proposal_threshold for the CNN, searching alone too (default: "
+        "%(default)s)",
     )
     bdet.set_defaults(func=_cmd_bench_detect)
     bft = bench_sub.add_parser(

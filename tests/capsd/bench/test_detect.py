@@ -69,3 +69,11 @@ def test_missing_weights_are_named_before_any_frame(
     missing = tmp_path / "none" / "polar_net.pt"
     assert main(["bench", "detect", *throughput, "--weights", str(missing)]) == 2
     assert f"--weights {missing}: no such file" in capfd.readouterr().err
+
+
+@pytest.mark.parametrize("threshold", ["0", "1", "-0.1", "nan"])
+def test_a_proposal_threshold_outside_0_to_1_is_refused(
+    threshold: str, capfd: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["bench", "detect", "--proposal-threshold", threshold]) == 2
+    assert "--proposal-threshold" in capfd.readouterr().err
