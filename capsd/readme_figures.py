@@ -217,7 +217,7 @@ def _err(g: dict[str, Any], key: str, unit: str, digits: int) -> str:
     return f"{median:.{digits}f} {unit} ({p90:.{digits}f})"
 
 
-_BANDS = ("1.5-4 m", "4-8 m", "8-14 m", "14-20 m")
+_BANDS = ("0.5-1.5 m", "1.5-4 m", "4-8 m", "8-14 m", "14-20 m")
 
 
 def detect_table(figures: dict[str, Any]) -> list[str]:

@@ -124,14 +124,21 @@ HEADER = (
     f"{'detector / look / pings':<42} {'pings':>5} {'detect':>7} {'FA/frm':>7} {'ghost':>6} "
     f"{'r cm50':>7} {'r cm90':>7} {'az50 deg':>8} {'az90':>7}"
 )
-# Range bands of issue 18 (truth range of the ROV), metres.
-BANDS: tuple[tuple[float, float], ...] = ((1.5, 4.0), (4.0, 8.0), (8.0, 14.0), (14.0, 20.0))
+# Range bands of issue 18 (truth range of the ROV), metres, after a closer one for small tanks
+# (in the mockup the follower keeps the ROV 1.1-1.3 m from the sonar).
+BANDS: tuple[tuple[float, float], ...] = (
+    (0.5, 1.5),
+    (1.5, 4.0),
+    (4.0, 8.0),
+    (8.0, 14.0),
+    (14.0, 20.0),
+)
 # The looks a bench run renders: the simulator's fixed look, and settings kept out of training.
 LOOKS: tuple[Variety, ...] = ("off", "heldout")
 
 
 def band_of(range_m: float) -> str | None:
-    """The name of the range band a truth range falls in (None: outside 1.5-20 m)."""
+    """The name of the range band a truth range falls in (None: outside 0.5-20 m)."""
     for lo, hi in BANDS:
         if lo <= range_m < hi:
             return f"{lo:g}-{hi:g} m"

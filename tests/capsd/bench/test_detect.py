@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from capsd.bench.detect import RUNS, evaluate
+from capsd.bench.detect import RUNS, band_of, evaluate
 from capsd.cli import main
 from capsd.payloads import Detection, SonarFrame
 from capsd.simulator.config import OFFLINE_START_NS
@@ -77,3 +77,11 @@ def test_a_proposal_threshold_outside_0_to_1_is_refused(
 ) -> None:
     assert main(["bench", "detect", "--proposal-threshold", threshold]) == 2
     assert "--proposal-threshold" in capfd.readouterr().err
+
+
+def test_range_bands_start_close_for_small_tanks_and_end_at_20_m() -> None:
+    assert band_of(0.4) is None
+    assert band_of(1.2) == "0.5-1.5 m"  # the mockup's follower keeps the ROV about here
+    assert band_of(1.5) == "1.5-4 m"
+    assert band_of(19.99) == "14-20 m"
+    assert band_of(20.0) is None
