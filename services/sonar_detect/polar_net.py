@@ -4,13 +4,13 @@
   logit at half its resolution: peaks are places that look like an ROV centre. Dilated
   convolutions give it ~3 m of context, enough to tell a hull from a rack edge or a ghost.
 - `RefineNet` reads metric crops (detail and context, 2 x CROP_SIZE x CROP_SIZE) around each
-  peak and gives
-  an ROV/not-ROV logit, the centre's offset from the crop centre in range and cross-range
-  (metres), the log scale of a Laplace error for each (the sigma we report), and the log of the
-  echo's extent in range and cross-range.
-With `range_input: channel` both read one more plane: the range in metres (each grid row's,
-the crop's centre), so that what an ROV looks like may depend on how far it is (a faint
-dash at 16 m, a wide blob at 2 m), where without it a far ROV and near speckle compete.
+  peak and gives an ROV/not-ROV logit, the centre's offset from the crop centre in range and
+  cross-range (metres), the log scale of a Laplace error for each (the sigma we report), and
+  the log of the echo's extent in range and cross-range.
+What else the weights expect is theirs (`polar_input.Inputs`, stored with them): with
+`range_input: channel` both stages read one more plane, the range (each grid row's, the
+crop's centre), so that what an ROV looks like may depend on how far it is (a faint dash at
+16 m, a wide blob at 2 m); `coarse_beams` sets the proposal grid's width.
 Weights are a plain state dict with a format tag, loaded with `weights_only=True`.
 """
 
