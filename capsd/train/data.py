@@ -354,7 +354,7 @@ def _proposal_net(state: bytes, inputs: Inputs) -> Any:
         from capsd.services.sonar_detect.polar_net import ProposalNet
 
         torch.set_num_threads(1)
-        net = ProposalNet(channels=3 if inputs.range_input == "channel" else 2)
+        net = ProposalNet(channels=2 + inputs.extra_planes)
         net.load_state_dict(torch.load(io.BytesIO(state), weights_only=True))
         net.eval()
         _PROPOSAL_CACHE.clear()

@@ -99,14 +99,14 @@ def _augment(x: torch.Tensor, gen: torch.Generator, *, image_planes: int) -> tor
     """Gain (offset) and contrast changes per sample, in the normalised units.
 
     Only the first `image_planes` planes: a range plane after them is geometry, not echo.
+    In place: `x` is each batch's own fresh tensor.
     """
     n = x.shape[0]
     shape = (n,) + (1,) * (x.dim() - 1)
     scale = 0.85 + 0.3 * torch.rand(shape, generator=gen)
     offset = -0.08 + 0.16 * torch.rand(shape, generator=gen)
-    out = x.clone()
-    out[:, :image_planes] = torch.clamp(x[:, :image_planes] * scale + offset, NORM_LOW, NORM_HIGH)
-    return out
+    x[:, :image_planes] = torch.clamp(x[:, :image_planes] * scale + offset, NORM_LOW, NORM_HIGH)
+    return x
 
 
 def _heat_target(

@@ -75,6 +75,11 @@ class Inputs:
     range_input: RangeInput = "none"
     coarse_beams: int = COARSE_BEAMS
 
+    @property
+    def extra_planes(self) -> int:
+        """Planes each stage reads besides the image's: 1 with the range plane, else 0."""
+        return 1 if self.range_input == "channel" else 0
+
 
 DEFAULT_INPUTS = Inputs()  # what weights saved before `Inputs` existed expect
 

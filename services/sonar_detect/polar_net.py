@@ -131,9 +131,8 @@ class PolarNet(nn.Module):
         self.crop_size = crop_size
         self.refine_channels = refine_channels  # 1: detail crop only; 2: detail and context
         self.inputs = inputs
-        extra = 1 if inputs.range_input == "channel" else 0
-        self.proposal = ProposalNet(channels=2 + extra)
-        self.refine = RefineNet(crop_size, refine_channels + extra)
+        self.proposal = ProposalNet(channels=2 + inputs.extra_planes)
+        self.refine = RefineNet(crop_size, refine_channels + inputs.extra_planes)
         # The operating point: subtracted from the refiner's logit so that confidence 0.5 is
         # the threshold chosen on validation runs (train.calibrate), not the raw 50%.
         self.register_buffer("logit_offset", torch.zeros(()))
