@@ -41,6 +41,9 @@ from capsd.mission.plan import Waypoint
 from capsd.payloads import Health
 from capsd.simulator.world import TankName, TrajectoryName
 
+# How long the recorder may take to write its backlog and finish the file once stopped.
+RECORDER_STOP_GRACE_S = 120.0
+
 
 def _line(elapsed: float, watch: Watch, health: dict[str, Health | None]) -> str:
     s = watch.accuracy.summary()
@@ -141,7 +144,10 @@ def main(
                 # Started first and stopped last: the recording holds each service's whole life.
                 args = ["cap/**", "-o", str(record), "--exclude", "cap/*/*/sonar/frame",
                         "--locator-config", str(configs["locator"])]  # fmt: skip
-                procs.start("recorder", ["-m", "capsd", "record", *args, "--connect", endpoint])
+                # Its backlog (the scene's fan images on a busy machine) is written and the
+                # file finished before it exits: a killed recorder leaves no summary.
+                procs.start("recorder", ["-m", "capsd", "record", *args, "--connect", endpoint],
+                            stop_grace_s=RECORDER_STOP_GRACE_S)  # fmt: skip
             time.sleep(1.0)
             for _, name in SERVICES:
                 start_service(procs, name, configs[name])

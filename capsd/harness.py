@@ -79,6 +79,7 @@ class Child:
     name: str
     popen: subprocess.Popen[bytes]
     log: Path
+    stop_grace_s: float = 10.0  # after SIGTERM, this long to exit before it is killed
 
 
 class Processes:
@@ -88,8 +89,14 @@ class Processes:
         self.logs = logs
         self.children: list[Child] = []
 
-    def start(self, name: str, args: list[str], *, niceness: int = 0) -> Child:
-        """Start `python ARGS`; `niceness` > 0 lets it have only what the others leave."""
+    def start(
+        self, name: str, args: list[str], *, niceness: int = 0, stop_grace_s: float = 10.0
+    ) -> Child:
+        """Start `python ARGS`; `niceness` > 0 lets it have only what the others leave.
+
+        `stop_grace_s`: how long `stop` waits for it after SIGTERM before killing it (a
+        recorder finishing its file needs longer than a service).
+        """
         log = self.logs / f"{name}.log"
         command = [sys.executable, *args]
         if niceness:
@@ -104,7 +111,7 @@ class Processes:
                 cwd=os.getcwd(),
                 start_new_session=True,
             )
-        child = Child(name, popen, log)
+        child = Child(name, popen, log, stop_grace_s)
         self.children.append(child)
         return child
 
@@ -115,7 +122,7 @@ class Processes:
                 child.popen.send_signal(signal.SIGTERM)
         for child in reversed(self.children):
             try:
-                codes[child.name] = child.popen.wait(timeout=10)
+                codes[child.name] = child.popen.wait(timeout=child.stop_grace_s)
             except subprocess.TimeoutExpired:
                 child.popen.kill()
                 codes[child.name] = child.popen.wait()

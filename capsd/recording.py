@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import queue
+import sys
 import threading
 import time
 from collections import Counter
@@ -35,7 +36,8 @@ from typing import Any
 
 import msgspec
 import zenoh
-from mcap.reader import McapReader, make_reader
+from mcap.exceptions import McapError
+from mcap.reader import McapReader, NonSeekingReader, make_reader
 from mcap.summary import Summary
 from mcap.writer import CompressionType, Writer
 
@@ -287,11 +289,52 @@ def _opened(path: Path) -> Iterator[McapReader]:
 
 
 def read(path: Path) -> Iterable[Recorded]:
-    """Messages of a recording in log-time order."""
-    with _opened(path) as reader:
-        for _schema, channel, message in reader.iter_messages(log_time_order=True):
-            encoding = channel.metadata.get("zenoh_encoding", "")
-            yield Recorded(channel.topic, encoding, message.data, message.log_time)
+    """Messages of a recording in log-time order.
+
+    A recording cut short (the recorder killed, the laptop's power lost) has no summary: it is
+    read from the start up to its last complete chunk instead, in the order it was written
+    (the arrival order, which is the log time's), and how much was read is said on stderr.
+    """
+    yielded = False
+    try:
+        with _opened(path) as reader:
+            for _schema, channel, message in reader.iter_messages(log_time_order=True):
+                encoding = channel.metadata.get("zenoh_encoding", "")
+                yielded = True
+                yield Recorded(channel.topic, encoding, message.data, message.log_time)
+    except CapsdError as exc:
+        if yielded or not isinstance(exc.__cause__, McapError):
+            raise
+        yield from _read_cut_short(path, exc)
+
+
+def _read_cut_short(path: Path, cause: CapsdError) -> Iterator[Recorded]:
+    """Every message up to where a recording without a summary ends (see `read`)."""
+    count = 0
+    with path.open("rb") as stream:
+        messages = NonSeekingReader(stream).iter_messages(log_time_order=False)
+        while True:
+            try:
+                _schema, channel, message = next(messages)
+            except StopIteration:
+                break
+            except (McapError, EOFError, ValueError):
+                break  # the cut: the rest of the file is an incomplete record
+            count += 1
+            yield Recorded(
+                channel.topic,
+                channel.metadata.get("zenoh_encoding", ""),
+                message.data,
+                message.log_time,
+            )
+    if not count:
+        raise cause
+    print(
+        f"{path}: cut short (no summary: {cause.__cause__}); read {count} messages up to its "
+        "last complete chunk",
+        file=sys.stderr,
+        flush=True,
+    )
 
 
 def summary_of(path: Path) -> Summary:

@@ -1,4 +1,4 @@
-"""`capsd record`, `replay`, `replay-check`, `import-bag`, `live-view`, `evaluate`."""
+"""`capsd record`, `replay`, `replay-check`, `import-bag`, `live-view`, `evaluate`, `losses`."""
 
 from __future__ import annotations
 
@@ -202,6 +202,31 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_losses(args: argparse.Namespace) -> int:
+    import math
+
+    from capsd.losses import Thresholds, load, plot, since, table, write_json
+
+    if not 0.0 < args.vertical_aperture_deg < 180.0:
+        return fail("losses: --vertical-aperture-deg must be in (0, 180)", EXIT_CONFIG)
+    if args.since < 0.0:
+        return fail("losses: --since must be >= 0 seconds", EXIT_CONFIG)
+    thresholds = Thresholds(vertical_aperture_rad=math.radians(args.vertical_aperture_deg))
+    try:
+        losses = since(load(args.recording, thresholds=thresholds), args.since)
+    except CapsdError as exc:
+        return fail(f"losses: {exc}", EXIT_CONFIG)
+    print(f"{args.recording}: {len(losses.pings)} labelled pings from {args.since:g} s")
+    print(table(losses))
+    if losses.undecodable:
+        print(f"payloads that did not decode (not judged): {losses.undecodable}")
+    if args.out is not None and losses.pings:
+        write_json(losses, args.out / "losses.json")
+        plot(losses, args.out / "losses.png", thresholds=thresholds)
+        print(f"written: {args.out}/losses.json, losses.png")
+    return EXIT_OK
+
+
 def register(sub: Subcommands) -> None:
     """Add the recording verbs to the `capsd` parser's subcommands."""
     rec = sub.add_parser(
@@ -310,3 +335,20 @@ def register(sub: Subcommands) -> None:
                     help="seconds: no reference value across a longer gap")  # fmt: skip
     ev.add_argument("--out", type=Path, default=Path("reports/evaluate"), help="report folder")
     ev.set_defaults(func=_cmd_evaluate)
+    los = sub.add_parser(
+        "losses",
+        help="where a simulated recording's pings lost their good fix: out of view, missed by "
+        "the detector, refused by the locator (against the simulator's labels)",
+        description="Join each labelled ping (sim/label) with its detections and fix by stamp "
+        "and count the pings per class: out of view (above or below the aperture, outside the "
+        "fan), no detections, missed, no fix, refused (by the locator's reason), good (on or "
+        "off the ROV). Exit 2 when the recording has no labels (a field recording).",
+    )
+    los.add_argument("recording", type=Path, help="an .mcap from `capsd demo --record`")
+    los.add_argument("--since", type=float, default=0.0,
+                     help="seconds after the first labelled ping to start from")  # fmt: skip
+    los.add_argument("--vertical-aperture-deg", type=float, default=20.0,
+                     help="the simulated sonar's (splits the out-of-view pings)")  # fmt: skip
+    los.add_argument("--out", type=Path, default=None,
+                     help="also write losses.json and losses.png (per class)")  # fmt: skip
+    los.set_defaults(func=_cmd_losses)

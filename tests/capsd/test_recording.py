@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import time
@@ -18,7 +19,14 @@ from mcap.reader import make_reader
 from capsd import topics
 from capsd.errors import CapsdError
 from capsd.payloads import RovFix
-from capsd.recording import LOCATOR_CONFIG_ATTACHMENT, attachment, channel_counts, read
+from capsd.recording import (
+    LOCATOR_CONFIG_ATTACHMENT,
+    McapRecorder,
+    Sample,
+    attachment,
+    channel_counts,
+    read,
+)
 from capsd.replay_check import compare
 from capsd.viewer_schema import viewer_rules
 from tests.conftest import REPO, Proc, relay
@@ -165,6 +173,29 @@ def test_every_reader_names_a_bad_or_missing_recording(
         reader(junk)
     with pytest.raises(CapsdError, match=r"missing\.mcap: no such recording"):
         reader(tmp_path / "missing.mcap")
+
+
+def test_a_recording_cut_short_is_read_up_to_its_last_complete_chunk(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    # A recorder killed (or a laptop losing power) leaves no summary and half a chunk.
+    whole = tmp_path / "whole.mcap"
+    recorder = McapRecorder(whole)
+    for k in range(3000):  # bytes zstd cannot shrink: the file spans several chunks
+        recorder.write(Sample(FIX_KEY, "application/octet-stream", os.urandom(600), 1_000 + k))
+    recorder.close()
+    data = whole.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: int(len(data) * 0.8)])
+    got = list(read(cut))
+    assert 0 < len(got) < 3000
+    assert [m.log_time_ns for m in got] == list(range(1_000, 1_000 + len(got)))  # in order
+    assert "cut short" in capfd.readouterr().err
+    # Cut inside its first chunk: nothing to read, and the file is named as unreadable.
+    early = tmp_path / "early.mcap"
+    early.write_bytes(data[:2000])
+    with pytest.raises(CapsdError, match=r"early\.mcap: not a readable MCAP"):
+        list(read(early))
 
 
 def _fix(stamp: int, *, pose_stamp: int, x: float, tracked_x: float) -> RovFix:
