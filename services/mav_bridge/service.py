@@ -683,11 +683,13 @@ class Bridge:
         fields = {"kind": command.kind, "waypoint": command.waypoint, "mission": command.mission}
         target = self.config.mavlink.target_system
         if command.kind == "hold":
-            if self.mode != "GUIDED":
-                # The pilot's mode (or one already holding) is never overridden.
+            hold = _HOLD_MODE[self.config.role]
+            # The pilot's mode is never overridden. Already holding, the hold is sent again:
+            # a HEARTBEAT sent before the autopilot took our GUIDED can arrive after it and
+            # say the old hold, and a hold then dropped would leave the vehicle in GUIDED.
+            if self.mode not in ("GUIDED", hold):
                 self.counts["commands_hold_not_guided"] += 1
                 return
-            hold = _HOLD_MODE[self.config.role]
             self.link.send_set_mode(target_system=target, mode=hold, autopilot=self.autopilot)
             self.mode = hold  # ours until a HEARTBEAT says otherwise (1 Hz)
             self.counts[f"commands_sent_{hold.lower()}"] += 1

@@ -244,3 +244,48 @@ def test_bad_invocations_exit_2_naming_what(
     missing = tmp_path / "nope.yaml"
     assert main(["mission", "run", str(missing), "--locator-config", str(locator)]) == 2
     assert "nope.yaml" in capfd.readouterr().err
+
+
+def test_a_hold_is_sent_again_to_a_holding_vehicle_but_never_over_the_pilots_mode(
+    spawn: Callable[..., Proc], client: zenoh.Session, endpoint: str, tmp_path: Path
+) -> None:
+    # A HEARTBEAT from before the autopilot took the mission's GUIDED can still say POSHOLD
+    # when the mission's next hold arrives: that hold must go out, not be dropped.
+    state = VehicleState(roll=0.0, pitch=0.0, yaw=0.5, depth_m=3.0)
+    with AutopilotStandIn(
+        free_port(), state=lambda _t: state, mode="POSHOLD", params=CONFIGURED_PARAMS
+    ) as holding:
+        bridge_config, _ = _configs(tmp_path, endpoint, holding)
+        spawn("run", "mav_bridge", "--config", str(bridge_config))
+        key = SiteKey.load(_key_path(tmp_path), config_key="fix_key")
+        vehicle = Vehicle(FixSender(client, key))
+        key_expr = topics.ROV_COMMAND.key("tank", "topside")
+        codec = Codec(VehicleCommand)
+        publisher = client.declare_publisher(key_expr, encoding=zenoh.Encoding(codec.encoding))
+        try:
+            wait_for(lambda: holding.recorded.estimates, timeout_s=20, what="estimates flowing")
+            time.sleep(1.5)  # a HEARTBEAT (1 Hz) has told the bridge the mode
+
+            def hold() -> None:
+                command = VehicleCommand(
+                    stamp_ns=time.time_ns(), seq=0, mission="m", kind="hold", position_m=None
+                )
+                data = codec.encode(command)
+                attachment = time.time_ns().to_bytes(8, "little") + key.tag(key_expr, data)
+                publisher.put(data, attachment=attachment)
+
+            hold()
+            wait_for(lambda: [m for _, m, _ in _modes(holding) if m == "POSHOLD"],
+                     timeout_s=10, what="POSHOLD sent again")  # fmt: skip
+            # The pilot takes MANUAL: a hold now is not acted on.
+            holding.mode = "MANUAL"
+            time.sleep(1.5)
+            before = len(_modes(holding))
+            hold()
+            wait_for(lambda: _health(client).counters.get("commands_hold_not_guided", 0) >= 1,
+                     timeout_s=10, what="the hold refused in MANUAL")  # fmt: skip
+            assert len(_modes(holding)) == before
+            assert holding.mode == "MANUAL"
+        finally:
+            vehicle.close()
+            publisher.undeclare()
