@@ -6,9 +6,14 @@ fix for the plan's `fix_timeout_s` (lost, or only unsure ones) pauses the missio
 (the bridge puts ArduSub in POSHOLD) and nothing else until fixes have been good for
 `resume_after_s` (no gap longer than `fix_timeout_s` between them), then `engage` again at
 the same waypoint. One unsure fix among good ones does not pause: the autopilot rides through
-a short gap on its own estimate. The pilot always wins: if the vehicle leaves the mode the
-mission asked for (after a grace for the switch itself), the mission is `aborted` and sends
-nothing more. `stop()` (Ctrl-C) sends a last `hold`.
+a short gap on its own estimate. While running, the ROV waits for the ASV (the plan's
+`view_guard`, capsd.mission.view_guard): when the ROV, now or a moment ahead, comes within
+`edge_margin_deg` of the sonar's vertical aperture's edge, the target becomes where the ROV
+is until it is `resume_margin_deg` inside again (the follower re-stations meanwhile) or
+`max_wait_s` passed; after a wait that timed out, the guard waits again only once the view
+was good. No view heard for `VIEW_VALID_S`: no waiting. The pilot always wins: if the vehicle
+leaves the mode the mission asked for (after a grace for the switch itself), the mission is
+`aborted` and sends nothing more. `stop()` (Ctrl-C) sends a last `hold`.
 """
 
 from __future__ import annotations
@@ -31,6 +36,8 @@ POSHOLD = "POSHOLD"
 MODE_GRACE_S = 3.0
 # A target is repeated at this interval (a lost command is replaced).
 REPEAT_S = 0.5
+# A view margin older than this is not acted on (no ASV pose: the guard does not wait).
+VIEW_VALID_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -55,6 +62,9 @@ class Progress:
     flown_m: list[tuple[float, float, float]] = field(default_factory=list)
     pause_latency_s: list[float] = field(default_factory=list)  # last good fix -> hold sent
     why: str = ""
+    waits: int = 0  # times a leg waited for the ASV (the ROV near the view's edge)
+    waited_s: float = 0.0
+    waits_timed_out: int = 0
 
 
 class MissionController:
@@ -74,6 +84,11 @@ class MissionController:
         self._last_sent = -math.inf
         self._arrived_at: float | None = None
         self._paused_at: float | None = None
+        self._view_margin_rad: float | None = None
+        self._view_at = -math.inf
+        self._waiting_since: float | None = None
+        self._wait_point: tuple[float, float, float] | None = None
+        self._guard_armed = True
 
     # -------------------------------------------------------------------- inputs
 
@@ -112,6 +127,15 @@ class MissionController:
                 "mission commands: its `mission_commands` and Health counters say)",
             )
 
+    def on_view(self, margin_rad: float, *, now: float) -> None:
+        """How far inside the vertical aperture the ROV is, now or a moment ahead (view_guard)."""
+        self._view_margin_rad = margin_rad
+        self._view_at = now
+
+    def waiting(self) -> bool:
+        """The leg waits for the ASV."""
+        return self._waiting_since is not None
+
     # -------------------------------------------------------------------- decisions
 
     def fix_ok(self, now: float) -> bool:
@@ -133,8 +157,10 @@ class MissionController:
             return []
         if p.state == "running":
             if not self.fix_ok(now):
+                self._end_wait(now)
                 return [self._pause(now)]
-            return self._advance(now)
+            waited = self._guard(now)
+            return waited if waited is not None else self._advance(now)
         # paused
         assert self._paused_at is not None
         good_for = now - self._good_since_s if self._good_since_s is not None else 0.0
@@ -191,6 +217,56 @@ class MissionController:
             self._last_sent = now
             return [Command("goto", p.waypoint, self._target(), "repeat")]
         return []
+
+    def _guard(self, now: float) -> list[Command] | None:
+        """The view guard's commands while it waits (or as it starts or ends); None: fly on."""
+        guard = self.plan.view_guard
+        p = self.progress
+        fresh = now - self._view_at <= VIEW_VALID_S and self._view_margin_rad is not None
+        if guard.mode == "off" or not fresh:
+            if self._waiting_since is not None:
+                self._end_wait(now)
+                self._last_sent = now
+                return [Command("goto", p.waypoint, self._target(), "view unknown: on")]
+            return None
+        assert self._view_margin_rad is not None
+        margin_deg = math.degrees(self._view_margin_rad)
+        if self._waiting_since is None:
+            if margin_deg >= guard.resume_margin_deg:
+                self._guard_armed = True
+            if not self._guard_armed or margin_deg >= guard.edge_margin_deg:
+                return None
+            assert self._position is not None
+            self._waiting_since = now
+            self._wait_point = (
+                float(self._position[0]), float(self._position[1]), float(self._position[2]),
+            )  # fmt: skip
+            p.waits += 1
+            self._last_sent = now
+            why = "waiting for the ASV: the ROV near the edge of the sonar's view"
+            return [Command("goto", p.waypoint, self._wait_point, why)]
+        if margin_deg >= guard.resume_margin_deg:
+            self._end_wait(now)
+            self._last_sent = now
+            return [Command("goto", p.waypoint, self._target(), "in view again: on")]
+        if now - self._waiting_since >= guard.max_wait_s:
+            self._end_wait(now)
+            self._guard_armed = False  # not again until the view was good
+            p.waits_timed_out += 1
+            self._last_sent = now
+            return [Command("goto", p.waypoint, self._target(),
+                            f"waited {guard.max_wait_s:g} s for the ASV: on")]  # fmt: skip
+        if now - self._last_sent >= REPEAT_S:
+            self._last_sent = now
+            assert self._wait_point is not None
+            return [Command("goto", p.waypoint, self._wait_point, "repeat")]
+        return []
+
+    def _end_wait(self, now: float) -> None:
+        if self._waiting_since is not None:
+            self.progress.waited_s += now - self._waiting_since
+        self._waiting_since = None
+        self._wait_point = None
 
     def _ask(self, mode: str, now: float) -> None:
         self._asked, self._asked_at = mode, now

@@ -27,10 +27,13 @@ from capsd import topics
 from capsd.accuracy import fix_estimate
 from capsd.config import ServiceConfig, load_config
 from capsd.errors import ConfigError
+from capsd.geometry import Transform
 from capsd.keys import check_name
 from capsd.mission.controller import Command, MissionController
 from capsd.mission.plan import Plan, Waypoint, load_plan, path_length_m
-from capsd.payloads import AutopilotStatus, RovFix, VehicleCommand
+from capsd.mission.view_guard import view_margin_rad
+from capsd.mounts import SonarMountConfig
+from capsd.payloads import AsvPose, AutopilotStatus, RovFix, VehicleCommand
 from capsd.runner import Publisher, ServiceRunner
 from capsd.services.locator.service import Config as LocatorConfig
 from capsd.signing import SiteKey
@@ -45,13 +48,14 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     vehicle: str = "topside"  # the namespace its commands are put in (the locator's computer)
     locator_vehicle: str = "topside"  # where the fixes come from
     rov_vehicle: str = "rov"  # where the bridge reports the vehicle's mode (AutopilotStatus)
+    asv_vehicle: str = "asv"  # where the ASV's pose is (the plan's view_guard needs it)
     # required: commands carry the site's fix key's tag (the bridge refuses untagged ones).
     command_auth: Literal["required", "off"] = "required"
     progress_period_s: Annotated[float, msgspec.Meta(gt=0.0, le=60.0)] = 2.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        for name in ("locator_vehicle", "rov_vehicle"):
+        for name in ("locator_vehicle", "rov_vehicle", "asv_vehicle"):
             try:
                 check_name("vehicle", getattr(self, name))
             except ValueError as exc:
@@ -96,9 +100,12 @@ class MissionNode:
         commands: Publisher[VehicleCommand],
         stream: TextIO,
         *,
+        sonar: SonarMountConfig,
         progress_period_s: float = 2.0,
     ):
         self.plan = plan
+        self.sonar = sonar
+        self._asv: Transform | None = None
         self.progress_period_s = progress_period_s
         self.controller = MissionController(plan, points)
         self.runner = runner
@@ -112,10 +119,26 @@ class MissionNode:
 
     def on_fix(self, fix: RovFix) -> None:
         position, _ = fix_estimate(fix)
+        now = time.monotonic()
+        good = fix.quality == "good"
         with self.lock:
-            self.controller.on_fix(
-                good=fix.quality == "good", position_m=position, now=time.monotonic()
+            self.controller.on_fix(good=good, position_m=position, now=now)
+            asv = self._asv
+        if good and position is not None and asv is not None:
+            margin = view_margin_rad(
+                asv=asv,
+                mount=self.sonar,
+                rov_m=np.array(position),
+                velocity_m_s=None if fix.velocity_m_s is None else np.array(fix.velocity_m_s),
+                lookahead_s=self.plan.view_guard.lookahead_s,
             )
+            with self.lock:
+                self.controller.on_view(margin, now=now)
+
+    def on_asv_pose(self, pose: AsvPose) -> None:
+        transform = Transform.from_quat(pose.position_m, pose.orientation_xyzw)
+        with self.lock:
+            self._asv = transform
 
     def on_status(self, status: AutopilotStatus) -> None:
         mode = status.mode if status.link == "ok" else "link lost"
@@ -176,7 +199,8 @@ class MissionNode:
         print(
             f"  {now - self.started:6.1f} s  {p.state:<8} waypoint {p.waypoint + 1}/"
             f"{len(self.controller.points)}  mode {self.mode:<8} cross-track rms {rms}  "
-            f"pauses {p.pauses}",
+            f"pauses {p.pauses}  waits {p.waits}"
+            + (" (waiting for the ASV)" if self.controller.waiting() else ""),
             file=self.stream,
             flush=True,
         )
@@ -200,6 +224,9 @@ def report(node: MissionNode, out: Path) -> dict[str, object]:
         "fixes_on_legs": len(xt),
         "pauses": p.pauses,
         "paused_s": round(p.paused_s, 2),
+        "waits_for_the_asv": p.waits,
+        "waited_s": round(p.waited_s, 2),
+        "waits_timed_out": p.waits_timed_out,
         "pause_after_last_good_fix_max_s": (
             round(max(p.pause_latency_s), 3) if p.pause_latency_s else None
         ),
@@ -261,9 +288,17 @@ def main(
     with ServiceRunner("mission", config) as runner:
         commands = runner.publisher(topics.ROV_COMMAND, signer=signer)
         node = MissionNode(
-            plan, points, runner, commands, stream, progress_period_s=config.progress_period_s
+            plan,
+            points,
+            runner,
+            commands,
+            stream,
+            sonar=locator.sonar,
+            progress_period_s=config.progress_period_s,
         )
         runner.subscribe(topics.ROV_FIX, node.on_fix, vehicle=config.locator_vehicle)
+        if plan.view_guard.mode != "off":
+            runner.subscribe(topics.ASV_POSE, node.on_asv_pose, vehicle=config.asv_vehicle)
         runner.subscribe(topics.ROV_STATUS, node.on_status, vehicle=config.rov_vehicle)
         try:
             runner.run(node.step, period_s=0.05)

@@ -54,6 +54,30 @@ class Point(ConfigSection, frozen=True, kw_only=True):
     dwell_s: Annotated[float, msgspec.Meta(ge=0.0, le=3600.0)] = 0.0
 
 
+class ViewGuard(ConfigSection, frozen=True, kw_only=True):
+    """The ROV waits for the ASV near the edge of the sonar's view (capsd.mission.view_guard).
+
+    wait: while the ROV, now or `lookahead_s` ahead, is within `edge_margin_deg` of the
+    vertical aperture's edge, the leg waits where the ROV is (the follower re-stations for a
+    ROV that stopped), until it is `resume_margin_deg` inside again or `max_wait_s` passed;
+    off: legs are flown whatever the view (a fixed sonar that cannot move).
+    """
+
+    mode: Literal["wait", "off"] = "wait"
+    edge_margin_deg: Annotated[float, msgspec.Meta(ge=0.0, le=45.0)] = 3.0
+    resume_margin_deg: Annotated[float, msgspec.Meta(ge=0.0, le=45.0)] = 6.0
+    lookahead_s: Annotated[float, msgspec.Meta(ge=0.0, le=10.0)] = 1.5
+    max_wait_s: Annotated[float, msgspec.Meta(gt=0.0, le=600.0)] = 30.0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.resume_margin_deg < self.edge_margin_deg:
+            raise ValueError(
+                f"`resume_margin_deg` ({self.resume_margin_deg:g}) is below `edge_margin_deg` "
+                f"({self.edge_margin_deg:g}): the wait would end before it began"
+            )
+
+
 class Plan(ConfigSection, frozen=True, kw_only=True):
     """A mission: one lawnmower or a list of points, and how it is flown."""
 
@@ -74,6 +98,7 @@ class Plan(ConfigSection, frozen=True, kw_only=True):
     fix_timeout_s: Annotated[float, msgspec.Meta(gt=0.0, le=5.0)] = 0.5
     # The geofence: every waypoint at least this far from the walls, the floor and the surface.
     clearance_m: Annotated[float, msgspec.Meta(ge=0.0, le=100.0)] = 0.5
+    view_guard: ViewGuard = ViewGuard()
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import math
+
 import msgspec
+import pytest
 
 from capsd.mission.controller import GUIDED, POSHOLD, MissionController
 from capsd.mission.plan import Plan, Waypoint
@@ -151,3 +154,91 @@ def test_a_paused_mission_resumes_through_occasional_unsure_fixes() -> None:
         engaged += [t for c in ctl.step(t) if c.kind == "engage"]
     assert engaged
     assert 1.0 - 1e-9 <= engaged[0] - 1.25 <= 1.1
+
+
+def _guarded(**guard: float) -> MissionController:
+    plan = msgspec.convert(
+        {
+            "points": [{"position_m": [5.0, 4.0], "depth_m": 3.0}],
+            "start_after_s": 0.0,
+            "view_guard": {"edge_margin_deg": 3.0, "resume_margin_deg": 6.0, **guard},
+        },
+        Plan,
+    )
+    return MissionController(plan, POINTS)
+
+
+def _step_with_view(
+    ctl: MissionController, t: float, margin_deg: float | None, at: tuple[float, float, float]
+) -> list[tuple[str, tuple[float, float, float] | None, str]]:
+    ctl.on_fix(good=True, position_m=at, now=t)
+    if margin_deg is not None:
+        ctl.on_view(math.radians(margin_deg), now=t)
+    ctl.on_mode(GUIDED, now=t)
+    return [(c.kind, c.position_m, c.reason) for c in ctl.step(t)]
+
+
+def test_the_rov_waits_where_it_is_near_the_views_edge_until_the_asv_has_it_again() -> None:
+    ctl = _guarded()
+    here = (4.0, 4.0, -3.0)
+    assert _step_with_view(ctl, 0.0, 8.0, here)[0][0] == "engage"
+    assert ctl.progress.waits == 0
+    # Near the edge: the target becomes where the ROV is.
+    commands = _step_with_view(ctl, 0.1, 2.0, here)
+    assert commands[0][:2] == ("goto", here)
+    assert "waiting for the ASV" in commands[0][2]
+    assert ctl.waiting()
+    # Repeated while the margin stays under resume (4 deg is inside edge and resume).
+    repeats = [c for k in range(2, 30) for c in _step_with_view(ctl, k * 0.05 + 0.05, 4.0, here)]
+    assert repeats
+    assert all(position == here for _, position, _ in repeats)
+    # Well inside again: on to the waypoint.
+    commands = _step_with_view(ctl, 2.0, 7.0, here)
+    assert commands == [("goto", POINTS[0].position_m, "in view again: on")]
+    assert not ctl.waiting()
+    assert ctl.progress.waits == 1
+    assert abs(ctl.progress.waited_s - 1.9) < 1e-9
+
+
+def test_a_wait_ends_after_max_wait_s_and_is_not_repeated_until_the_view_was_good() -> None:
+    ctl = _guarded(max_wait_s=1.0)
+    here = (4.0, 4.0, -3.0)
+    _step_with_view(ctl, 0.0, 8.0, here)
+    assert _step_with_view(ctl, 0.1, 1.0, here)[0][1] == here
+    commands = [c for k in range(3, 40) for c in _step_with_view(ctl, k * 0.05, 1.0, here)]
+    assert ("goto", POINTS[0].position_m, "waited 1 s for the ASV: on") in commands
+    assert not ctl.waiting()
+    assert ctl.progress.waits_timed_out == 1
+    assert all(c[1] != here for c in _step_with_view(ctl, 2.5, 1.0, here))  # not re-armed
+    _step_with_view(ctl, 2.6, 6.5, here)  # the view good again: armed
+    assert _step_with_view(ctl, 2.7, 1.0, here)[0][1] == here
+    assert ctl.progress.waits == 2
+
+
+def test_without_a_view_or_with_the_guard_off_the_leg_is_flown() -> None:
+    here = (4.0, 4.0, -3.0)
+    for ctl, margin in ((_guarded(), None), (MissionController(
+        msgspec.convert({"points": [{"position_m": [5.0, 4.0], "depth_m": 3.0}],
+                         "start_after_s": 0.0, "view_guard": {"mode": "off"}}, Plan),
+        POINTS), -5.0)):  # fmt: skip
+        _step_with_view(ctl, 0.0, margin, here)
+        for k in range(1, 20):
+            _step_with_view(ctl, k * 0.05, margin, here)
+        assert not ctl.waiting()
+        assert ctl.progress.waits == 0
+    # A view that goes stale while waiting ends the wait (no ASV pose: fly on).
+    ctl = _guarded()
+    _step_with_view(ctl, 0.0, 8.0, here)
+    _step_with_view(ctl, 0.1, 1.0, here)
+    assert ctl.waiting()
+    commands = _step_with_view(ctl, 1.5, None, here)
+    assert commands == [("goto", POINTS[0].position_m, "view unknown: on")]
+
+
+def test_a_resume_margin_below_the_edge_margin_is_refused() -> None:
+    with pytest.raises(msgspec.ValidationError, match="resume_margin_deg"):
+        msgspec.convert(
+            {"points": [{"position_m": [5.0, 4.0], "depth_m": 3.0}],
+             "view_guard": {"edge_margin_deg": 5.0, "resume_margin_deg": 2.0}},
+            Plan,
+        )  # fmt: skip

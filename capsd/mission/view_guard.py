@@ -1,0 +1,47 @@
+"""How far inside the sonar's vertical aperture the ROV is, now and a moment ahead.
+
+The sonar sees the ROV only within its vertical aperture (20 deg). A ROV flying a leg towards
+or away from the ASV changes its elevation in the sonar fast when it is near (on a mockup lane
+1 m from the sonar, about 4 deg a second at 0.1 m/s): it leaves the aperture before the ASV
+can re-station, then has no fix and holds where the ASV cannot see it. The mission therefore
+waits (capsd.mission.controller) while the margin, here, is small: the aperture's half-width
+less the ROV's elevation, from the newest good fix and the ASV's pose, the smaller of now and
+`lookahead_s` ahead at the fix's tracked velocity. Negative: outside the aperture.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from capsd.geometry import Array, Transform
+from capsd.mounts import SonarMountConfig
+from capsd.sonar_geometry import to_polar
+
+
+def elevation_margin_rad(*, asv: Transform, mount: SonarMountConfig, rov_m: Array) -> float:
+    """Half the vertical aperture less the ROV's |elevation| in the sonar (negative: outside)."""
+    sonar = asv.compose(mount.transform())
+    p_s = sonar.inverse().apply(np.asarray(rov_m, dtype=np.float64))
+    try:
+        _, _, elevation = to_polar(mount.beam_model, p_s)
+    except ValueError:  # at the sonar's acoustic centre: no direction, not in view
+        return -math.pi
+    return math.radians(mount.vertical_aperture_deg) / 2.0 - abs(elevation)
+
+
+def view_margin_rad(
+    *,
+    asv: Transform,
+    mount: SonarMountConfig,
+    rov_m: Array,
+    velocity_m_s: Array | None,
+    lookahead_s: float,
+) -> float:
+    """The smaller elevation margin of now and `lookahead_s` ahead (the ASV where it is)."""
+    now = elevation_margin_rad(asv=asv, mount=mount, rov_m=rov_m)
+    if velocity_m_s is None or lookahead_s <= 0.0:
+        return now
+    ahead = np.asarray(rov_m, dtype=np.float64) + np.asarray(velocity_m_s) * lookahead_s
+    return min(now, elevation_margin_rad(asv=asv, mount=mount, rov_m=ahead))
