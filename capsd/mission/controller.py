@@ -31,6 +31,9 @@ CommandKind = Literal["engage", "goto", "hold"]
 # ArduSub's mode names as the bridge reports them (AutopilotStatus.mode).
 GUIDED = "GUIDED"
 POSHOLD = "POSHOLD"
+# What the vehicle may answer a hold with: the bridge puts it in ALT_HOLD where ArduSub refuses
+# POSHOLD for want of a position (the fixes stopped before the hold came).
+ANSWERS: dict[str, tuple[str, ...]] = {POSHOLD: (POSHOLD, "ALT_HOLD")}
 # The vehicle gets this long to take a mode the mission asked for before a different one is
 # read as the pilot's choice.
 MODE_GRACE_S = 3.0
@@ -119,7 +122,10 @@ class MissionController:
         state = self.progress.state
         if self._asked is None or state not in ("running", "paused"):
             return
-        if mode != self._asked and now - self._asked_at > MODE_GRACE_S:
+        if (
+            mode not in ANSWERS.get(self._asked, (self._asked,))
+            and now - self._asked_at > MODE_GRACE_S
+        ):
             self._finish(
                 "aborted",
                 f"the vehicle is in {mode}, not the {self._asked} the mission asked for: the "

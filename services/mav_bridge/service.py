@@ -19,7 +19,8 @@ Bus to vehicle: RovFix estimates through the safety gate (capsd.services.mav_bri
 to NED, as VISION_POSITION_ESTIMATE (or GPS_INPUT), usec = the estimate's measurement time.
 Mission commands (VehicleCommand, signed like fixes; only with `mission_commands: accept`): fresh,
 inside the tank's geofence, then MAV_CMD_DO_SET_MODE (GUIDED to engage, POSHOLD to hold, the
-latter only from GUIDED) and SET_POSITION_TARGET_LOCAL_NED, each logged and counted.
+latter only from GUIDED or again to a vehicle holding; ALT_HOLD when the autopilot refuses
+POSHOLD for want of a position) and SET_POSITION_TARGET_LOCAL_NED, each logged and counted.
 """
 
 from __future__ import annotations
@@ -49,10 +50,13 @@ from capsd.payloads import (
     VehicleCommand,
 )
 from capsd.protocols.mavlink import (
+    MAV_CMD_DO_SET_MODE,
     MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY,
+    MAV_RESULT_ACCEPTED,
     MAV_SYS_STATUS_SENSOR_VISION_POSITION,
     Attitude,
     Autopilot,
+    CommandAck,
     EkfStatus,
     Heartbeat,
     MavLink,
@@ -161,6 +165,11 @@ Role = Literal["rov", "asv"]
 _AUTOPILOT: dict[Role, Autopilot] = {"rov": "ardusub", "asv": "ardurover"}
 # The autopilot's own position hold, which a "hold" command switches to (from GUIDED only).
 _HOLD_MODE: dict[Role, str] = {"rov": "POSHOLD", "asv": "LOITER"}
+# What a hold becomes when the autopilot refuses its position hold (no position left: the fixes
+# stopped before the hold came): ArduSub holds depth and attitude, ArduRover stops.
+_HOLD_FALLBACK: dict[Role, str] = {"rov": "ALT_HOLD", "asv": "HOLD"}
+# A refusal (COMMAND_ACK) this long after our position hold is taken as its answer.
+_HOLD_ANSWER_S = 3.0
 
 
 class Config(ServiceConfig, frozen=True, kw_only=True):
@@ -236,6 +245,7 @@ class Bridge:
         self.commands: Mailbox[VehicleCommand] = Mailbox()
         self.command_stream: StreamCounter | None = None
         self.mode: str | None = None
+        self._hold_sent_at = -math.inf  # when our last position hold went out
         self.fix_stream: StreamCounter | None = None
         self._unauthenticated_seen = 0
         self.link = MavLink(
@@ -550,6 +560,8 @@ class Bridge:
                 )
             )
             self.mode = mode_name(message.custom_mode, self.autopilot)
+        elif isinstance(message, CommandAck) and message.command == MAV_CMD_DO_SET_MODE:
+            self._on_mode_answer(message.result)
         elif isinstance(message, Attitude):
             if not self._observe(message.time_boot_ms, arrival_ns):
                 return
@@ -675,6 +687,25 @@ class Bridge:
             extra={"fields": {"kind": command.kind, "mission": command.mission, "why": refused}},
         )
 
+    def _on_mode_answer(self, result: int) -> None:
+        """A refused position hold (no position left) becomes the autopilot's plain hold.
+
+        Left in GUIDED, the vehicle would fly on to its last target on a coasting estimate.
+        """
+        if result == MAV_RESULT_ACCEPTED or time.monotonic() - self._hold_sent_at > _HOLD_ANSWER_S:
+            return
+        self._hold_sent_at = -math.inf  # one fallback per hold
+        fallback = _HOLD_FALLBACK[self.config.role]
+        self.link.send_set_mode(
+            target_system=self.config.mavlink.target_system, mode=fallback, autopilot=self.autopilot
+        )
+        self.mode = fallback
+        self.counts[f"commands_sent_{fallback.lower()}"] += 1
+        logger.warning(
+            f"mission: {_HOLD_MODE[self.config.role]} refused, {fallback} instead",
+            extra={"fields": {"why": "the autopilot has no position to hold (fixes stopped)"}},
+        )
+
     def _act_on_commands(self) -> None:
         """The newest mission command to MAVLink (the caller holds the lock, the link is open)."""
         command = self.commands.take(0.0)
@@ -692,6 +723,7 @@ class Bridge:
                 return
             self.link.send_set_mode(target_system=target, mode=hold, autopilot=self.autopilot)
             self.mode = hold  # ours until a HEARTBEAT says otherwise (1 Hz)
+            self._hold_sent_at = time.monotonic()
             self.counts[f"commands_sent_{hold.lower()}"] += 1
             logger.info(f"mission: {hold}", extra={"fields": {**fields, "why": command.reason}})
             return
@@ -700,6 +732,7 @@ class Bridge:
             return
         if command.kind == "engage" and self.mode != "GUIDED":
             self.link.send_set_mode(target_system=target, mode="GUIDED")
+            self._hold_sent_at = -math.inf  # a refusal now answers this, not a hold
             # Ours until a HEARTBEAT says otherwise: a hold right after an engage must not be
             # taken for a pilot's mode (the HEARTBEAT comes at 1 Hz).
             self.mode = "GUIDED"

@@ -242,3 +242,15 @@ def test_a_resume_margin_below_the_edge_margin_is_refused() -> None:
              "view_guard": {"edge_margin_deg": 5.0, "resume_margin_deg": 2.0}},
             Plan,
         )  # fmt: skip
+
+
+def test_a_depth_hold_answers_a_hold_the_autopilot_could_not_take() -> None:
+    ctl = MissionController(_plan(fix_timeout_s=0.5), POINTS)
+    _fly(ctl, [(4.0, 4.0, -3.0)] * 5)
+    commands = _fly(ctl, [None] * 20, t0=0.25)
+    assert [k for _, k, _ in commands][-1] == "hold"
+    for k in range(100):  # 5 s in ALT_HOLD (the bridge's fallback), past the mode grace
+        ctl.on_mode("ALT_HOLD", now=1.5 + k * 0.05)
+    assert ctl.progress.state == "paused"
+    ctl.on_mode("MANUAL", now=7.0)  # the pilot's own choice still ends the mission
+    assert ctl.progress.state == "aborted"

@@ -289,3 +289,47 @@ def test_a_hold_is_sent_again_to_a_holding_vehicle_but_never_over_the_pilots_mod
         finally:
             vehicle.close()
             publisher.undeclare()
+
+
+def test_a_position_hold_the_autopilot_refuses_becomes_a_depth_hold(
+    spawn: Callable[..., Proc],
+    client: zenoh.Session,
+    endpoint: str,
+    tmp_path: Path,
+    autopilot: AutopilotStandIn,
+) -> None:
+    # The fixes stopped a while before the hold: ArduSub has no position and refuses POSHOLD.
+    # Left in GUIDED the ROV would fly on to its target on a coasting estimate.
+    bridge_config, _ = _configs(tmp_path, endpoint, autopilot)
+    spawn("run", "mav_bridge", "--config", str(bridge_config))
+    key = SiteKey.load(_key_path(tmp_path), config_key="fix_key")
+    vehicle = Vehicle(FixSender(client, key))
+    key_expr = topics.ROV_COMMAND.key("tank", "topside")
+    codec = Codec(VehicleCommand)
+    publisher = client.declare_publisher(key_expr, encoding=zenoh.Encoding(codec.encoding))
+
+    def put(kind: str, position: tuple[float, float, float] | None) -> None:
+        command = VehicleCommand(
+            stamp_ns=time.time_ns(), seq=0, mission="m", kind=kind,  # type: ignore[arg-type]
+            position_m=position,
+        )  # fmt: skip
+        data = codec.encode(command)
+        publisher.put(
+            data, attachment=time.time_ns().to_bytes(8, "little") + key.tag(key_expr, data)
+        )
+
+    try:
+        wait_for(lambda: autopilot.recorded.estimates, timeout_s=20, what="estimates flowing")
+        put("engage", (5.0, 4.0, -3.0))
+        wait_for(lambda: autopilot.mode == "GUIDED", timeout_s=10, what="GUIDED")
+        vehicle.sending.clear()
+        time.sleep(1.5)  # the stand-in's position is gone after 1 s without estimates
+        put("hold", None)
+        wait_for(lambda: autopilot.mode == "ALT_HOLD", timeout_s=10, what="ALT_HOLD")
+        asked = [(m, taken) for _, m, taken in _modes(autopilot)]
+        assert asked[-2:] == [("POSHOLD", False), ("ALT_HOLD", True)]
+        wait_for(lambda: _health(client).counters.get("commands_sent_alt_hold", 0) == 1,
+                 timeout_s=10, what="the fallback counted")  # fmt: skip
+    finally:
+        vehicle.close()
+        publisher.undeclare()
