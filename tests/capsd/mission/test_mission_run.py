@@ -21,7 +21,7 @@ import zenoh
 from capsd import topics
 from capsd.codec import Codec
 from capsd.ned import TankToNed
-from capsd.payloads import VehicleCommand
+from capsd.payloads import CommandKind, VehicleCommand
 from capsd.signing import SiteKey
 from capsd.simulator.autopilot import CONFIGURED_PARAMS, AutopilotStandIn, VehicleState
 from tests.conftest import Proc, free_port, wait_for
@@ -95,6 +95,51 @@ def _targets_tank(autopilot: AutopilotStandIn) -> list[tuple[float, float, float
 def _modes(autopilot: AutopilotStandIn) -> list[tuple[float, str, bool]]:
     with autopilot.lock:
         return list(autopilot.recorded.modes)
+
+
+class Commands:
+    """The bridge under test, a stand-in locator's fixes, and a publisher of mission commands."""
+
+    def __init__(
+        self,
+        spawn: Callable[..., Proc],
+        client: zenoh.Session,
+        endpoint: str,
+        tmp_path: Path,
+        autopilot: AutopilotStandIn,
+    ):
+        bridge_config, _ = _configs(tmp_path, endpoint, autopilot)
+        spawn("run", "mav_bridge", "--config", str(bridge_config))
+        self.key = SiteKey.load(_key_path(tmp_path), config_key="fix_key")
+        self.vehicle = Vehicle(FixSender(client, self.key))
+        self.key_expr = topics.ROV_COMMAND.key("tank", "topside")
+        self.codec = Codec(VehicleCommand)
+        self.publisher = client.declare_publisher(
+            self.key_expr, encoding=zenoh.Encoding(self.codec.encoding)
+        )
+        wait_for(lambda: autopilot.recorded.estimates, timeout_s=20, what="estimates flowing")
+
+    def put(
+        self,
+        kind: CommandKind,
+        position: tuple[float, float, float] | None,
+        *,
+        age_s: float = 0.0,
+        signed: bool = True,
+    ) -> None:
+        command = VehicleCommand(
+            stamp_ns=time.time_ns() - int(age_s * 1e9), seq=0, mission="test", kind=kind,
+            position_m=position,
+        )  # fmt: skip
+        data = self.codec.encode(command)
+        attachment = time.time_ns().to_bytes(8, "little")
+        if signed:
+            attachment += self.key.tag(self.key_expr, data)
+        self.publisher.put(data, attachment=attachment)
+
+    def close(self) -> None:
+        self.vehicle.close()
+        self.publisher.undeclare()
 
 
 def test_mission_flies_pauses_on_lost_fix_resumes_and_reports(
@@ -172,38 +217,12 @@ def test_the_bridge_refuses_unsigned_stale_and_fenced_out_commands(
     tmp_path: Path,
     autopilot: AutopilotStandIn,
 ) -> None:
-    bridge_config, _ = _configs(tmp_path, endpoint, autopilot)
-    spawn("run", "mav_bridge", "--config", str(bridge_config))
-    key = SiteKey.load(_key_path(tmp_path), config_key="fix_key")
-    vehicle = Vehicle(FixSender(client, key))
-    publishers: list[zenoh.Publisher] = []
+    bridge = Commands(spawn, client, endpoint, tmp_path, autopilot)
     try:
-        wait_for(lambda: autopilot.recorded.estimates, timeout_s=20, what="estimates flowing")
-        key_expr = topics.ROV_COMMAND.key("tank", "topside")
-        codec = Codec(VehicleCommand)
-        publisher = client.declare_publisher(key_expr, encoding=zenoh.Encoding(codec.encoding))
-        publishers.append(publisher)
-
-        def put(command: VehicleCommand, *, signed: bool) -> None:
-            data = codec.encode(command)
-            attachment = time.time_ns().to_bytes(8, "little")
-            if signed:
-                attachment += key.tag(key_expr, data)
-            publisher.put(data, attachment=attachment)
-
-        def engage(position: tuple[float, float, float], *, age_s: float = 0.0) -> VehicleCommand:
-            return VehicleCommand(
-                stamp_ns=time.time_ns() - int(age_s * 1e9),
-                seq=0,
-                mission="hostile",
-                kind="engage",
-                position_m=position,
-            )
-
-        put(engage((5.0, 4.0, -3.0)), signed=False)
-        put(engage((5.0, 4.0, -3.0), age_s=5.0), signed=True)
-        put(engage((27.9, 4.0, -3.0)), signed=True)  # 0.1 m from the wall
-        put(engage((5.0, 4.0, 1.0)), signed=True)  # above the surface
+        bridge.put("engage", (5.0, 4.0, -3.0), signed=False)
+        bridge.put("engage", (5.0, 4.0, -3.0), age_s=5.0)
+        bridge.put("engage", (27.9, 4.0, -3.0))  # 0.1 m from the wall
+        bridge.put("engage", (5.0, 4.0, 1.0))  # above the surface
 
         def counted() -> bool:
             c = _health(client).counters
@@ -218,14 +237,12 @@ def test_the_bridge_refuses_unsigned_stale_and_fenced_out_commands(
         assert _modes(autopilot) == []
         assert autopilot.recorded.position_targets == []
         # A signed, fresh command inside the fence is acted on: the path is not just closed.
-        put(engage((5.0, 4.0, -3.0)), signed=True)
+        bridge.put("engage", (5.0, 4.0, -3.0))
         wait_for(lambda: autopilot.mode == "GUIDED", timeout_s=10, what="GUIDED")
         wait_for(lambda: _targets_tank(autopilot), timeout_s=10, what="the target")
         assert _targets_tank(autopilot)[0] == pytest.approx((5.0, 4.0, -3.0), abs=1e-4)
     finally:
-        vehicle.close()
-        for publisher in publishers:
-            publisher.undeclare()
+        bridge.close()
 
 
 def test_bad_invocations_exit_2_naming_what(
@@ -255,40 +272,23 @@ def test_a_hold_is_sent_again_to_a_holding_vehicle_but_never_over_the_pilots_mod
     with AutopilotStandIn(
         free_port(), state=lambda _t: state, mode="POSHOLD", params=CONFIGURED_PARAMS
     ) as holding:
-        bridge_config, _ = _configs(tmp_path, endpoint, holding)
-        spawn("run", "mav_bridge", "--config", str(bridge_config))
-        key = SiteKey.load(_key_path(tmp_path), config_key="fix_key")
-        vehicle = Vehicle(FixSender(client, key))
-        key_expr = topics.ROV_COMMAND.key("tank", "topside")
-        codec = Codec(VehicleCommand)
-        publisher = client.declare_publisher(key_expr, encoding=zenoh.Encoding(codec.encoding))
+        bridge = Commands(spawn, client, endpoint, tmp_path, holding)
         try:
-            wait_for(lambda: holding.recorded.estimates, timeout_s=20, what="estimates flowing")
             time.sleep(1.5)  # a HEARTBEAT (1 Hz) has told the bridge the mode
-
-            def hold() -> None:
-                command = VehicleCommand(
-                    stamp_ns=time.time_ns(), seq=0, mission="m", kind="hold", position_m=None
-                )
-                data = codec.encode(command)
-                attachment = time.time_ns().to_bytes(8, "little") + key.tag(key_expr, data)
-                publisher.put(data, attachment=attachment)
-
-            hold()
+            bridge.put("hold", None)
             wait_for(lambda: [m for _, m, _ in _modes(holding) if m == "POSHOLD"],
                      timeout_s=10, what="POSHOLD sent again")  # fmt: skip
             # The pilot takes MANUAL: a hold now is not acted on.
             holding.mode = "MANUAL"
             time.sleep(1.5)
             before = len(_modes(holding))
-            hold()
+            bridge.put("hold", None)
             wait_for(lambda: _health(client).counters.get("commands_hold_not_guided", 0) >= 1,
                      timeout_s=10, what="the hold refused in MANUAL")  # fmt: skip
             assert len(_modes(holding)) == before
             assert holding.mode == "MANUAL"
         finally:
-            vehicle.close()
-            publisher.undeclare()
+            bridge.close()
 
 
 def test_a_position_hold_the_autopilot_refuses_becomes_a_depth_hold(
@@ -300,36 +300,17 @@ def test_a_position_hold_the_autopilot_refuses_becomes_a_depth_hold(
 ) -> None:
     # The fixes stopped a while before the hold: ArduSub has no position and refuses POSHOLD.
     # Left in GUIDED the ROV would fly on to its target on a coasting estimate.
-    bridge_config, _ = _configs(tmp_path, endpoint, autopilot)
-    spawn("run", "mav_bridge", "--config", str(bridge_config))
-    key = SiteKey.load(_key_path(tmp_path), config_key="fix_key")
-    vehicle = Vehicle(FixSender(client, key))
-    key_expr = topics.ROV_COMMAND.key("tank", "topside")
-    codec = Codec(VehicleCommand)
-    publisher = client.declare_publisher(key_expr, encoding=zenoh.Encoding(codec.encoding))
-
-    def put(kind: str, position: tuple[float, float, float] | None) -> None:
-        command = VehicleCommand(
-            stamp_ns=time.time_ns(), seq=0, mission="m", kind=kind,  # type: ignore[arg-type]
-            position_m=position,
-        )  # fmt: skip
-        data = codec.encode(command)
-        publisher.put(
-            data, attachment=time.time_ns().to_bytes(8, "little") + key.tag(key_expr, data)
-        )
-
+    bridge = Commands(spawn, client, endpoint, tmp_path, autopilot)
     try:
-        wait_for(lambda: autopilot.recorded.estimates, timeout_s=20, what="estimates flowing")
-        put("engage", (5.0, 4.0, -3.0))
+        bridge.put("engage", (5.0, 4.0, -3.0))
         wait_for(lambda: autopilot.mode == "GUIDED", timeout_s=10, what="GUIDED")
-        vehicle.sending.clear()
+        bridge.vehicle.sending.clear()
         time.sleep(1.5)  # the stand-in's position is gone after 1 s without estimates
-        put("hold", None)
+        bridge.put("hold", None)
         wait_for(lambda: autopilot.mode == "ALT_HOLD", timeout_s=10, what="ALT_HOLD")
         asked = [(m, taken) for _, m, taken in _modes(autopilot)]
         assert asked[-2:] == [("POSHOLD", False), ("ALT_HOLD", True)]
         wait_for(lambda: _health(client).counters.get("commands_sent_alt_hold", 0) == 1,
                  timeout_s=10, what="the fallback counted")  # fmt: skip
     finally:
-        vehicle.close()
-        publisher.undeclare()
+        bridge.close()
