@@ -66,7 +66,11 @@ class FollowSettings:
     lead_s: float = 3.0
     reacquire_after_s: float = 6.0
     min_lead_speed_m_s: float = 0.05  # slower than this is hovering (or noise): no lead
-    stop_within_s: float = 2.0  # a ROV that lost its fix holds within this (its mission pauses)
+    # A ROV that lost its fix holds within this: its mission pauses 0.5 s after the last good
+    # fix (the plan's fix_timeout_s) and ArduSub brakes in about 0.5 s more (0.25 m/s at
+    # 0.25 m/s^2). Longer, the look for it aims past where it stopped and can turn the sonar
+    # off a ROV still in view (a recorded mockup run: 0.46 m past, the ROV 0.05 m past).
+    stop_within_s: float = 1.0
     lost_drift_m_s: float = 0.02  # how fast a ROV holding without positions may wander
     max_speed_m_s: float = 0.3
     max_accel_m_s2: float = 0.1

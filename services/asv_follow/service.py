@@ -90,7 +90,7 @@ class MotionConfig(ConfigSection, frozen=True, kw_only=True):
     # the ASV goes (ArduRover turns a hull only at its target). 180: never.
     turn_first_deg: Annotated[float, msgspec.Meta(gt=0.0, le=180.0)] = 30.0
     # A ROV that lost its fix is looked for this far along its track (its mission pauses).
-    stop_within_s: Annotated[float, msgspec.Meta(ge=0.0, le=30.0)] = 2.0
+    stop_within_s: Annotated[float, msgspec.Meta(ge=0.0, le=30.0)] = 1.0
     # How fast a ROV holding without positions may wander: looks search a growing circle.
     lost_drift_m_s: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.02
 

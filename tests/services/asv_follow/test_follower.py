@@ -210,7 +210,8 @@ def test_the_search_for_a_lost_rov_grows_and_goes_round() -> None:
     assert len(aims) >= 15  # every 6 s for 2 min
     distances = [float(np.linalg.norm(a[:2] - stop[:2])) for _, a in aims]
     assert distances == sorted(distances)
-    assert distances[-1] == pytest.approx(0.02 * (aims[-1][0] - 2.0), rel=1e-6)
+    stop_s = follower.settings.stop_within_s
+    assert distances[-1] == pytest.approx(0.02 * (aims[-1][0] - stop_s), rel=1e-6)
     # Six looks in a row aim in six directions around the stop point.
     directions = {
         round(math.degrees(math.atan2(a[1] - stop[1], a[0] - stop[0]))) % 360 for _, a in aims[3:9]
