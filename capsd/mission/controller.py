@@ -13,7 +13,8 @@ is until it is `resume_margin_deg` inside again (the follower re-stations meanwh
 `max_wait_s` passed; after a wait that timed out, the guard waits again only once the view
 was good. No view heard for `VIEW_VALID_S`: no waiting. The pilot always wins: if the vehicle
 leaves the mode the mission asked for (after a grace for the switch itself), the mission is
-`aborted` and sends nothing more. `stop()` (Ctrl-C) sends a last `hold`.
+`aborted` and sends nothing more; an engage the autopilot refuses (the vehicle still in the
+hold the mission left it in) pauses again instead. `stop()` (Ctrl-C) sends a last `hold`.
 """
 
 from __future__ import annotations
@@ -33,7 +34,8 @@ GUIDED = "GUIDED"
 POSHOLD = "POSHOLD"
 # What the vehicle may answer a hold with: the bridge puts it in ALT_HOLD where ArduSub refuses
 # POSHOLD for want of a position (the fixes stopped before the hold came).
-ANSWERS: dict[str, tuple[str, ...]] = {POSHOLD: (POSHOLD, "ALT_HOLD")}
+HOLDS = (POSHOLD, "ALT_HOLD")
+ANSWERS: dict[str, tuple[str, ...]] = {POSHOLD: HOLDS}
 # The vehicle gets this long to take a mode the mission asked for before a different one is
 # read as the pilot's choice.
 MODE_GRACE_S = 3.0
@@ -68,6 +70,7 @@ class Progress:
     waits: int = 0  # times a leg waited for the ASV (the ROV near the view's edge)
     waited_s: float = 0.0
     waits_timed_out: int = 0
+    engages_refused: int = 0  # GUIDED refused by the autopilot, the vehicle still holding
 
 
 class MissionController:
@@ -84,6 +87,9 @@ class MissionController:
         self._position: np.ndarray | None = None
         self._asked: str | None = None  # the mode we last asked for
         self._asked_at = -math.inf
+        self._mode: str | None = None  # the vehicle's, as last reported
+        self._mode_before: str | None = None  # the vehicle's when we last asked
+        self._taken = False  # the vehicle has reported the mode we last asked for
         self._last_sent = -math.inf
         self._arrived_at: float | None = None
         self._paused_at: float | None = None
@@ -119,19 +125,28 @@ class MissionController:
 
     def on_mode(self, mode: str, *, now: float) -> None:
         """The vehicle's mode as the bridge reports it."""
+        self._mode = mode
         state = self.progress.state
         if self._asked is None or state not in ("running", "paused"):
             return
-        if (
-            mode not in ANSWERS.get(self._asked, (self._asked,))
-            and now - self._asked_at > MODE_GRACE_S
-        ):
-            self._finish(
-                "aborted",
-                f"the vehicle is in {mode}, not the {self._asked} the mission asked for: the "
-                "pilot's choice wins (or the autopilot refused the mode, or the bridge refuses "
-                "mission commands: its `mission_commands` and Health counters say)",
-            )
+        if mode in ANSWERS.get(self._asked, (self._asked,)):
+            self._taken = True
+            return
+        if now - self._asked_at <= MODE_GRACE_S:
+            return
+        if self._asked == GUIDED and not self._taken and mode == self._mode_before in HOLDS:
+            # The autopilot refused GUIDED (its estimates late: it had no position) and the
+            # vehicle holds where the mission left it: no pilot's choice, so paused again, and
+            # the engage retried once fixes have been good for `resume_after_s` anew.
+            self.progress.engages_refused += 1
+            self._repause(now, holding=mode)
+            return
+        self._finish(
+            "aborted",
+            f"the vehicle is in {mode}, not the {self._asked} the mission asked for: the "
+            "pilot's choice wins (or the autopilot refused the mode, or the bridge refuses "
+            "mission commands: its `mission_commands` and Health counters say)",
+        )
 
     def on_view(self, margin_rad: float, *, now: float) -> None:
         """How far inside the vertical aperture the ROV is, now or a moment ahead (view_guard)."""
@@ -276,6 +291,16 @@ class MissionController:
 
     def _ask(self, mode: str, now: float) -> None:
         self._asked, self._asked_at = mode, now
+        self._mode_before, self._taken = self._mode, False
+
+    def _repause(self, now: float, *, holding: str) -> None:
+        """Back to paused after a refused engage, the vehicle holding in `holding`."""
+        self._end_wait(now)
+        self.progress.state = "paused"
+        self._paused_at = now
+        self._arrived_at = None
+        self._good_since_s = now  # a new run of good fixes before the next engage
+        self._asked, self._asked_at, self._taken = holding, now, True
 
     def _finish(self, state: State, why: str) -> None:
         self.progress.state = state

@@ -227,6 +227,7 @@ def report(node: MissionNode, out: Path) -> dict[str, object]:
         "waits_for_the_asv": p.waits,
         "waited_s": round(p.waited_s, 2),
         "waits_timed_out": p.waits_timed_out,
+        "engages_refused": p.engages_refused,
         "pause_after_last_good_fix_max_s": (
             round(max(p.pause_latency_s), 3) if p.pause_latency_s else None
         ),

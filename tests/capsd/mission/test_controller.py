@@ -255,3 +255,20 @@ def test_a_depth_hold_answers_a_hold_the_autopilot_could_not_take() -> None:
     ctl.on_mode("MANUAL", now=7.0)  # the pilot's own choice still ends the mission
     states.append(ctl.progress.state)
     assert states == ["paused", "aborted"]
+
+
+def test_an_engage_the_autopilot_refuses_pauses_again_and_is_retried() -> None:
+    ctl = MissionController(_plan(fix_timeout_s=0.5, resume_after_s=1.0), POINTS)
+    here: list[tuple[float, float, float] | None] = [(4.0, 4.0, -3.0)]
+    commands = _fly(ctl, here * 5)  # engaged, GUIDED taken
+    commands += _fly(ctl, [None] * 20, t0=0.25, mode="POSHOLD")  # lost: hold, taken
+    commands += _fly(ctl, here * 30, t0=1.25, mode="POSHOLD")  # good again: engage...
+    assert [k for _, k, _ in commands].count("engage") == 2
+    # ... which the autopilot refuses: still POSHOLD past the grace. Not the pilot: paused.
+    commands = _fly(ctl, here * 100, t0=2.75, mode="POSHOLD")
+    assert ctl.progress.engages_refused >= 1
+    assert ctl.progress.state != "aborted"
+    assert [k for _, k, _ in commands].count("engage") >= 1  # retried after resume_after_s
+    # The pilot's own mode (MANUAL) still ends it.
+    ctl.on_mode("MANUAL", now=20.0)
+    assert ctl.progress.state == "aborted"
