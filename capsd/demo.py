@@ -80,6 +80,7 @@ def main(
     seed: int,
     port: int | None,
     record: Path | None = None,
+    record_view: Literal["on", "off"] = "on",
     mission: Path | None = None,
     asv: AsvMode = "station",
     install_errors: Literal["realistic", "off"] = "realistic",
@@ -93,7 +94,8 @@ def main(
     "follow" the ASV is driven too: the follower's targets through the ASV's bridge to the
     ArduRover stand-in the simulator hosts; "station" keeps it where it starts. With
     `install_errors` "realistic" (the default) the simulated installation is what a tape
-    measured, uncalibrated (docs/INSTALL-ERRORS.md); "off" a perfect one.
+    measured, uncalibrated (docs/INSTALL-ERRORS.md); "off" a perfect one. `record_view`:
+    whether the recording also holds the operator's scene (capsd record --view).
     """
     from capsd import plots
 
@@ -143,9 +145,10 @@ def main(
             if record is not None:
                 # Started first and stopped last: the recording holds each service's whole life.
                 args = ["cap/**", "-o", str(record), "--exclude", "cap/*/*/sonar/frame",
-                        "--locator-config", str(configs["locator"])]  # fmt: skip
-                # Its backlog (the scene's fan images on a busy machine) is written and the
-                # file finished before it exits: a killed recorder leaves no summary.
+                        "--locator-config", str(configs["locator"]),
+                        "--view", record_view]  # fmt: skip
+                # Its backlog (the scene's, on a busy machine) is written and the file
+                # finished before it exits: a killed recorder leaves no summary.
                 procs.start("recorder", ["-m", "capsd", "record", *args, "--connect", endpoint],
                             stop_grace_s=RECORDER_STOP_GRACE_S)  # fmt: skip
             time.sleep(1.0)

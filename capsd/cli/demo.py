@@ -23,6 +23,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         seed=args.seed,
         port=args.port,
         record=args.record,
+        record_view=args.record_view,
         mission=args.mission,
         asv=args.asv,
         install_errors=args.install_errors,
@@ -54,6 +55,14 @@ def register(sub: Subcommands) -> None:
         default=None,
         help="also record every key but the sonar images into this .mcap, from before the "
         "services start (`capsd replay-check` replays it into a fresh locator)",
+    )
+    dem.add_argument(
+        "--record-view",
+        default="on",
+        choices=["on", "off"],
+        help="with --record: on, also the operator's scene for Foxglove (capsd record --view); "
+        "off: the payloads alone (deriving the scene takes most of a core: on a 2-core machine "
+        "it starves the services whose figures a run measures)",
     )
     dem.add_argument(
         "--mission",

@@ -15,8 +15,10 @@ from hypothesis import strategies as st
 
 from capsd.accuracy import Accuracy, LivePairing, Scored, bootstrap_med, common_pings
 from capsd.bench.baseline import box_range_bias
+from capsd.losses import load as load_losses
 from capsd.offline_pipeline import PERFECT_DETECTOR, Variant, ablations, run
 from capsd.payloads import RovFix, SonarLabel
+from capsd.recording import channel_counts
 from capsd.services.locator.service import MethodConfig
 from capsd.simulator.config import Config as SimConfig
 from capsd.simulator.install_errors import InstallErrorsConfig
@@ -178,8 +180,11 @@ def test_a_perfect_detector_fixes_the_pings_in_view_closer_than_the_box() -> Non
 @pytest.mark.integration
 def test_demo_runs_end_to_end_and_writes_its_report(tmp_path: Path) -> None:
     out = tmp_path / "report"
+    recording = tmp_path / "demo.mcap"
+    command = [sys.executable, "-m", "capsd", "demo", "--duration", "12", "--out", str(out),
+               "--record", str(recording), "--record-view", "off"]  # fmt: skip
     proc = subprocess.run(
-        [sys.executable, "-m", "capsd", "demo", "--duration", "12", "--out", str(out)],
+        command,
         capture_output=True,
         text=True,
         timeout=110,
@@ -198,6 +203,14 @@ def test_demo_runs_end_to_end_and_writes_its_report(tmp_path: Path) -> None:
     summary = (out / "summary.md").read_text()
     assert "VISION_POSITION_ESTIMATE" in summary
     assert "Installation errors: realistic (drawn from the seed" in summary
+    # The recording holds the payloads without the operator's scene, and says per ping why
+    # a fix was good or not.
+    keys = channel_counts(recording)
+    assert not [k for k in keys if k.startswith("/capsd/")]
+    assert keys["cap/tank/sim/sim/label"] > 50
+    losses = load_losses(recording)
+    assert len(losses.pings) == keys["cap/tank/sim/sim/label"]
+    assert sum(p.kind == "good" for p in losses.pings) > 20
 
 
 def test_the_self_calibrated_report_states_its_targets() -> None:
