@@ -64,8 +64,12 @@ class ViewGuard(ConfigSection, frozen=True, kw_only=True):
     """
 
     mode: Literal["wait", "off"] = "wait"
-    edge_margin_deg: Annotated[float, msgspec.Meta(ge=0.0, le=45.0)] = 3.0
-    resume_margin_deg: Annotated[float, msgspec.Meta(ge=0.0, le=45.0)] = 6.0
+    # Resuming 3 deg inside the edge: where the follower's stations may keep the ROV (its
+    # `elevation_margin_deg`, steeper than mid aperture where a rack would mask the view); a
+    # resume further in would wait out `max_wait_s` at every such station (a recorded nfp run:
+    # stations at -5.8 deg, the first lane not flown in 400 s).
+    edge_margin_deg: Annotated[float, msgspec.Meta(ge=0.0, le=45.0)] = 1.5
+    resume_margin_deg: Annotated[float, msgspec.Meta(ge=0.0, le=45.0)] = 3.0
     lookahead_s: Annotated[float, msgspec.Meta(ge=0.0, le=10.0)] = 1.5
     max_wait_s: Annotated[float, msgspec.Meta(gt=0.0, le=600.0)] = 30.0
 
