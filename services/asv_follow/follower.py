@@ -8,17 +8,18 @@ one chosen, from good fixes only, for where the ROV will be `lead_s` later at it
 velocity (a ROV flying a survey leg would otherwise leave every station as soon as it is
 reached), but not past the waypoint its mission sent it to.
 Without a good fix for `fix_timeout_s` the ROV is looked for where it will hold: a ROV on a
-mission stops within a second or two of losing its fix, so the last good fix carried on at the
+mission stops within a second of losing its fix, so the last good fix carried on at the
 tracked velocity for up to `stop_within_s`. If that point lies outside the station's view (the
 ROV left the aperture faster than the ASV moved), a station for it is chosen at once; else the
-ASV holds its station, and still without a fix after `reacquire_after_s` it takes another look
-from a bearing at least 40 deg from the one that lost it (clutter behind or under the ROV, or
-its own shadow, hide it from one side only), or, where no such bearing has a station (a corner
-of a small tank), from the best station there is, and again every `reacquire_after_s`. A ROV
-holding without positions wanders (dead reckoning, `lost_drift_m_s`), so each further look aims
-at a point on a circle around where it stopped that grows with the time lost, a sixth of a turn
-further round each time (clipped to the tank: the ROV is in it), trying the next direction at
-once where an aim has no station.
+ASV holds its station, and still without a fix after `reacquire_after_s` it searches, a new look
+every `reacquire_after_s`. A ROV holding without positions wanders (dead reckoning, at up to
+`lost_drift_m_s` in a direction nobody knows), so it may be anywhere on a disc round where it
+stopped that grows with the time lost (clipped to the tank: the ROV is in it). Each look is the
+station, of those the planner chooses for points spread over the disc, whose view (aperture,
+range band, 45 deg either side of the boresight) covers most of the disc; points a look of
+this loss already covered from about the same bearing count a third (the ROV was not there, or
+clutter or its own shadow hid it from that side: the station that lost it counts so too), so
+the looks go round. A look is held until its station has been reached and watched 2 s.
 The target sent to the autopilot is a carrot that walks from where the ASV was told to be
 towards the station, speed and acceleration limited, turning at a bounded rate; it starts where
 the ASV is when the pilot hands over (GUIDED) and nothing is sent in any other mode. On the
@@ -46,10 +47,24 @@ ARRIVED_M = 1.0  # this near its station the hull takes the station's heading
 # from it goes round instead, heading at most this much bearing ahead round the ROV.
 AROUND_WITHIN = 0.8
 AROUND_STEP_RAD = math.radians(30.0)
-# A lost ROV is looked for in six directions round where it stopped, its centre at least
-# this far from a wall (half a BlueROV2's length).
-SEARCH_DIRECTIONS = 6
+# A lost ROV is looked for over a disc round where it stopped (points on rings at these shares
+# of its radius), its centre at least this far from a wall (half a BlueROV2's length); the
+# disc is at least SEARCH_MIN_RADIUS_M across (where it stopped is not known better).
+SEARCH_RINGS = ((0.5, 6), (1.0, 12))
+SEARCH_MIN_RADIUS_M = 0.3
 SEARCH_WALL_MARGIN_M = 0.3
+# A look covers the points its sonar sees in the aperture, the range band and this far
+# either side of its boresight (the fan is wider; its edges are weak).
+SEARCH_HALF_FAN_RAD = math.radians(45.0)
+# A point an earlier look of the same loss covered (within SEARCH_SEEN_M, from a bearing
+# within SEARCH_SAME_SIDE_RAD) counts this much.
+SEARCH_SEEN_WEIGHT = 1.0 / 3.0
+SEARCH_SEEN_M = 0.15
+SEARCH_SAME_SIDE_RAD = math.radians(40.0)
+# The next look waits until the carrot has been at this one's station this long (or this long
+# since it was chosen: a station never quite reached).
+SEARCH_DWELL_S = 2.0
+SEARCH_STUCK_S = 30.0
 # A mission repeats its waypoint twice a second: one not heard for this long is forgotten
 # (the mission ended, or a pilot flies by hand).
 LEG_END_VALID_S = 5.0
@@ -111,7 +126,10 @@ class Follower:
         self._carrot_heading = 0.0
         self._last_plan_s = -math.inf
         self.looks = 0  # stations chosen to look again at a lost ROV
-        self._search_turns = 0  # search directions tried (a sixth of a turn further each)
+        # Where this loss's looks saw no ROV, and from which bearing (W: x, y, bearing).
+        self._seen: list[tuple[float, float, float]] = []
+        self._searched = False  # this loss has had a search look
+        self._arrived_s: float | None = None  # when the carrot reached the look's station
         self._aim: Array | None = None  # where the station was chosen to look
         self._last_step_s: float | None = None
         self.leg_end: Array | None = None  # where the ROV's mission sends it now (W)
@@ -128,6 +146,7 @@ class Follower:
 
     def on_fix(self, now_s: float, rov_m: Array, velocity_m_s: Array | None = None) -> None:
         """A good fix of the ROV (the caller passes only those), with its tracked velocity."""
+        self._seen, self._searched = [], False  # found: a new loss searches afresh
         self.rov_m = np.asarray(rov_m, dtype=np.float64)
         self.rov_velocity = np.zeros(3) if velocity_m_s is None else np.asarray(velocity_m_s)
         self.fix_s = now_s
@@ -177,6 +196,7 @@ class Follower:
             not fresh
             and self.rov_m is not None
             and self.station is not None
+            and not self._searched  # once searching, the search's looks decide
             and now_s - self._last_plan_s >= self.settings.replan_after_s
             and not self._in_view_of_station(held := self._held_at(lost_for))
         ):
@@ -195,24 +215,15 @@ class Follower:
             and self.station is not None
             and lost_for >= self.settings.reacquire_after_s
             and now_s - self._last_plan_s >= self.settings.reacquire_after_s
+            and (not self._searched or self._looked_long_enough(now_s))
         ):
             self._last_plan_s = now_s
-            # Round the circle until an aim has a station (in a small tank many have none).
-            for _ in range(SEARCH_DIRECTIONS):
-                aim = self._search_point(lost_for)
-                self._search_turns += 1
-                chosen = self.planner.choose(
-                    aim,
-                    self._carrot,
-                    self._carrot_heading,
-                    avoid_bearing_rad=self.station.heading_rad + self.planner.mount_yaw,
-                ) or self.planner.choose(aim, self._carrot, self._carrot_heading)
-                if chosen is not None:
-                    self.station = chosen
-                    self._aim = aim
-                    self.looks += 1
-                    replanned = True
-                    break
+            self._arrived_s = None
+            look = self._search_look(lost_for)
+            if look is not None:
+                self.station, self._aim = look
+                self.looks += 1
+                replanned = True
         state: FollowState
         if self.station is None:
             state = "no_station" if fresh else "holding"
@@ -297,18 +308,122 @@ class Follower:
             return self.rov_m
         return self.rov_m + v * min(max(lost_for_s, 0.0), self.settings.stop_within_s)
 
-    def _search_point(self, lost_for_s: float) -> Array:
-        """Where the next look aims: round the stop point, as far as the ROV may have wandered."""
-        held = self._held_at(lost_for_s)
+    def _search_disc(self, lost_for_s: float) -> tuple[Array, float]:
+        """Where a lost ROV may be: a disc round its stop point, grown since it stopped."""
         s = self.settings
-        radius = s.lost_drift_m_s * max(0.0, lost_for_s - s.stop_within_s)
-        if radius < 0.05:
-            return held
-        angle = self._search_turns * math.tau / SEARCH_DIRECTIONS
-        aim = held + radius * np.array([math.cos(angle), math.sin(angle), 0.0])
-        # The ROV is in the tank: a circle grown past a wall aims at the wall's side instead.
-        aim[:2] = self.planner.tank.within_walls_xy(aim, SEARCH_WALL_MARGIN_M)
-        return aim
+        radius = max(SEARCH_MIN_RADIUS_M, s.lost_drift_m_s * max(0.0, lost_for_s - s.stop_within_s))
+        return self._held_at(lost_for_s), radius
+
+    def _search_points(self, centre: Array, radius: float) -> Array:
+        """Points spread over the disc (rings), moved inside the walls (the ROV is in the tank)."""
+        points = [centre]
+        for ring, count in SEARCH_RINGS:
+            for k in range(count):
+                angle = math.tau * (k + 0.5 * (ring < 1.0)) / count
+                offset = ring * radius * np.array([math.cos(angle), math.sin(angle), 0.0])
+                points.append(centre + offset)
+        out = np.array(points)
+        for point in out:
+            point[:2] = self.planner.tank.within_walls_xy(point, SEARCH_WALL_MARGIN_M)
+        return out
+
+    def _covered(self, station: Station, points: Array) -> Array:
+        """Which points the station's sonar sees well (aperture, range, bearing)."""
+        views = [self.planner.view(station.position_xy, station.heading_rad, p) for p in points]
+        return np.array(
+            [
+                self.planner.view_is_good(v) and abs(v.azimuth_rad) <= SEARCH_HALF_FAN_RAD
+                for v in views
+            ]
+        )
+
+    def _search_look(self, lost_for_s: float) -> tuple[Station, Array] | None:
+        """The station that sees most of where the lost ROV may be, and where it aims.
+
+        Stations are those the planner chooses for points over the disc (the cheapest, and the
+        cheapest from another side than the current station's); each is scored by the points
+        its view covers, those an earlier look of this loss covered from about the same side
+        counting a third; nearer wins a tie.
+        """
+        assert self._carrot is not None
+        centre, radius = self._search_disc(lost_for_s)
+        points = self._search_points(centre, radius)
+        if not self._searched and self.station is not None:
+            self._remember(self.station, points)  # the station that lost it saw no ROV there
+        self._searched = True
+        best: tuple[float, float, Station, Array] | None = None
+        current = None if self.station is None else self.planner.bearing(self.station)
+        candidates: list[tuple[Array, Station | None]] = []
+        for point in points:
+            # The cheapest station for each point, and the cheapest from another side.
+            candidates.append(
+                (point, self.planner.choose(point, self._carrot, self._carrot_heading))
+            )
+            if current is not None:
+                other = self.planner.choose(
+                    point, self._carrot, self._carrot_heading, avoid_bearing_rad=current
+                )
+                candidates.append((point, other))
+        for aim, station in candidates:
+            if station is None:
+                continue
+            covered = self._covered(station, points)
+            score = sum(self._weight(station, p) for p in points[covered])
+            move = float(np.linalg.norm(station.position_xy - self._carrot))
+            if best is None or (score, -move) > (best[0], -best[1]):
+                best = (score, move, station, aim)
+        if best is None:
+            return None
+        _, _, station, aim = best
+        self._remember(station, points)
+        return station, aim
+
+    def _bearings(self, station: Station, points: Array) -> Array:
+        """The bearing (W) along which the station's sonar looks at each point."""
+        sonar = self.planner.sonar_xy(station.position_xy, station.heading_rad)
+        bearings: Array = np.arctan2(points[:, 1] - sonar[1], points[:, 0] - sonar[0])
+        return bearings
+
+    def _remember(self, station: Station, points: Array) -> None:
+        """The points the station covers, and from which bearing: no ROV seen there so."""
+        covered = self._covered(station, points)
+        bearings = self._bearings(station, points[covered])
+        self._seen.extend(
+            (float(p[0]), float(p[1]), float(b))
+            for p, b in zip(points[covered], bearings, strict=True)
+        )
+
+    def _weight(self, station: Station, point: Array) -> float:
+        """A point's worth to a look: less where one covered it from about the same bearing.
+
+        (Clutter or the ROV's own shadow hide it from one side only.)
+        """
+        bearing = float(self._bearings(station, point[None, :])[0])
+        for x, y, seen_from in self._seen:
+            if (
+                math.hypot(point[0] - x, point[1] - y) <= SEARCH_SEEN_M
+                and abs(wrap_angle(bearing - seen_from)) < SEARCH_SAME_SIDE_RAD
+            ):
+                return SEARCH_SEEN_WEIGHT
+        return 1.0
+
+    def _looked_long_enough(self, now_s: float) -> bool:
+        """Whether the last look's station was reached and watched for SEARCH_DWELL_S.
+
+        (A turn round a small tank's ROV takes longer than a look's period.) Or SEARCH_STUCK_S
+        passed since it was chosen.
+        """
+        assert self._carrot is not None
+        assert self.station is not None
+        there = float(np.linalg.norm(self._carrot - self.station.position_xy)) < 0.05 and abs(
+            wrap_angle(self._carrot_heading - self.station.heading_rad)
+        ) < math.radians(5.0)
+        if not there:
+            self._arrived_s = None
+        elif self._arrived_s is None:
+            self._arrived_s = now_s
+        dwelt = self._arrived_s is not None and now_s - self._arrived_s >= SEARCH_DWELL_S
+        return dwelt or now_s - self._last_plan_s >= SEARCH_STUCK_S
 
     def _ahead(self) -> Array:
         """Where the ROV will be `lead_s` from now, at its horizontal tracked velocity.
