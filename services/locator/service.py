@@ -50,6 +50,7 @@ from capsd.services.locator.moving_echo import MovingEchoes, MovingEchoSettings
 from capsd.services.locator.paper import paper_fix
 from capsd.services.locator.timeline import Lookup, Timeline
 from capsd.services.locator.tracker import Tracker, TrackerSettings
+from capsd.services.locator.waiting import PoseWait
 from capsd.signing import SiteKey
 from capsd.sonar_geometry import to_polar
 from capsd.sound_speed import SoundSpeedError, relative_sigma, speed_of_sound_m_s
@@ -73,6 +74,9 @@ class LocatorInputs(ConfigSection, frozen=True, kw_only=True):
     # How far past the newest sample an input may be extrapolated before the fix is refused.
     max_extrapolation_s: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.15
     buffer_s: Annotated[float, msgspec.Meta(gt=0.0, le=30.0)] = 5.0
+    # A ping whose ASV pose has not arrived yet waits this long for it (services/locator/
+    # waiting.py); 0: located at once (refused as asv_pose_too_new).
+    pose_wait_s: Annotated[float, msgspec.Meta(ge=0.0, le=2.0)] = 0.3
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -344,6 +348,10 @@ class Locator:
     def _note_arrival(self, stamp_ns: int) -> None:
         if stamp_ns < self._solved_until_ns:
             self.late_inputs += 1
+
+    def pose_covers(self, stamp_ns: int) -> bool:
+        """Whether the poses reach the ping at `stamp_ns` (within the extrapolation allowed)."""
+        return self._lookup(self.poses, stamp_ns).failure not in ("too_new", "no_samples")
 
     def on_pose(self, pose: AsvPose) -> None:
         if pose.status == "lost":
@@ -733,17 +741,30 @@ def main(config: Config) -> int:
         stage = runner.latency("fix")  # detections arrival to fix put
         runner.add_counters(locator.counters)
 
-        def on_detections(detections: SonarDetections) -> None:
-            received_ns = runner.received_ns()
+        def locate(detections: SonarDetections, received_ns: int) -> None:
             fixes.put(locator.locate(detections, seq=fixes.next_seq()))
             stage.record_ns(time.time_ns() - received_ns)
 
+        wait = PoseWait(
+            wait_s=config.inputs.pose_wait_s, covered=locator.pose_covers, release=locate
+        )
+
+        def on_detections(detections: SonarDetections) -> None:
+            received_ns = runner.received_ns()
+            wait.offer(detections, now_s=time.monotonic(), received_ns=received_ns)
+
+        def on_pose(pose: AsvPose) -> None:
+            locator.on_pose(pose)
+            wait.poll(time.monotonic())
+
+        runner.add_counters(lambda: {"pings_waited_for_pose": wait.waited,
+                                     "pings_waited_in_vain": wait.expired})  # fmt: skip
         asv, rov = config.inputs.asv_vehicle, config.inputs.rov_vehicle
-        runner.subscribe(topics.ASV_POSE, locator.on_pose, vehicle=asv)
+        runner.subscribe(topics.ASV_POSE, on_pose, vehicle=asv)
         runner.subscribe(topics.ROV_DEPTH, locator.on_depth, vehicle=rov)
         runner.subscribe(topics.ROV_ATTITUDE, locator.on_attitude, vehicle=rov)
         runner.subscribe(topics.ROV_VELOCITY, locator.on_velocity, vehicle=rov)
         runner.subscribe(topics.SONAR_DETECTIONS, on_detections, vehicle=asv)
         logger.info("locator ready", extra={"fields": {"method": locator.label}})
-        runner.run()
+        runner.run(lambda: wait.poll(time.monotonic()), period_s=0.02)
     return 0

@@ -361,3 +361,17 @@ def test_a_rov_lost_over_a_rack_is_found_again_where_it_was_last_confirmed() -> 
     fast = _lost_then_over_the_rack(_locator(tank=tank), hidden_s=2.5)
     assert fast[:8] == ["lost:map_clutter"] * 8, fast
     assert fast[-1].startswith("tentative"), fast
+
+
+def test_a_ping_past_the_newest_pose_is_one_to_wait_for() -> None:
+    """pose_covers is what a ping waits on (services/locator/waiting.py)."""
+    locator = _locator()
+    assert not locator.pose_covers(SECOND)  # no pose at all yet
+    _feed_inputs(locator, until_s=1.0)
+    assert locator.pose_covers(SECOND)
+    assert locator.pose_covers(SECOND + SECOND // 10)  # within the 0.15 s extrapolation
+    assert not locator.pose_covers(2 * SECOND)  # the pose it needs is still on its way
+    _feed_inputs(locator, from_s=1.0, until_s=2.0)
+    assert locator.pose_covers(2 * SECOND)
+    fix = locator.locate(_ping(2 * SECOND, _detection_of(locator, ROV)), seq=0)
+    assert fix.no_fix_reason is None or "asv_pose" not in fix.no_fix_reason
