@@ -149,6 +149,12 @@ def _cmd_bench_asv_pose(args: argparse.Namespace) -> int:
     return asv_pose.run(seconds=args.duration)
 
 
+def _cmd_bench_search(_args: argparse.Namespace) -> int:
+    from capsd.bench import search
+
+    return search.run()
+
+
 def _cmd_bench_footprint(args: argparse.Namespace) -> int:
     from capsd.bench import footprint
 
@@ -362,6 +368,14 @@ def register(sub: Subcommands) -> None:
     )
     bpose.add_argument("--duration", type=positive_float, default=60.0, help="seconds per run")
     bpose.set_defaults(func=_cmd_bench_asv_pose)
+    bsearch = bench_sub.add_parser(
+        "search",
+        help="how soon the ASV's follower sees a lost, drifting ROV again (mockup geometry)",
+        description="48 losses in the mockup (3 stop points, 8 directions, 0.3 or 0.6 m off "
+        "the last fix, drifting 1 cm/s), the follower's ASV a perfect autopilot: how many are "
+        "seen again within 150 s, within 60 s, the median time.",
+    )
+    bsearch.set_defaults(func=_cmd_bench_search)
     blat = bench_sub.add_parser(
         "latency",
         help="ping to autopilot latency per stage at 10/20/40 Hz, Zenoh floor, CPU and RSS",
