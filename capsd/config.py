@@ -118,11 +118,26 @@ class ServiceConfig(ConfigSection, frozen=True, kw_only=True):
             raise ValueError(f"`{field}`: {exc}") from None
 
 
+_BOOL_TAG = "tag:yaml.org,2002:bool"
+
+
 def _unique_key_loader() -> type[yaml.SafeLoader]:
-    """A SafeLoader that refuses duplicate mapping keys (YAML would keep the last silently)."""
+    """A SafeLoader that refuses duplicate mapping keys (YAML would keep the last silently).
+
+    Booleans are YAML 1.2's, true and false only: YAML 1.1 also reads a bare on/off/yes/no as
+    one, so `mode: off` for a choice named "off" would be refused as "expected str, got bool".
+    """
 
     class Loader(yaml.SafeLoader):
         pass
+
+    Loader.yaml_implicit_resolvers = {
+        first: [(tag, regexp) for tag, regexp in resolvers if tag != _BOOL_TAG]
+        for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
+    }
+    Loader.add_implicit_resolver(
+        _BOOL_TAG, re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$"), list("tTfF")
+    )
 
     def construct_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode) -> dict[Any, Any]:
         seen: set[Any] = set()

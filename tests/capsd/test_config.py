@@ -6,8 +6,16 @@ import math
 from pathlib import Path
 
 import pytest
+import yaml
 
-from capsd.config import BusConfig, ServiceConfig, dump_config, load_config, parse_config
+from capsd.config import (
+    BusConfig,
+    ServiceConfig,
+    _unique_key_loader,
+    dump_config,
+    load_config,
+    parse_config,
+)
 from capsd.errors import ConfigError
 from capsd.mounts import SonarMountConfig
 from capsd.services.locator.service import Config as LocatorConfig
@@ -95,3 +103,16 @@ def test_shipped_example_configs_load(path: Path) -> None:
     name = path.name.split(".")[0]
     cls = RouterConfig if name == "router" else service_of_config(name).load()[0]
     load_config(path, cls)
+
+
+def test_a_bare_off_is_the_choice_off_and_true_stays_a_boolean() -> None:
+    # YAML 1.1 reads a bare off/on/yes/no as a boolean: a choice named "off" was refused.
+    from capsd.mission.plan import Plan
+
+    text = "points:\n  - {position_m: [1.0, 1.0], depth_m: 1.0}\nview_guard: {mode: off}\n"
+    assert parse_config(text, Plan, source="plan.yaml").view_guard.mode == "off"
+    assert yaml.load("a: true\nb: False\nc: yes\nd: on\n", Loader=_unique_key_loader()) == {
+        "a": True, "b": False, "c": "yes", "d": "on",
+    }  # fmt: skip
+    # The stock loader is left as it was.
+    assert yaml.safe_load("d: on\n") == {"d": True}
