@@ -105,7 +105,7 @@ class MissionNode:
     ):
         self.plan = plan
         self.sonar = sonar
-        self._asv: Transform | None = None
+        self._asv: AsvPose | None = None
         self.progress_period_s = progress_period_s
         self.controller = MissionController(plan, points)
         self.runner = runner
@@ -123,10 +123,10 @@ class MissionNode:
         good = fix.quality == "good"
         with self.lock:
             self.controller.on_fix(good=good, position_m=position, now=now)
-            asv = self._asv
-        if good and position is not None and asv is not None:
+            pose = self._asv
+        if good and position is not None and pose is not None:
             margin = view_margin_rad(
-                asv=asv,
+                asv=Transform.from_quat(pose.position_m, pose.orientation_xyzw),
                 mount=self.sonar,
                 rov_m=np.array(position),
                 velocity_m_s=None if fix.velocity_m_s is None else np.array(fix.velocity_m_s),
@@ -136,9 +136,9 @@ class MissionNode:
                 self.controller.on_view(margin, now=now)
 
     def on_asv_pose(self, pose: AsvPose) -> None:
-        transform = Transform.from_quat(pose.position_m, pose.orientation_xyzw)
+        # 200 poses a second: kept as they came, turned into a transform only for a fix.
         with self.lock:
-            self._asv = transform
+            self._asv = pose
 
     def on_status(self, status: AutopilotStatus) -> None:
         mode = status.mode if status.link == "ok" else "link lost"
