@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from capsd.bench import search
 from capsd.mounts import SonarMountConfig
 from capsd.services.asv_follow import follower as follower_module
 from capsd.services.asv_follow.follower import Follower, FollowSettings
@@ -192,56 +193,17 @@ def test_a_moving_rov_that_lost_its_fix_is_looked_for_where_it_stops() -> None:
     assert follower.planner.view_is_good(view)
 
 
-def _mockup_planner() -> StationPlanner:
-    # The mockup's (capsd.harness): 4.8 x 3.6 m, a small ASV, the sonar 45 deg down.
-    return StationPlanner(
-        SonarMountConfig(pitch_deg=45.0),
-        TankBounds(length_m=4.8, width_m=3.6, depth_m=2.0),
-        StationSettings(min_range_m=1.0, max_range_m=6.0, hull_radius_m=0.3,
-                        tracking_margin_m=0.2),
-    )  # fmt: skip
-
-
-def _found_after(
-    planner: StationPlanner, stop: np.ndarray, heading: float, offset_m: float
-) -> float | None:
-    """Seconds until a lost ROV, out of view and drifting at 1 cm/s, is in the sonar's view.
-
-    The ASV goes where it is told (the carrot); the ROV left the view `offset_m` from its last
-    fix and wanders on along `heading`; seen: inside the aperture, 45 deg of the boresight.
-    """
-    follower = Follower(planner, FollowSettings())
-    station = planner.choose(stop, np.array([2.4, 1.8]), 0.0)
-    assert station is not None
-    follower.on_pose(station.position_xy, station.heading_rad)
-    follower.on_mode("GUIDED")
-    follower.on_fix(0.0, stop)
-    follower.step(0.0)
-    away = np.array([math.cos(heading), math.sin(heading), 0.0])
-    for k in range(1, 1500):  # 150 s at 10 Hz
-        t = 0.1 * k
-        rov = stop + (offset_m + 0.01 * t) * away
-        rov[:2] = planner.tank.within_walls_xy(rov, 0.3)
-        target = follower.step(t)
-        assert target is not None
-        follower.on_pose(target.position_xy, target.heading_rad)
-        view = planner.view(target.position_xy, target.heading_rad, rov)
-        if abs(view.elevation_rad) <= planner.half_aperture and abs(view.azimuth_rad) <= 0.8:
-            return t
-    return None
-
-
 def test_a_lost_rov_drifting_any_way_is_mostly_looked_at_within_150_s() -> None:
     """The looks cover the disc where a ROV holding without positions may have wandered.
 
-    Mockup, 16 losses (8 directions, the ROV 0.3 or 0.6 m off its last fix): this search sees
-    it in 14 (the earlier one, a point on a growing circle a sixth of a turn further each
-    look, in 12). Some places the mockup's ASV cannot see at all (under the box it keeps to,
-    with no station 0.9 m off).
+    Mockup (`capsd bench search`'s geometry and loss model), 16 losses (8 directions, the ROV
+    0.3 or 0.6 m off its last fix, drifting 1 cm/s): this search sees it in 14 (the earlier
+    one, a point on a growing circle a sixth of a turn further each look, in 11). Some places
+    the mockup's ASV cannot see at all (under the box it keeps to, no station 0.9 m off).
     """
-    planner = _mockup_planner()
+    stations = search.planner()
     found = [
-        _found_after(planner, np.array([3.0, 1.8, -1.0]), math.radians(a), offset)
+        search.seen_after(stations, np.array([3.0, 1.8, -1.0]), math.radians(a), offset)
         for a in range(0, 360, 45)
         for offset in (0.3, 0.6)
     ]
