@@ -25,4 +25,18 @@ with contextlib.redirect_stdout(io.StringIO()):
 print("rov role: bridge imports and configures without torch, scipy or OpenCV")
 PY
 rm -rf .venv-rov
-echo "== pytest"; .venv/bin/pytest "$@"
+# Two phases. Tests that start real processes and Zenoh sessions (marked integration) measure
+# rates and delays, so they run one at a time; the rest (in-process, or a CLI's figures) run on
+# every core (pytest-xdist): the suite took 17 min in one process on a 2-core machine.
+# Exit 5 is "no test selected" (arguments that pick tests of one kind only).
+failed=0
+phase() {
+  local rc=0
+  .venv/bin/pytest "$@" || rc=$?
+  if [ "$rc" -ne 0 ] && [ "$rc" -ne 5 ]; then failed=$rc; fi
+}
+echo "== pytest: in-process tests, ${CAPSD_TEST_WORKERS:-auto} workers"
+phase -n "${CAPSD_TEST_WORKERS:-auto}" -m "not integration" "$@"
+echo "== pytest: integration tests (real processes on 127.0.0.1), one at a time"
+phase -m integration "$@"
+exit "$failed"

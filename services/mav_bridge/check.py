@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Literal, TextIO
 
@@ -91,19 +91,31 @@ def rules(*, yaw_source: YawSource, position_noise_m: float, delay_ms: float | N
     return out
 
 
-def _read(link: MavLink, target: int, names: list[str], timeout_s: float) -> dict[str, float]:
-    """Ask for each parameter by name (twice at most); return those the vehicle answered."""
+def _read(
+    link: MavLink, target: int, wanted: Sequence[tuple[str, ...]], timeout_s: float
+) -> dict[str, float]:
+    """Ask for each wanted parameter by name (twice at most); return those the vehicle answered.
+
+    Each entry of `wanted` is one parameter under each firmware's name (GPS1_TYPE or GPS_TYPE),
+    and an autopilot does not answer for a name it lacks: the read is complete once each entry
+    has an answer, instead of waiting out the timeout for names this firmware does not have.
+    """
+    names = [n for group in wanted for n in group]
     values: dict[str, float] = {}
+
+    def complete() -> bool:
+        return all(any(n in values for n in group) for group in wanted)
+
     for _attempt in range(2):
         for name in names:
             if name not in values:
                 link.send_param_request_read(target_system=target, name=name)
         deadline = time.monotonic() + timeout_s / 2
-        while time.monotonic() < deadline and len(values) < len(names):
+        while time.monotonic() < deadline and not complete():
             received = link.recv(timeout_s=0.1)
             if received is not None and isinstance(received.message, ParamValue):
                 values[received.message.name] = received.message.value
-        if len(values) == len(names):
+        if complete():
             break
     return values
 
@@ -177,11 +189,10 @@ def run_check(
     when unknown. `reboot`: when_pending reboots a disarmed autopilot whose reboot is pending.
     """
     checks = rules(yaw_source=yaw_source, position_noise_m=position_noise_m, delay_ms=delay_ms)
-    names = [n for rule in checks for n in rule.names]
     with _Autopilot(connection, timeout_s=timeout_s, out=out) as (link, target):
         if target is None:
             return 1
-        values = _read(link, target, names, timeout_s)
+        values = _read(link, target, [r.names for r in checks], timeout_s)
         findings = evaluate(values, checks)
         _print(findings, out)
         wrong = [f for f in findings if not f.ok]
@@ -195,7 +206,7 @@ def run_check(
         if wrong:
             for finding in wrong:
                 link.send_param_set(target_system=target, name=finding.name, value=finding.wanted)
-            after = evaluate(_read(link, target, names, timeout_s), checks)
+            after = evaluate(_read(link, target, [r.names for r in checks], timeout_s), checks)
             print("after --apply:", file=out)
             _print(after, out)
             # ArduRover lists the other VISO_* only once VISO_TYPE is set: not in this read.
@@ -384,7 +395,7 @@ def run_zero_depth(
     with _Autopilot(connection, timeout_s=timeout_s, out=out) as (link, target):
         if target is None:
             return 1
-        values = _read(link, target, ["BARO2_GND_PRESS", "BARO_SPEC_GRAV"], timeout_s)
+        values = _read(link, target, [("BARO2_GND_PRESS",), ("BARO_SPEC_GRAV",)], timeout_s)
         pressure = _pressure_now(link, target, timeout_s)
         surface = values.get("BARO2_GND_PRESS")
         if pressure is None or surface is None:
@@ -404,7 +415,7 @@ def run_zero_depth(
         if result != MAV_RESULT_ACCEPTED:
             print(f"the autopilot did not accept the calibration (result {result})", file=out)
             return 1
-        after = _read(link, target, ["BARO2_GND_PRESS"], timeout_s).get("BARO2_GND_PRESS")
+        after = _read(link, target, [("BARO2_GND_PRESS",)], timeout_s).get("BARO2_GND_PRESS")
         if after is None:
             print("calibrated, but BARO2_GND_PRESS could not be read back", file=out)
             return 1

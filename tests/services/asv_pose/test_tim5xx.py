@@ -106,14 +106,20 @@ def test_a_cut_telegram_is_dropped_and_the_next_one_read() -> None:
     assert [parse_scan(t).scan_counter for t in items if isinstance(t, str)] == [2]
 
 
+_FIELDS = _text().split(" ")
+
+
 @settings(max_examples=300, deadline=None)
-@given(data=st.binary(max_size=3000), token=st.text("0123456789ABCDEF", max_size=500))
-def test_garbage_never_raises(data: bytes, token: str) -> None:
+@given(
+    data=st.binary(max_size=3000),
+    token=st.text("0123456789ABCDEF", max_size=500),
+    # Any field of an otherwise valid telegram, the header's (its first 40) drawn half the time:
+    # one telegram per example, not one per field (that took 70 s for the same cover).
+    field=st.one_of(st.integers(0, 40), st.integers(0, len(_FIELDS) - 1)),
+)
+def test_garbage_never_raises(data: bytes, token: str, field: int) -> None:
     texts = [t for t in ColaStream().feed(data) if isinstance(t, str)]
-    # Any token in any field of an otherwise valid telegram.
-    fields = _text().split(" ")
-    for k in range(0, len(fields), 7):
-        texts.append(" ".join([*fields[:k], token, *fields[k + 1 :]]))
+    texts.append(" ".join([*_FIELDS[:field], token, *_FIELDS[field + 1 :]]))
     for text in texts:
         with contextlib.suppress(ColaError):
             parse_scan(text)
