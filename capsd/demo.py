@@ -84,6 +84,7 @@ def main(
     mission: Path | None = None,
     asv: AsvMode = "station",
     install_errors: Literal["realistic", "off"] = "realistic",
+    calibration: Literal["off", "dive"] = "off",
     stream: TextIO = sys.stdout,
 ) -> int:
     """Run the demo; returns 0 when every service ran to the end and fixes were good.
@@ -94,7 +95,9 @@ def main(
     "follow" the ASV is driven too: the follower's targets through the ASV's bridge to the
     ArduRover stand-in the simulator hosts; "station" keeps it where it starts. With
     `install_errors` "realistic" (the default) the simulated installation is what a tape
-    measured, uncalibrated (docs/INSTALL-ERRORS.md); "off" a perfect one. `record_view`:
+    measured (docs/INSTALL-ERRORS.md), uncalibrated unless `calibration` is "dive" (first a
+    simulated calibration dive fitted by capsd calibrate's code, as a field team starts);
+    "off" a perfect one. `record_view`:
     whether the recording also holds the operator's scene (capsd record --view).
     """
     from capsd import plots
@@ -107,6 +110,10 @@ def main(
     endpoint = f"tcp/127.0.0.1:{router_port}"
     if asv == "follow" and mission is None:
         raise CapsdError("--asv follow needs --mission: the ASV follows a ROV flown live")
+    if calibration == "dive" and install_errors != "realistic":
+        raise CapsdError(
+            "--calibration dive calibrates a realistic installation: not with --install-errors off"
+        )
     points = None if mission is None else _plan_points(mission, tank)
     rov_start, station, heading = (
         (None, None, None) if points is None else _mission_start(points, tank, asv)
@@ -124,6 +131,10 @@ def main(
         asv=asv,
         asv_mav_port=free_port() if asv == "follow" else None,
         install_errors=install_errors,
+        calibration=calibration,
+    )
+    calibrated = (
+        json.loads((logs / "calibration.json").read_text()) if calibration == "dive" else None
     )
     follow = FOLLOW_SERVICES if asv == "follow" else ()
     procs = Processes(logs)
@@ -204,6 +215,7 @@ def main(
         "trajectory": trajectory,
         "seed": seed,
         "install_errors": installation,
+        "calibration": calibrated,
         "duration_s": duration_s,
         "wall_s": round(elapsed, 1),
         "interrupted": interrupted,
@@ -231,7 +243,9 @@ def main(
         "",
         f"Installation errors: {install_errors}"
         + (
-            " (drawn from the seed, unknown to the services, uncalibrated: "
+            " (drawn from the seed, unknown to the services, "
+            + ("calibrated by a simulated dive" if calibrated else "uncalibrated")
+            + ": "
             + ", ".join(f"{k} {v}" for k, v in installation.items())
             + ")"
             if installation

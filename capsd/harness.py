@@ -197,8 +197,15 @@ def write_configs(
     asv: AsvMode = "station",
     asv_mav_port: int | None = None,
     install_errors: Literal["realistic", "off"] = "realistic",
+    calibration: Literal["off", "dive"] = "off",
+    calibration_s: float = 120.0,
 ) -> dict[str, Path]:
     """Every process's config in `folder`, by name.
+
+    With `calibration` "dive" the realistic installation is first calibrated as a field team
+    would, from a calibration dive of it (capsd calibrate's code on the simulator's two
+    manoeuvres, capsd.bench.accuracy.self_calibrate), and the services get the calibrated
+    mount, ROV and installation sigmas; what it found goes to `folder`/calibration.json.
 
     With `rov_start_m` the ROV is flown live from there by the ArduSub stand-in the simulator
     hosts on `mav_port` (missions); the ASV then starts where the sonar sees that point best,
@@ -255,6 +262,9 @@ def write_configs(
             "start_heading_deg": asv_station_heading_deg,
         }
     run = msgspec.convert({k: v for k, v in sim.items() if k != "bus"}, SimConfig)
+    if calibration == "dive" and install_errors != "realistic":
+        raise ValueError("calibration 'dive' calibrates a realistic installation (install_errors)")
+    mounts = _calibrated(run, folder, duration_s=calibration_s) if calibration == "dive" else {}
     start = Simulation(run, horizon_s=10)
     # The person putting the ASV in the water knows roughly which way it points: 20 deg off.
     heading = math.degrees(matrix_to_euler_zyx(start.asv_pose(0.0).rotation)[0]) + 20.0
@@ -271,7 +281,7 @@ def write_configs(
             "lidar_xy_m": list(run.lidar.position_m[:2]),
             "lidar_height_m": run.lidar.position_m[2],
         },
-        "sonar_detect": {"bus": bus},
+        "sonar_detect": {"bus": bus, **({"sonar": mounts["sonar"]} if mounts else {})},
         "locator": {
             "bus": bus,
             # The tank as a site would describe it: its box and fixtures (the view draws them).
@@ -284,6 +294,7 @@ def write_configs(
                 if install_errors == "realistic"
                 else {}
             ),
+            **mounts,
         },
         "mav_bridge": {
             "vehicle": "rov_ap",
@@ -317,6 +328,7 @@ def write_configs(
             "fix_key": str(fix_key),
             "station": FOLLOW_STATION.get(tank, {}),
             **({"sonar": mount} if mount else {}),
+            **({"sonar": mounts["sonar"]} if mounts else {}),
         }
     paths = {}
     for name, body in configs.items():
@@ -324,6 +336,35 @@ def write_configs(
         path.write_text(yaml.safe_dump(body, sort_keys=False))
         paths[name] = path
     return paths
+
+
+def _calibrated(run: Any, folder: Path, *, duration_s: float) -> dict[str, Any]:
+    """The locator's sonar, rov and installation sections after a calibration dive of `run`.
+
+    The dive is another of the same installation (its own seed, the errors shared), run
+    offline before the services start, as a team calibrates on its first dive.
+    """
+    import json
+
+    import msgspec
+
+    from capsd.bench.accuracy import self_calibrate
+
+    print(
+        f"calibrating the installation: a simulated calibration dive (2 x {duration_s:g} s, "
+        "offline), "
+        "fitted by capsd calibrate's code",
+        flush=True,
+    )
+    # The dive is its own run: no live autopilots (the demo's ports), the ASV turns on the spot.
+    offline = msgspec.structs.replace(run, guided=None, asv_guided=None, asv_mode="spin")
+    sonar, rov, installation, summary = self_calibrate(offline, duration_s=duration_s)
+    (folder / "calibration.json").write_text(json.dumps(summary, indent=1, sort_keys=True) + "\n")
+    return {
+        "sonar": msgspec.to_builtins(sonar),
+        "rov": msgspec.to_builtins(rov),
+        "installation": msgspec.to_builtins(installation),
+    }
 
 
 def decoder(

@@ -110,7 +110,9 @@ def bench(
         run_variants = variants
         if install_errors != "off":
             figures["drawn_errors"][name] = Simulation(config, horizon_s=10.0).errors.summary()
-            mount, rov, left, figures["self_calibration"][name] = _self_calibrate(config)
+            mount, rov, left, figures["self_calibration"][name] = self_calibrate(
+                config, duration_s=CALIBRATION_S
+            )
             by_name = {v.name: v for v in variants}
             # Ours (and ours with a perfect detector) also told what the installation may
             # still get wrong; the baseline has no covariance to tell.
@@ -165,8 +167,8 @@ def bench(
     return figures
 
 
-def _self_calibrate(
-    config: SimConfig,
+def self_calibrate(
+    config: SimConfig, *, duration_s: float = 120.0
 ) -> tuple[SonarMountConfig, RovConfig, InstallationConfig, dict[str, Any]]:
     """The run's installation calibrated as a team would: a 2-minute calibration manoeuvre.
 
@@ -194,7 +196,7 @@ def _self_calibrate(
     )
     located = locator_config(Variant(OURS), manoeuvre)
     assert located.tank is not None
-    dive = calibration_dive(manoeuvre, duration_s=CALIBRATION_S)
+    dive = calibration_dive(manoeuvre, duration_s=duration_s)
     seen = dive.observations
     fit = fit_mount(seen, mount=located.sonar, tank=located.tank)
     depth = fit_depth_offset(dive.depths, dive.attitudes, rov=located.rov)
@@ -223,7 +225,7 @@ def _self_calibrate(
     prior = tape_prior(config.install_errors)
     cal = applied(config.sonar, located.rov, prior, fit, depth)
     # Then, told that, the range offset: the ROV parked while the ASV swings round it.
-    ranged = range_offset_dive(manoeuvre, mount=cal.mount, rov=cal.rov, duration_s=CALIBRATION_S)
+    ranged = range_offset_dive(manoeuvre, mount=cal.mount, rov=cal.rov, duration_s=duration_s)
     summary |= {
         "along_mm": round(ranged.fit.along_m * 1000, 1),
         "along_wanted_mm": round(ranged.wanted_along_m * 1000, 1),

@@ -27,6 +27,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         mission=args.mission,
         asv=args.asv,
         install_errors=args.install_errors,
+        calibration=args.calibration,
     )
 
 
@@ -84,5 +85,14 @@ def register(sub: Subcommands) -> None:
         choices=["realistic", "off"],
         help="realistic (default): the simulated installation has what a tape gets wrong "
         "(docs/INSTALL-ERRORS.md), unknown to the services, uncalibrated; off: a perfect one",
+    )
+    dem.add_argument(
+        "--calibration",
+        default="off",
+        choices=["off", "dive"],
+        help="dive: before the services start, calibrate the realistic installation as a "
+        "field team does (a simulated 2-minute calibration dive of it, offline, fitted by "
+        "capsd calibrate's code; the services get the calibrated mount); off (default): "
+        "the tape's",
     )
     dem.set_defaults(func=_cmd_demo)

@@ -65,6 +65,7 @@ def test_systemd_analyze_verify(tmp_path: Path) -> None:
 
 
 @pytest.mark.integration
+@pytest.mark.shares_cpu  # an install: nothing timed
 def test_install_script_for_the_rov_role(tmp_path: Path) -> None:
     """The ROV role installs without torch/scipy/opencv, its units point at its venv."""
     prefix, etc, units = tmp_path / "opt", tmp_path / "etc", tmp_path / "units"

@@ -119,6 +119,7 @@ def test_replay_of_real_oculus_bytes_reaches_the_bus(
     sub.undeclare()
 
 
+@pytest.mark.shares_cpu  # the process exits on its config: nothing timed
 @pytest.mark.parametrize(
     ("service", "text", "where"),
     [
