@@ -39,6 +39,7 @@ from capsd.latency import LatencyRecorder
 from capsd.logs import BusLogHandler, log_fields
 from capsd.payloads import Health, HealthState, LatencyStats, Log, Payload, StreamStats
 from capsd.signing import TAG_BYTES, SiteKey
+from capsd.stop_signal import set_after_handler
 from capsd.topics import Topic
 
 P = TypeVar("P", bound=Payload)
@@ -328,8 +329,14 @@ class ServiceRunner:
         self._old_handlers.clear()
 
     def _on_signal(self, signum: int, _frame: types.FrameType | None) -> None:
+        # The handler runs in the main thread between two bytecodes, possibly inside that
+        # thread's own stop_event.wait() while it holds the event's lock: Event.set() here
+        # waited for that lock forever (a locator ignored SIGTERM so, once in a CI run). A
+        # short thread sets the event once the handler has returned and the lock is free.
+        set_after_handler(self.stop_event, before=lambda: self._log_stop(signum))
+
+    def _log_stop(self, signum: int) -> None:
         logger.info("stop requested", extra=log_fields(signal=signal.Signals(signum).name))
-        self.stop_event.set()
 
     # ------------------------------------------------------------------ bus access
 

@@ -53,6 +53,7 @@ from capsd.protocols.mavlink import (
     mode_name,
     mode_number,
 )
+from capsd.stop_signal import set_after_handler
 
 # A fresh ArduSub as far as external position is concerned (what `capsd mav check` fixes).
 DEFAULT_PARAMS: dict[str, float] = {
@@ -481,7 +482,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     stop = threading.Event()
     for signum in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(signum, lambda *_: stop.set())
+        signal.signal(signum, lambda *_: set_after_handler(stop))
     started = time.monotonic()
     params = CONFIGURED_PARAMS if args.setup == "configured" else DEFAULT_PARAMS
     with AutopilotStandIn(args.port, params=params) as autopilot:

@@ -39,6 +39,7 @@ CORE = frozenset(
         "capsd.sonar_geometry",
         "capsd.sonar_image",
         "capsd.sound_speed",
+        "capsd.stop_signal",
         "capsd.tank",
         "capsd.topics",
     }

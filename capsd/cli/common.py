@@ -16,6 +16,7 @@ from capsd.launch import (
     EXIT_OK,
     positive_float,
 )
+from capsd.stop_signal import set_after_handler
 
 # What `add_subparsers` returns: each verb group's `register` adds its verbs to it.
 Subcommands: TypeAlias = "argparse._SubParsersAction[argparse.ArgumentParser]"
@@ -47,7 +48,7 @@ class StopOnSignal:
 
     def __enter__(self) -> threading.Event:
         self._old = {
-            s: signal.signal(s, lambda *_: self.event.set())
+            s: signal.signal(s, lambda *_: set_after_handler(self.event))
             for s in (signal.SIGINT, signal.SIGTERM)
         }
         return self.event
