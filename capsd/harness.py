@@ -281,7 +281,12 @@ def write_configs(
             "lidar_xy_m": list(run.lidar.position_m[:2]),
             "lidar_height_m": run.lidar.position_m[2],
         },
-        "sonar_detect": {"bus": bus, **({"sonar": mounts["sonar"]} if mounts else {})},
+        # The depth gate looks through the same mount as the locator (the mockup's sonar is
+        # pitched 45 deg; the gate had the default 30 deg).
+        "sonar_detect": {
+            "bus": bus,
+            **({"depth_gate": {"sonar": mounts.get("sonar", mount)}} if mount or mounts else {}),
+        },
         "locator": {
             "bus": bus,
             # The tank as a site would describe it: its box and fixtures (the view draws them).

@@ -10,17 +10,24 @@ import msgspec
 import pytest
 import yaml
 
+from capsd.config import load_config
 from capsd.harness import write_configs
 from capsd.mounts import SonarMountConfig
+from capsd.registry import service_of_config
+from capsd.simulator.world import TankName
 
 ENDPOINT = "tcp/127.0.0.1:7447"  # written into the configs only; nothing connects
 
 
-def _configs(folder: Path, **options: Any) -> dict[str, dict[str, Any]]:
+def _configs(folder: Path, *, tank: TankName = "nfp", **options: Any) -> dict[str, dict[str, Any]]:
     folder.mkdir()
     paths = write_configs(
-        folder, ENDPOINT, trajectory="square", tank="nfp", seed=3, mav_port=5760, **options
+        folder, ENDPOINT, trajectory="square", tank=tank, seed=3, mav_port=5760, **options
     )
+    for name, path in paths.items():
+        if name != "mission":  # capsd mission run's own config, not a service's
+            config_class, _ = service_of_config(name).load()
+            load_config(path, config_class)  # each service takes what it is given
     return {name: yaml.safe_load(path.read_text()) for name, path in paths.items()}
 
 
@@ -45,10 +52,16 @@ def test_a_calibration_dive_gives_the_services_the_calibrated_mount(tmp_path: Pa
     assert ("yaw" in found["determined"]) == (after.yaw_deg != before.yaw_deg)
     # The detector's depth gate and the follower look through the same mount; the sigmas left
     # shrink to what the dive did not determine.
-    assert dived["sonar_detect"]["sonar"] == dived["locator"]["sonar"]
+    assert dived["sonar_detect"]["depth_gate"]["sonar"] == dived["locator"]["sonar"]
     left, tape_sigmas = dived["locator"]["installation"], tape["locator"]["installation"]
     assert left["depth_offset_m"] < tape_sigmas["depth_offset_m"]
     assert not (tmp_path / "tape" / "calibration.json").exists()
+
+
+def test_the_depth_gate_looks_through_the_tanks_sonar_mount(tmp_path: Path) -> None:
+    configs = _configs(tmp_path / "mockup", tank="mockup")
+    assert configs["sonar_detect"]["depth_gate"]["sonar"] == configs["locator"]["sonar"]
+    assert configs["locator"]["sonar"]["pitch_deg"] == 45.0
 
 
 def test_a_perfect_installation_is_not_calibrated(tmp_path: Path) -> None:
