@@ -185,8 +185,14 @@ def self_calibrate(
     from capsd.depth_calibration import fit_depth_offset
     from capsd.mount_calibration import fit_mount
 
+    # The same installation: its errors drawn from its own seed, not the dive's (an installation
+    # without one draws from the run's seed, which the dive changes).
+    errors = config.install_errors
+    if errors.seed is None:
+        errors = msgspec.structs.replace(errors, seed=config.seed)
     manoeuvre = msgspec.structs.replace(
         config,
+        install_errors=errors,
         trajectory="square",
         seed=config.seed + 7919,
         asv_mode="spin",
@@ -202,6 +208,8 @@ def self_calibrate(
     depth = fit_depth_offset(dive.depths, dive.attitudes, rov=located.rov)
     want_yaw, want_roll, want_y = wanted_correction(manoeuvre, seen)
     summary: dict[str, Any] = {
+        # What the dive's installation drew (hidden from the services): the run's own.
+        "drawn": Simulation(manoeuvre, horizon_s=10.0).errors.summary(),
         "yaw_deg": round(fit.yaw_deg, 3),
         "yaw_wanted_deg": round(want_yaw, 3),
         "yaw_sigma_deg": round(fit.yaw_sigma_deg, 3),

@@ -14,6 +14,8 @@ from capsd.config import load_config
 from capsd.harness import write_configs
 from capsd.mounts import SonarMountConfig
 from capsd.registry import service_of_config
+from capsd.simulator.config import Config as SimConfig
+from capsd.simulator.sim import Simulation
 from capsd.simulator.world import TankName
 
 ENDPOINT = "tcp/127.0.0.1:7447"  # written into the configs only; nothing connects
@@ -39,6 +41,9 @@ def test_a_calibration_dive_gives_the_services_the_calibrated_mount(tmp_path: Pa
     dived = _configs(tmp_path / "dived", calibration="dive", calibration_s=30.0)
     found = json.loads((tmp_path / "dived" / "calibration.json").read_text())
     assert {"depth_offset", "along"} <= set(found["determined"])
+    # The dive calibrated this run's installation (drawn from the run's seed), not another.
+    live = Simulation(msgspec.convert(tape["sim"], SimConfig), horizon_s=10.0)
+    assert found["drawn"] == json.loads(json.dumps(live.errors.summary()))
     before = msgspec.convert(tape["locator"].get("sonar", {}), SonarMountConfig)
     after = msgspec.convert(dived["locator"]["sonar"], SonarMountConfig)
     # Fixes too far along the sight: the sonar sits that much further back than the tape said.
