@@ -354,6 +354,7 @@ def _calibrated(run: Any, folder: Path, *, duration_s: float) -> dict[str, Any]:
     import msgspec
 
     from capsd.bench.accuracy import self_calibrate
+    from capsd.progress import Progress
 
     print(
         f"calibrating the installation: a simulated calibration dive (2 x {duration_s:g} s, "
@@ -363,7 +364,11 @@ def _calibrated(run: Any, folder: Path, *, duration_s: float) -> dict[str, Any]:
     )
     # The dive is its own run: no live autopilots (the demo's ports), the ASV turns on the spot.
     offline = msgspec.structs.replace(run, guided=None, asv_guided=None, asv_mode="spin")
-    sonar, rov, installation, summary = self_calibrate(offline, duration_s=duration_s)
+    progress = Progress(2 * duration_s, label="calibration dive", unit=" s")
+    sonar, rov, installation, summary = self_calibrate(
+        offline, duration_s=duration_s, progress=progress
+    )
+    progress.close()
     (folder / "calibration.json").write_text(json.dumps(summary, indent=1, sort_keys=True) + "\n")
     return {
         "sonar": msgspec.to_builtins(sonar),

@@ -168,7 +168,7 @@ def bench(
 
 
 def self_calibrate(
-    config: SimConfig, *, duration_s: float = 120.0
+    config: SimConfig, *, duration_s: float = 120.0, progress: Progress | None = None
 ) -> tuple[SonarMountConfig, RovConfig, InstallationConfig, dict[str, Any]]:
     """The run's installation calibrated as a team would: a 2-minute calibration manoeuvre.
 
@@ -202,7 +202,7 @@ def self_calibrate(
     )
     located = locator_config(Variant(OURS), manoeuvre)
     assert located.tank is not None
-    dive = calibration_dive(manoeuvre, duration_s=duration_s)
+    dive = calibration_dive(manoeuvre, duration_s=duration_s, progress=progress)
     seen = dive.observations
     fit = fit_mount(seen, mount=located.sonar, tank=located.tank)
     depth = fit_depth_offset(dive.depths, dive.attitudes, rov=located.rov)
@@ -233,7 +233,14 @@ def self_calibrate(
     prior = tape_prior(config.install_errors)
     cal = applied(config.sonar, located.rov, prior, fit, depth)
     # Then, told that, the range offset: the ROV parked while the ASV swings round it.
-    ranged = range_offset_dive(manoeuvre, mount=cal.mount, rov=cal.rov, duration_s=duration_s)
+    ranged = range_offset_dive(
+        manoeuvre,
+        mount=cal.mount,
+        rov=cal.rov,
+        duration_s=duration_s,
+        progress=progress,
+        progress_offset_s=duration_s,
+    )
     summary |= {
         "along_mm": round(ranged.fit.along_m * 1000, 1),
         "along_wanted_mm": round(ranged.wanted_along_m * 1000, 1),

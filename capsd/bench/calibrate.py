@@ -49,7 +49,13 @@ class Dive:
     attitudes: list[RovAttitude]
 
 
-def calibration_dive(config: SimConfig, *, duration_s: float, every_s: float = 0.5) -> Dive:
+def calibration_dive(
+    config: SimConfig,
+    *,
+    duration_s: float,
+    every_s: float = 0.5,
+    progress: Progress | None = None,
+) -> Dive:
     """Frames every `every_s` with the estimated ASV pose at each; the ROV's depths, attitudes.
 
     As `capsd calibrate` reads a recording: the poses interpolated to the frame's stamp.
@@ -73,7 +79,7 @@ def calibration_dive(config: SimConfig, *, duration_s: float, every_s: float = 0
 
     # The box-centre detector: fixes are not what this run is for, and it costs nothing.
     run(config, duration_s=duration_s, variants=[Variant("pose only", detector="box_centre")],
-        sink=sink)  # fmt: skip
+        sink=sink, progress=progress)  # fmt: skip
     lookup = PoseLookup(poses)
     out = [Observation(f, asv) for f in frames if (asv := lookup.at(f.stamp_ns)) is not None]
     # out[4:]: not the pose estimator's first seconds (a heading prior 20 deg off).
@@ -130,7 +136,13 @@ class RangeDive:
 
 
 def range_offset_dive(
-    config: SimConfig, *, mount: SonarMountConfig, rov: RovConfig, duration_s: float
+    config: SimConfig,
+    *,
+    mount: SonarMountConfig,
+    rov: RovConfig,
+    duration_s: float,
+    progress: Progress | None = None,
+    progress_offset_s: float = 0.0,
 ) -> RangeDive:
     """The ROV parked, the ASV swinging round it, the locator told the calibrated config.
 
@@ -159,7 +171,12 @@ def range_offset_dive(
             fixes.append(payload)
 
     scored = run(
-        orbit, duration_s=duration_s, variants=[Variant("ours", sonar=mount, rov=rov)], sink=keep
+        orbit,
+        duration_s=duration_s,
+        variants=[Variant("ours", sonar=mount, rov=rov)],
+        sink=keep,
+        progress=progress,
+        progress_offset_s=progress_offset_s,
     )["ours"]
     lookup = PoseLookup(poses)
     transform = mount.transform()
