@@ -265,6 +265,8 @@ def write_configs(
     if calibration == "dive" and install_errors != "realistic":
         raise ValueError("calibration 'dive' calibrates a realistic installation (install_errors)")
     mounts = _calibrated(run, folder, duration_s=calibration_s) if calibration == "dive" else {}
+    # What every service that looks through the sonar is told: the tape's, or the dive's fit.
+    told = {"sonar": mounts.get("sonar", mount)} if mount or mounts else {}
     start = Simulation(run, horizon_s=10)
     # The person putting the ASV in the water knows roughly which way it points: 20 deg off.
     heading = math.degrees(matrix_to_euler_zyx(start.asv_pose(0.0).rotation)[0]) + 20.0
@@ -285,21 +287,21 @@ def write_configs(
         # pitched 45 deg; the gate had the default 30 deg).
         "sonar_detect": {
             "bus": bus,
-            **({"depth_gate": {"sonar": mounts.get("sonar", mount)}} if mount or mounts else {}),
+            **({"depth_gate": told} if told else {}),
         },
         "locator": {
             "bus": bus,
             # The tank as a site would describe it: its box and fixtures (the view draws them).
             "tank": msgspec.to_builtins(tank_bounds(t)),
             "fix_key": str(fix_key),
-            **({"sonar": mount} if mount else {}),
+            **told,
             # Uncalibrated: its covariances allow for what a tape-measured installation may be.
             **(
                 {"installation": msgspec.to_builtins(tape_prior(InstallErrorsConfig()))}
                 if install_errors == "realistic"
                 else {}
             ),
-            **mounts,
+            **{k: v for k, v in mounts.items() if k != "sonar"},
         },
         "mav_bridge": {
             "vehicle": "rov_ap",
@@ -332,8 +334,7 @@ def write_configs(
             "tank": msgspec.to_builtins(tank_bounds(t)),
             "fix_key": str(fix_key),
             "station": FOLLOW_STATION.get(tank, {}),
-            **({"sonar": mount} if mount else {}),
-            **({"sonar": mounts["sonar"]} if mounts else {}),
+            **told,
         }
     paths = {}
     for name, body in configs.items():
@@ -358,8 +359,7 @@ def _calibrated(run: Any, folder: Path, *, duration_s: float) -> dict[str, Any]:
 
     print(
         f"calibrating the installation: a simulated calibration dive (2 x {duration_s:g} s, "
-        "offline), "
-        "fitted by capsd calibrate's code",
+        "offline), fitted by capsd calibrate's code",
         flush=True,
     )
     # The dive is its own run: no live autopilots (the demo's ports), the ASV turns on the spot.
