@@ -10,30 +10,12 @@ echo "== install (.venv; a few minutes the first time)"
 .venv/bin/python -m pip install --progress-bar off --disable-pip-version-check -e '.[all,dev]' 2> >(grep -v "^WARNING: Location" >&2) | { grep -E '^(Collecting|Successfully installed)' || true; }
 echo "== ruff (${SECONDS} s in)"; .venv/bin/ruff check .
 echo "== ruff format"; .venv/bin/ruff format --check .
-# The ROV role's check (a venv of its own: pip, mostly waiting) runs beside mypy.
-rov_role() {
-  rm -rf .venv-rov && "$PY" -m venv .venv-rov
-  .venv-rov/bin/python -m pip install --quiet --disable-pip-version-check '.[rov]' 2> >(grep -v "^WARNING: Location" >&2)
-  .venv-rov/bin/python - <<'PY'
-import contextlib, importlib.util, io
-for heavy in ("torch", "scipy", "cv2"):
-    assert importlib.util.find_spec(heavy) is None, f"{heavy} is installed in the rov role"
-import capsd.services.mav_bridge.service  # noqa: F401
-from capsd.cli import main
-with contextlib.redirect_stdout(io.StringIO()):
-    assert main(["run", "mav_bridge", "--print-config"]) == 0
-print("rov role: bridge imports and configures without torch, scipy or OpenCV")
-PY
-  rm -rf .venv-rov
-}
-echo "== mypy (${SECONDS} s in), and beside it the rov role: install capsd[rov] alone and start the bridge's code without torch/scipy/cv2"
-rov_role > .venv/rov-role.log 2>&1 &
-rov_pid=$!
-.venv/bin/mypy
-rov_rc=0
-wait "$rov_pid" || rov_rc=$?
-cat .venv/rov-role.log
-[ "$rov_rc" -eq 0 ] || { echo "rov role check failed ($rov_rc)"; exit "$rov_rc"; }
+# mypy runs in the background beside the in-process tests (nothing there is timed); its log
+# is shown after them. The ROV role's install (capsd[rov] alone: no torch, scipy or OpenCV) is
+# checked by tests/deploy/test_systemd.py through deploy/install.sh.
+echo "== (${SECONDS} s in) mypy in the background"
+.venv/bin/mypy > .venv/mypy.log 2>&1 &
+mypy_pid=$!
 # Two phases. Tests that start real processes and Zenoh sessions (marked integration) measure
 # rates and delays, so they run one at a time; the rest (in-process, or a CLI's figures, and
 # integration tests marked shares_cpu: nothing timed) run on every core (pytest-xdist): the
@@ -47,6 +29,10 @@ phase() {
 }
 echo "== (${SECONDS} s in) pytest: in-process tests, ${CAPSD_TEST_WORKERS:-auto} workers"
 phase -n "${CAPSD_TEST_WORKERS:-auto}" --durations=15 -m "not integration or shares_cpu" "$@"
+mypy_rc=0
+wait "$mypy_pid" || mypy_rc=$?
+echo "== (${SECONDS} s in) mypy"; cat .venv/mypy.log
+[ "$mypy_rc" -eq 0 ] || { echo "mypy failed ($mypy_rc)"; exit "$mypy_rc"; }
 echo "== (${SECONDS} s in) pytest: integration tests (real processes on 127.0.0.1), one at a time"
 phase --durations=15 -m "integration and not shares_cpu" "$@"
 echo "== done in ${SECONDS} s"

@@ -102,6 +102,7 @@ def _cmd_bench_evaluate(args: argparse.Namespace) -> int:
         seed=args.seed,
         duration_s=args.duration,
         out_dir=args.out,
+        detector=args.detector,
     )
     return EXIT_OK if all(result["verdicts"].values()) else EXIT_FAILURE
 
@@ -324,6 +325,13 @@ def register(sub: Subcommands) -> None:
     )
     beval.add_argument("--seed", type=int, default=0, help="simulator seed")
     beval.add_argument("--duration", type=positive_float, default=300.0, help="simulated seconds")
+    beval.add_argument(
+        "--detector",
+        choices=["cnn", "truth"],
+        default="cnn",
+        help="cnn: the shipped detector's fixes; truth: the ROV's true centre as the one "
+        "candidate (checks the evaluation alone, without the detector's misses and outliers)",
+    )
     beval.add_argument(
         "--out", type=Path, default=Path("reports/bench-evaluate"), help="report folder"
     )

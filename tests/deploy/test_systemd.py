@@ -67,7 +67,10 @@ def test_systemd_analyze_verify(tmp_path: Path) -> None:
 @pytest.mark.integration
 @pytest.mark.shares_cpu  # an install: nothing timed
 def test_install_script_for_the_rov_role(tmp_path: Path) -> None:
-    """The ROV role installs without torch/scipy/opencv, its units point at its venv."""
+    """The ROV role installs without torch/scipy/opencv, its units point at its venv.
+
+    CI's only check of the ROV role's install (capsd[rov] alone, as the ROV computer has it).
+    """
     prefix, etc, units = tmp_path / "opt", tmp_path / "etc", tmp_path / "units"
     proc = subprocess.run(
         [
@@ -106,6 +109,15 @@ def test_install_script_for_the_rov_role(tmp_path: Path) -> None:
     )
     assert check.returncode == 0, check.stderr
     assert check.stdout.strip() == "[]"
+    # The bridge's config checks and prints in that venv (no heavy import on its path).
+    shown = subprocess.run(
+        [str(prefix / "venv" / "bin" / "capsd"), "run", "mav_bridge", "--print-config"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert shown.returncode == 0, shown.stderr
+    assert "fix_auth" in shown.stdout
     if shutil.which("systemd-analyze"):
         verify = subprocess.run(
             ["systemd-analyze", "verify", "--man=no", str(units / "capsd-mav-bridge.service")],

@@ -24,7 +24,7 @@ from tests.conftest import REPO, Proc, wait_for
 
 pytestmark = pytest.mark.integration
 
-CASES_PER_INPUT = 500
+CASES_PER_INPUT = 300
 # service -> (vehicle, config, its inputs as (topic, publishing vehicle))
 SERVICES: dict[str, tuple[str, str, tuple[tuple[Topic[Any], str], ...]]] = {
     "asv_pose": (

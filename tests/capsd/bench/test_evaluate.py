@@ -17,7 +17,9 @@ from tests.conftest import REPO
 @pytest.fixture(scope="module")
 def dive(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, Any]]:
     out = tmp_path_factory.mktemp("bench-evaluate")
-    result = bench(tank="nfp", trajectory="bouncing", seed=3, duration_s=60.0, out_dir=out)
+    result = bench(
+        tank="nfp", trajectory="bouncing", seed=3, duration_s=60.0, out_dir=out, detector="truth"
+    )
     return out, result
 
 
