@@ -50,6 +50,10 @@ class Comparison:
     max_raw_difference_m: float
     max_tracked_difference_m: float
     first_difference: str | None
+    # Good fixes among the matched pings: what another locator config would have made of the
+    # same inputs (availability, open loop: the vehicles flew as they did live).
+    recorded_good: int = 0
+    replayed_good: int = 0
 
     @property
     def identical(self) -> bool:
@@ -138,6 +142,8 @@ def compare(recorded: dict[int, RovFix], replayed: dict[int, RovFix]) -> Compari
         max_raw_difference_m=max_raw,
         max_tracked_difference_m=max_tracked,
         first_difference=first,
+        recorded_good=sum(recorded[s].quality == "good" for s in common),
+        replayed_good=sum(replayed[s].quality == "good" for s in common),
     )
 
 
@@ -259,6 +265,8 @@ def report(c: Comparison) -> str:
         f"  tracked identical   {c.tracked_identical:6d}  ({100 * c.tracked_identical / n:.1f}%), "
         f"largest difference {c.max_tracked_difference_m:.6f} m",
         f"  a different fix before any input differed (must be 0): {c.unexplained}",
+        f"  good fixes          recorded {c.recorded_good} ({100 * c.recorded_good / n:.1f}%), "
+        f"replayed {c.replayed_good} ({100 * c.replayed_good / n:.1f}%)",
     ]
     if c.identical:
         lines.append("  IDENTICAL")

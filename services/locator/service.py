@@ -64,6 +64,7 @@ LOG_SCALE_CHANGE = 0.0002
 
 NonNeg = Annotated[float, msgspec.Meta(ge=0.0)]
 Positive = Annotated[float, msgspec.Meta(gt=0.0)]
+NonNegative = Annotated[float, msgspec.Meta(ge=0.0)]
 
 
 class LocatorInputs(ConfigSection, frozen=True, kw_only=True):
@@ -123,6 +124,10 @@ class TrackingConfig(ConfigSection, frozen=True, kw_only=True):
     lost_after_s: Positive = 2.0
     reinit_after: Annotated[int, msgspec.Meta(ge=1)] = 5
     confirm_after: Annotated[int, msgspec.Meta(ge=1, le=100)] = 3
+    # The manoeuvre gate (a ROV starting or ending a leg); density 0 turns it off.
+    manoeuvre_accel_density_xy: NonNegative = 0.5
+    manoeuvre_accel_density_z: NonNegative = 0.1
+    manoeuvre_window_s: Positive = 1.0
 
     def settings(self) -> TrackerSettings:
         return TrackerSettings(
@@ -132,6 +137,9 @@ class TrackingConfig(ConfigSection, frozen=True, kw_only=True):
             lost_after_s=self.lost_after_s,
             reinit_after=self.reinit_after,
             confirm_after=self.confirm_after,
+            manoeuvre_accel_density_xy=self.manoeuvre_accel_density_xy,
+            manoeuvre_accel_density_z=self.manoeuvre_accel_density_z,
+            manoeuvre_window_s=self.manoeuvre_window_s,
         )
 
 
@@ -477,6 +485,7 @@ class Locator:
             return {
                 "late_inputs": self.late_inputs,
                 "clutter_refusals": self.clutter_refusals,
+                "track_manoeuvres": self.tracker.manoeuvres,
                 "static_clutter_cells": self.clutter.static_cells(self._solved_until_ns),
                 "map_explained_echoes": self.map_explained,
                 "moving_map_explained_echoes": self.moving_echoes,

@@ -8,6 +8,17 @@ candidates the one with the smallest distance wins. Without accepted fixes the t
 growing covariance and is declared lost after `lost_after_s`. A run of consistent fixes outside
 the gate re-initialises the track (a relocalisation, counted in `resets`).
 
+Manoeuvres: the process noise suits a ROV holding or cruising, not one starting or ending a leg
+(ArduSub accelerates at up to WPNAV_ACCEL, 1 m/s^2 by default): at a leg's start the track
+lags, the fixes, still on the ROV, fall outside its gate and the track coasts away from them.
+So a confirmed track whose gate refuses every candidate tries once more: predicted from its
+last fused fix with the manoeuvre process noise (`manoeuvre_accel_density_*`) over the whole
+time since (at most `manoeuvre_window_s`: longer, a wide gate would take clutter), the same
+gate. A candidate that fits that wider prediction, and may start a track
+(never mapped or static clutter), is fused with it (the velocity catches up in a few pings);
+each such fix is counted in `manoeuvres`. A jump the manoeuvre model cannot explain either
+still coasts and, repeated, relocalises.
+
 A new track (first start, after a loss, after a relocalisation) is "tentative" until
 `confirm_after` fixes fell inside its gate: one stray echo is never called the ROV. The caller
 may mark candidates that must not start a track (static clutter, capsd.services.locator.clutter);
@@ -38,6 +49,10 @@ class TrackerSettings:
     lost_after_s: float = 2.0
     reinit_after: int = 5  # consecutive out-of-gate fixes that start a new track
     confirm_after: int = 3  # gated fixes before a new track is more than tentative
+    # A ROV starting, ending or turning a leg (see the module docstring); 0: no manoeuvre gate.
+    manoeuvre_accel_density_xy: float = 0.5
+    manoeuvre_accel_density_z: float = 0.1
+    manoeuvre_window_s: float = 1.0  # only this soon after the last fused fix
 
 
 @dataclass(frozen=True)
@@ -75,6 +90,8 @@ class Tracker:
         self._outside = 0
         self._outside_last: Array | None = None
         self._hits = 0  # fixes fused since the track started
+        self._fused: tuple[int, Array, Array] | None = None  # stamp, x, P after the last fix
+        self.manoeuvres = 0  # fixes fused through the manoeuvre gate
 
     @property
     def confirmed(self) -> bool:
@@ -84,20 +101,10 @@ class Tracker:
 
     def _predict(self, stamp_ns: int) -> tuple[Array, Array]:
         assert self.stamp_ns is not None
-        dt = max(0.0, (stamp_ns - self.stamp_ns) / 1e9)
-        f = np.eye(6)
-        f[0:3, 3:6] = dt * np.eye(3)
-        q = np.zeros((6, 6))
         s = self.settings
-        for axis, density in (
-            (0, s.accel_density_xy),
-            (1, s.accel_density_xy),
-            (2, s.accel_density_z),
-        ):
-            q[axis, axis] = density * dt**3 / 3.0
-            q[axis, axis + 3] = q[axis + 3, axis] = density * dt**2 / 2.0
-            q[axis + 3, axis + 3] = density * dt
-        return f @ self.x, f @ self.P @ f.T + q
+        return _predicted(
+            self.x, self.P, (stamp_ns - self.stamp_ns) / 1e9, s.accel_density_xy, s.accel_density_z
+        )
 
     def _start(self, stamp_ns: int, position: Array, covariance: Array) -> None:
         self.x = np.concatenate([position, np.zeros(3)])
@@ -109,6 +116,7 @@ class Tracker:
         self._outside = 0
         self._outside_last = None
         self._hits = 1
+        self._fused = (stamp_ns, self.x.copy(), self.P.copy())
 
     # ------------------------------------------------------------------ inputs
 
@@ -140,12 +148,13 @@ class Tracker:
             return Association(None, None, reinitialised=False)  # older than the track: ignore
         x_pred, p_pred = self._predict(stamp_ns)
         h = np.hstack([np.eye(3), np.zeros((3, 3))])
-        scored = []
-        for i, (z, r) in enumerate(fixes):
-            innovation = z - x_pred[0:3]
-            s = p_pred[0:3, 0:3] + r
-            scored.append((float(innovation @ np.linalg.solve(s, innovation)), i))
+        scored = _scored(fixes, x_pred, p_pred)
         distance2, index = min(scored)
+        if distance2 > self.settings.gate_chi2:
+            manoeuvre = self._manoeuvre(stamp_ns, fixes, starters)
+            if manoeuvre is not None:
+                x_pred, p_pred, distance2, index = manoeuvre
+                self.manoeuvres += 1
         if distance2 > self.settings.gate_chi2:
             self.x, self.P, self.stamp_ns = x_pred, p_pred, stamp_ns
             self.state = "coasting"
@@ -165,6 +174,7 @@ class Tracker:
         joseph = np.eye(6) - gain @ h
         self.P = joseph @ p_pred @ joseph.T + gain @ r @ gain.T
         self.stamp_ns = self.last_update_ns = stamp_ns
+        self._fused = (stamp_ns, self.x.copy(), self.P.copy())
         self.state = "tracking"
         self._outside = 0
         if self.confirmed or starters[index]:
@@ -173,6 +183,33 @@ class Tracker:
             # but does not vouch for it.
             self._hits += 1
         return Association(index, distance2, reinitialised=False)
+
+    def _manoeuvre(
+        self, stamp_ns: int, fixes: list[tuple[Array, Array]], starters: list[bool]
+    ) -> tuple[Array, Array, float, int] | None:
+        """The manoeuvre gate (module docstring): prediction, distance^2, candidate; or None."""
+        s = self.settings
+        if (
+            not self.confirmed
+            or self._fused is None
+            or s.manoeuvre_accel_density_xy <= 0.0
+            or not any(starters)
+            or stamp_ns - self._fused[0] > s.manoeuvre_window_s * 1e9
+        ):
+            return None
+        fused_ns, x, p = self._fused
+        x_pred, p_pred = _predicted(
+            x,
+            p,
+            (stamp_ns - fused_ns) / 1e9,
+            s.manoeuvre_accel_density_xy,
+            s.manoeuvre_accel_density_z,
+        )
+        scored = [(d, i) for d, i in _scored(fixes, x_pred, p_pred) if starters[i]]
+        distance2, index = min(scored)
+        if distance2 > s.gate_chi2:
+            return None
+        return x_pred, p_pred, distance2, index
 
     def update_velocity(self, stamp_ns: int, velocity: Array, covariance: Array) -> None:
         """Fuse the ROV's own velocity in W (e.g. from a DVL or its EKF)."""
@@ -223,3 +260,27 @@ class Tracker:
         return Estimate(
             state, self.stamp_ns, self.x[0:3].copy(), self.x[3:6].copy(), cov, self.resets
         )
+
+
+def _predicted(
+    x: Array, p: Array, dt_s: float, density_xy: float, density_z: float
+) -> tuple[Array, Array]:
+    """State and covariance `dt_s` on under white acceleration of these densities (m^2/s^3)."""
+    dt = max(0.0, dt_s)
+    f = np.eye(6)
+    f[0:3, 3:6] = dt * np.eye(3)
+    q = np.zeros((6, 6))
+    for axis, density in ((0, density_xy), (1, density_xy), (2, density_z)):
+        q[axis, axis] = density * dt**3 / 3.0
+        q[axis, axis + 3] = q[axis + 3, axis] = density * dt**2 / 2.0
+        q[axis + 3, axis + 3] = density * dt
+    return f @ x, f @ p @ f.T + q
+
+
+def _scored(fixes: list[tuple[Array, Array]], x: Array, p: Array) -> list[tuple[float, int]]:
+    """Each fix's squared Mahalanobis distance from the predicted position, and its index."""
+    out = []
+    for i, (z, r) in enumerate(fixes):
+        innovation = z - x[0:3]
+        out.append((float(innovation @ np.linalg.solve(p[0:3, 0:3] + r, innovation)), i))
+    return out

@@ -27,7 +27,7 @@ from capsd.recording import (
     channel_counts,
     read,
 )
-from capsd.replay_check import compare
+from capsd.replay_check import compare, report
 from capsd.viewer_schema import viewer_rules
 from tests.conftest import REPO, Proc, relay
 
@@ -233,6 +233,9 @@ def test_replay_comparison_explains_differences_by_inputs() -> None:
     c = compare(live, gated)
     assert c.consistent
     assert c.unexplained == 0
+    # What the replayed locator made of the same inputs, counted on the matched pings.
+    assert (c.recorded_good, c.replayed_good) == (3, 2)
+    assert "good fixes          recorded 3 (100.0%), replayed 2 (66.7%)" in report(c)
     # Same inputs, another answer: a determinism bug, never explained away.
     wrong = dict(live)
     wrong[100] = _fix(100, pose_stamp=90, x=10.001, tracked_x=10.0)

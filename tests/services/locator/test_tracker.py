@@ -182,3 +182,57 @@ def test_velocity_input_sharpens_the_velocity() -> None:
     without.coast(SECOND)
     assert with_velocity.x[3] == pytest.approx(0.2, abs=0.01)
     assert np.trace(with_velocity.P[3:, 3:]) < np.trace(without.P[3:, 3:])
+
+
+def _leg_start(settings: TrackerSettings) -> tuple[int, Tracker, float]:
+    """A ROV holding 10 s, then off at 1 m/s^2 (ArduSub's default WPNAV_ACCEL) to 1 m/s.
+
+    Fixes at 5 Hz with 20 mm noise. Returns the fixes refused, the tracker, the worst error.
+    """
+    rng = np.random.default_rng(0)
+    tracker = Tracker(settings)
+    sigma, hz, x, v = 0.02, 5.0, 0.0, 0.0
+    refused, worst = 0, 0.0
+    for k in range(int(30 * hz)):
+        t = k / hz
+        if t >= 10.0:
+            v = min(1.0, v + 1.0 / hz)
+        x += v / hz
+        truth = np.array([x, 0.0, -3.0])
+        fix = truth + rng.normal(0.0, sigma, 3)
+        refused += tracker.update(int(t * SECOND), [(fix, np.eye(3) * sigma**2)]).index is None
+        estimate = tracker.estimate().position_m
+        assert estimate is not None
+        worst = max(worst, float(np.linalg.norm(estimate - truth)))
+    return refused, tracker, worst
+
+
+def test_a_rov_starting_a_leg_is_followed_through_the_manoeuvre_gate() -> None:
+    refused, tracker, worst = _leg_start(TrackerSettings())
+    assert refused == 0
+    assert tracker.resets == 0
+    assert tracker.manoeuvres >= 1
+    assert worst < 0.1
+    # Without the manoeuvre gate the same fixes lag out of the gate: refused, relocalised.
+    refused, tracker, worst = _leg_start(TrackerSettings(manoeuvre_accel_density_xy=0.0))
+    assert refused > 0
+    assert tracker.resets >= 1
+    assert worst > 0.3
+
+
+def test_the_manoeuvre_gate_takes_no_jump_and_no_clutter() -> None:
+    # A holding ROV: an echo 0.5 m off one ping later is no manoeuvre a ROV makes in 0.1 s.
+    tracker = _tracking(np.array([5.0, 5.0, -2.0]))
+    jump = (np.array([5.5, 5.0, -2.0]), np.eye(3) * 4e-4)
+    assert tracker.update(SECOND, [jump]).index is None
+    assert tracker.manoeuvres == 0
+    # A lagging track: the fix it refuses is taken through the manoeuvre gate only if it may
+    # start a track (never static or mapped clutter), and only soon after the last fused fix.
+    lagging = np.array([5.15, 5.0, -2.0])
+    tracker = _tracking(np.array([5.0, 5.0, -2.0]))
+    assert tracker.update(SECOND, [(lagging, np.eye(3) * 1e-4)], may_start=[False]).index is None
+    assert tracker.update(SECOND + SECOND // 10, [(lagging, np.eye(3) * 1e-4)]).index == 0
+    assert tracker.manoeuvres == 1
+    tracker = _tracking(np.array([5.0, 5.0, -2.0]))
+    tracker.coast(2 * SECOND)
+    assert tracker.update(2 * SECOND, [(lagging + 0.5, np.eye(3) * 1e-4)]).index is None
