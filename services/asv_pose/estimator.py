@@ -107,7 +107,6 @@ class AsvPoseEstimator:
         self.xy = np.zeros(2)
         self.velocity = np.zeros(2)
         self.acceleration = np.zeros(2)
-        self.yaw = heading_prior_rad if heading_prior_rad is not None else 0.0
         self.searches = 0
         self.relocalisations = 0
         self.last_search_ns: int | None = None
@@ -124,7 +123,12 @@ class AsvPoseEstimator:
         self._gyro_yaw = 0.0
         self._gyro_log: deque[tuple[int, float]] = deque(maxlen=512)
         self._gyro_rate = 0.0
-        self._yaw_offset = self.yaw
+        self._yaw_offset = heading_prior_rad if heading_prior_rad is not None else 0.0
+
+    @property
+    def yaw(self) -> float:
+        """The heading now: the gyro's integrated heading plus the last match's offset."""
+        return self._gyro_yaw + self._yaw_offset
 
     def on_imu(self, stamp_ns: int, gyro: Array, accel: Array) -> None:
         c, s = math.cos(self.yaw), math.sin(self.yaw)
@@ -147,7 +151,6 @@ class AsvPoseEstimator:
             yaw_rate = (g[1] * math.sin(roll) + g[2] * math.cos(roll)) / max(math.cos(pitch), 0.1)
             self._gyro_yaw += yaw_rate * dt
             self._gyro_rate = yaw_rate
-            self.yaw = self._gyro_yaw + self._yaw_offset
         if self.imu_ns is None or stamp_ns > self.imu_ns:
             self._gyro_log.append((stamp_ns, self._gyro_yaw))
             self.imu_ns = stamp_ns
@@ -266,7 +269,6 @@ class AsvPoseEstimator:
         self.xy = new_xy
         # The match's heading holds at the scan's stamp; the gyro carries it to the newest.
         self._yaw_offset = result.yaw_rad - self._gyro_yaw_at(stamp_ns)
-        self.yaw = self._gyro_yaw + self._yaw_offset
         self.match_ns = stamp_ns
         self.match_cov = result.covariance
         self.failures = 0

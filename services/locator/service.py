@@ -64,7 +64,6 @@ LOG_SCALE_CHANGE = 0.0002
 
 NonNeg = Annotated[float, msgspec.Meta(ge=0.0)]
 Positive = Annotated[float, msgspec.Meta(gt=0.0)]
-NonNegative = Annotated[float, msgspec.Meta(ge=0.0)]
 
 
 class LocatorInputs(ConfigSection, frozen=True, kw_only=True):
@@ -125,8 +124,8 @@ class TrackingConfig(ConfigSection, frozen=True, kw_only=True):
     reinit_after: Annotated[int, msgspec.Meta(ge=1)] = 5
     confirm_after: Annotated[int, msgspec.Meta(ge=1, le=100)] = 3
     # The manoeuvre gate (a ROV starting or ending a leg); density 0 turns it off.
-    manoeuvre_accel_density_xy: NonNegative = 0.5
-    manoeuvre_accel_density_z: NonNegative = 0.1
+    manoeuvre_accel_density_xy: NonNeg = 0.5
+    manoeuvre_accel_density_z: NonNeg = 0.1
     manoeuvre_window_s: Positive = 1.0
 
     def settings(self) -> TrackerSettings:

@@ -228,11 +228,13 @@ def test_the_manoeuvre_gate_takes_no_jump_and_no_clutter() -> None:
     assert tracker.manoeuvres == 0
     # A lagging track: the fix it refuses is taken through the manoeuvre gate only if it may
     # start a track (never static or mapped clutter), and only soon after the last fused fix.
-    lagging = np.array([5.15, 5.0, -2.0])
+    lagging = (np.array([5.15, 5.0, -2.0]), np.eye(3) * 1e-4)
+    clutter = _tracking(np.array([5.0, 5.0, -2.0]))
+    assert clutter.update(SECOND + SECOND // 10, [lagging], may_start=[False]).index is None
+    assert clutter.manoeuvres == 0
     tracker = _tracking(np.array([5.0, 5.0, -2.0]))
-    assert tracker.update(SECOND, [(lagging, np.eye(3) * 1e-4)], may_start=[False]).index is None
-    assert tracker.update(SECOND + SECOND // 10, [(lagging, np.eye(3) * 1e-4)]).index == 0
+    assert tracker.update(SECOND + SECOND // 10, [lagging]).index == 0
     assert tracker.manoeuvres == 1
     tracker = _tracking(np.array([5.0, 5.0, -2.0]))
     tracker.coast(2 * SECOND)
-    assert tracker.update(2 * SECOND, [(lagging + 0.5, np.eye(3) * 1e-4)]).index is None
+    assert tracker.update(2 * SECOND, [(lagging[0] + 0.5, lagging[1])]).index is None
