@@ -11,6 +11,10 @@ uncertainty. Only what the data determined is written into the new locator confi
 `--what range` reads another recording, made with the calibrated config: the ROV parked (on
 the floor or a stand) while the ASV swings round it facing it; the fixes' offset along the line
 of sight (capsd.range_calibration) moves the sonar's forward position.
+
+`--what pitch` reads a third, also made with the calibrated config: the ASV still, the ROV
+holding its place in front of it and going slowly down and up through the sonar's vertical
+aperture; where its echo fades above and below (capsd.pitch_calibration) gives the pitch.
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ from capsd.keys import Subject, subject_of
 from capsd.mount_calibration import MountFit, Observation, corrected, fit_mount
 from capsd.mounts import RovConfig, SonarMountConfig
 from capsd.payloads import AsvPose, Payload, RovAttitude, RovDepth, RovFix, SonarFrame
+from capsd.pitch_calibration import PitchFit, echo_samples, fit_pitch, rov_places
 from capsd.pose_lookup import PoseLookup
 from capsd.range_calibration import RangeFit, fit_range_offset
 from capsd.recording import Recorded, read
@@ -38,7 +43,8 @@ from capsd.simulator.install_errors import InstallErrorsConfig
 from capsd.tank import TankBounds
 
 EVERY_S = 0.5  # one frame per half second is plenty: neighbouring frames see the same walls
-What = Literal["all", "mount", "depth", "range"]
+PITCH_EVERY_S = 0.2  # the ROV's echo: each frame's speckle and gain are its own
+What = Literal["all", "mount", "depth", "range", "pitch"]
 T = TypeVar("T", bound=Payload)
 
 
@@ -52,6 +58,7 @@ class Calibration:
     rov: RovConfig
     installation: InstallationConfig  # what the locator should still allow for
     range_fit: RangeFit | None = None
+    pitch_fit: PitchFit | None = None
 
     def lines(self) -> list[str]:
         """What a person reads: each estimate, its uncertainty, and what could not be told."""
@@ -59,6 +66,7 @@ class Calibration:
             *([] if self.mount_fit is None else self.mount_fit.lines()),
             *([] if self.depth_fit is None else self.depth_fit.lines()),
             *([] if self.range_fit is None else self.range_fit.lines()),
+            *([] if self.pitch_fit is None else self.pitch_fit.lines()),
         ]
 
     @property
@@ -67,7 +75,8 @@ class Calibration:
         m, d = self.mount_fit, self.depth_fit
         mount = m is not None and (m.yaw_determined or m.roll_determined or m.shift_determined)
         ranged = self.range_fit is not None and self.range_fit.determined
-        return mount or ranged or (d is not None and d.determined)
+        pitched = self.pitch_fit is not None and self.pitch_fit.determined
+        return mount or ranged or pitched or (d is not None and d.determined)
 
 
 @dataclass
@@ -154,7 +163,7 @@ def calibrate(
         depth_fit = fit_depth_offset(
             _decoded(streams.depths, RovDepth), _decoded(streams.attitudes, RovAttitude), rov=rov
         )
-    range_fit = None
+    range_fit = pitch_fit = None
     if what == "range":
         poses = _decoded(streams.poses, AsvPose)
         if not poses:
@@ -164,7 +173,22 @@ def calibrate(
             range_fit = fit_range_offset(fixes, PoseLookup(poses), mount=mount.transform())
         except CapsdError as exc:
             raise CapsdError(f"{recording}: {exc}") from None
-    return applied(mount, rov, prior, mount_fit, depth_fit, range_fit)
+    if what == "pitch":
+        observations = _observations(streams, recording, every_s=PITCH_EVERY_S)
+        try:
+            places = rov_places(
+                _decoded(streams.fixes, RovFix),
+                _decoded(streams.depths, RovDepth),
+                [o.frame.stamp_ns for o in observations],
+            )
+            pitch_fit = fit_pitch(
+                echo_samples(
+                    observations, places, mount=mount.transform(), beam_model=mount.beam_model
+                )
+            )
+        except CapsdError as exc:
+            raise CapsdError(f"{recording}: {exc}") from None
+    return applied(mount, rov, prior, mount_fit, depth_fit, range_fit, pitch_fit)
 
 
 def applied(
@@ -174,6 +198,7 @@ def applied(
     mount_fit: MountFit | None,
     depth_fit: DepthFit | None,
     range_fit: RangeFit | None = None,
+    pitch_fit: PitchFit | None = None,
 ) -> Calibration:
     """The configs with what the fits determined applied, and what is left to allow for."""
     if mount_fit is not None:
@@ -183,10 +208,13 @@ def applied(
         # configured (the orbit faces the ROV: the sonar's axis is the line of sight).
         x, y, z = mount.position_m
         mount = msgspec.structs.replace(mount, position_m=(round(x - range_fit.along_m, 4), y, z))
+    if pitch_fit is not None and pitch_fit.determined:
+        pitch = round(mount.pitch_deg + pitch_fit.pitch_correction_deg, 4)
+        mount = msgspec.structs.replace(mount, pitch_deg=pitch)
     if depth_fit is not None and depth_fit.determined:
         rov = msgspec.structs.replace(rov, depth_offset_m=round(depth_fit.offset_m, 4))
-    installation = installation_after(prior, mount_fit, depth_fit, range_fit)
-    return Calibration(mount_fit, depth_fit, mount, rov, installation, range_fit)
+    installation = installation_after(prior, mount_fit, depth_fit, range_fit, pitch_fit)
+    return Calibration(mount_fit, depth_fit, mount, rov, installation, range_fit, pitch_fit)
 
 
 def tape_prior(errors: InstallErrorsConfig) -> InstallationConfig:
@@ -209,6 +237,7 @@ def installation_after(
     mount_fit: MountFit | None,
     depth_fit: DepthFit | None,
     range_fit: RangeFit | None = None,
+    pitch_fit: PitchFit | None = None,
 ) -> InstallationConfig:
     """What the installation may still get wrong after the fits.
 
@@ -223,6 +252,8 @@ def installation_after(
         y = mount_fit.shift_y_sigma_m if mount_fit.shift_determined else y
     if range_fit is not None and range_fit.determined:
         x = range_fit.along_sigma_m
+    if pitch_fit is not None and pitch_fit.determined:
+        pitch = pitch_fit.offset_sigma_deg
     depth = prior.depth_offset_m
     if depth_fit is not None and depth_fit.determined:
         depth = depth_fit.sigma_m
@@ -238,7 +269,8 @@ def write_config(source: Path, out: Path, calibration: Calibration, recording: P
     """A copy of the locator config `source` with what was calibrated, and its provenance."""
     data: dict[str, Any] = yaml.safe_load(source.read_text()) or {}
     ranged = calibration.range_fit is not None and calibration.range_fit.determined
-    if calibration.mount_fit is not None or ranged:
+    pitched = calibration.pitch_fit is not None and calibration.pitch_fit.determined
+    if calibration.mount_fit is not None or ranged or pitched:
         mount = calibration.mount
         sonar = dict(data.get("sonar") or {})
         sonar.update(

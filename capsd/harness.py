@@ -358,13 +358,13 @@ def _calibrated(run: Any, folder: Path, *, duration_s: float) -> dict[str, Any]:
     from capsd.progress import Progress
 
     print(
-        f"calibrating the installation: a simulated calibration dive (2 x {duration_s:g} s, "
+        f"calibrating the installation: a simulated calibration dive (3 x {duration_s:g} s, "
         "offline), fitted by capsd calibrate's code",
         flush=True,
     )
     # The dive is its own run: no live autopilots (the demo's ports), the ASV turns on the spot.
     offline = msgspec.structs.replace(run, guided=None, asv_guided=None, asv_mode="spin")
-    progress = Progress(2 * duration_s, label="calibration dive", unit=" s")
+    progress = Progress(3 * duration_s, label="calibration dive", unit=" s")
     sonar, rov, installation, summary = self_calibrate(
         offline, duration_s=duration_s, progress=progress
     )

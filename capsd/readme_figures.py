@@ -277,17 +277,23 @@ def calibrate_table(figures: dict[str, Any]) -> list[str]:
         f"mean |yaw error| {figures['mean_abs_yaw_error_deg']} deg, |roll error| "
         f"{figures['mean_abs_roll_error_deg']} deg, sideways {figures['mean_shift_error_mm']} mm, "
         f"|depth offset error| {figures['mean_abs_depth_offset_error_mm']} mm, "
-        f"|range offset error| {figures.get('mean_abs_along_error_mm', '-')} mm.",
+        f"|range offset error| {figures.get('mean_abs_along_error_mm', '-')} mm, "
+        f"|elevation offset error| {figures.get('mean_abs_elevation_offset_error_deg', '-')} deg "
+        f"(against the drawn pitch alone "
+        f"{figures.get('mean_abs_pitch_error_vs_drawn_deg', '-')} deg).",
         "",
         "| seed | yaw wanted / fitted (sigma) deg | roll wanted / fitted (sigma) deg "
         "| sideways error mm | depth offset wanted / fitted (sigma) mm "
         "| range offset wanted / fitted (sigma) mm | sonar's drawn forward error mm "
+        "| elevation offset wanted / fitted (sigma) deg | drawn pitch correction deg, height mm "
         "| determined |",
-        "|---:|---:|---:|---:|---:|---:|---:|---|",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|",
     ]
     for r in figures["runs"]:
         determined = [
-            k for k in ("yaw", "roll", "shift", "depth_offset", "along") if r.get(f"{k}_determined")
+            k
+            for k in ("yaw", "roll", "shift", "depth_offset", "along", "pitch")
+            if r.get(f"{k}_determined")
         ]
         lines.append(
             f"| {r['seed']} | {r['wanted_yaw_deg']} / {r['fitted_yaw_deg']} "
@@ -297,6 +303,10 @@ def calibrate_table(figures: dict[str, Any]) -> list[str]:
             f"({r['depth_offset_sigma_mm']}) "
             f"| {r.get('wanted_along_mm', '-')} / {r.get('fitted_along_mm', '-')} "
             f"({r.get('along_sigma_mm', '-')}) | {r.get('drawn_x_mm', '-')} "
+            f"| {r.get('wanted_elevation_offset_deg', '-')} / "
+            f"{r.get('fitted_elevation_offset_deg', '-')} "
+            f"({r.get('elevation_offset_sigma_deg', '-')}) "
+            f"| {r.get('drawn_pitch_correction_deg', '-')}, {r.get('drawn_height_mm', '-')} "
             f"| {', '.join(determined)} |"
         )
     return lines

@@ -179,7 +179,11 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     # at rov.float_depth_m plus the installation's trim error, heaving with the waves.
     # parked: the ROV holds still where its trajectory starts (on the tank floor or a stand:
     # the range-offset manoeuvre, with asv_mode: orbit).
-    rov_mode: Literal["trajectory", "surface", "parked"] = "trajectory"
+    # profile: the ROV holds its place in the plane where its trajectory starts and goes down
+    # and up through the sonar's vertical aperture, 2 minutes a round trip (the pitch
+    # manoeuvre, with asv_mode: follow, which then stands still facing it).
+    rov_mode: Literal["trajectory", "surface", "parked", "profile"] = "trajectory"
+    profile_period_s: Annotated[float, msgspec.Meta(ge=10.0, le=3600.0)] = 120.0  # down and up
     seed: int = 0
     # spin: turns on the spot; guided: driven live by an ArduRover stand-in (`asv_guided`).
     asv_mode: Literal["follow", "stationary", "spin", "orbit", "guided"] = "follow"

@@ -53,7 +53,10 @@ from capsd.simulator.world import (
     asv_motion,
     floating,
     hovering,
+    profile_depths,
+    profiling,
     rov_motion,
+    symmetric_standoff_m,
     with_look,
 )
 from capsd.sonar_geometry import to_polar
@@ -132,6 +135,15 @@ class Simulation:
         self.mount = config.sonar.transform().compose(self.errors.sonar)
         if config.rov_mode == "parked":
             self.rov = planned = hovering(self.rov.track.p[0], duration_s=self.horizon_s)
+        elif config.rov_mode == "profile":
+            top, bottom = profile_depths(self.tank)
+            self.rov = planned = profiling(
+                self.rov.track.p[0],
+                top_z_m=top,
+                bottom_z_m=bottom,
+                duration_s=self.horizon_s,
+                period_s=config.profile_period_s,
+            )
         elif config.rov_mode == "surface":
             waves = config.waves.waves()
             self.rov = floating(
@@ -142,7 +154,15 @@ class Simulation:
                 duration_s=self.horizon_s,
             )
         standoff = config.asv_standoff_m
-        if standoff is None:
+        if standoff is None and config.rov_mode == "profile":
+            # The ROV's top and bottom as far above the boresight as below it.
+            top, bottom = profile_depths(self.tank)
+            standoff = symmetric_standoff_m(
+                float(self.mount.translation[2]) - top,  # W's z is up: heights below the sonar
+                float(self.mount.translation[2]) - bottom,
+                pitch_rad=math.radians(config.sonar.pitch_deg),
+            ) + float(self.mount.translation[0])
+        elif standoff is None:
             # Put the ROV on the boresight at its trajectory's mean depth.
             height = -float(np.mean(planned.track.p[:, 2])) + float(-self.mount.translation[2])
             pitch = max(math.radians(config.sonar.pitch_deg), math.radians(5.0))

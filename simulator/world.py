@@ -478,6 +478,57 @@ def hovering(position_m: Array, *, duration_s: float = 10.0) -> RovMotion:
     return RovMotion(Track(_DT, p, np.zeros((n, 3)), np.zeros((n, 3))))
 
 
+def profiling(
+    position_m: Array,
+    *,
+    top_z_m: float,
+    bottom_z_m: float,
+    duration_s: float,
+    period_s: float = 120.0,
+) -> RovMotion:
+    """A ROV holding its place in the plane while it goes down and up (the pitch manoeuvre).
+
+    From `top_z_m` down to `bottom_z_m` and back up, one round trip every `period_s`,
+    the depth a raised cosine (no jerk at the turns): a pilot holding position and changing
+    depth slowly, so the ROV passes through the sonar's vertical aperture from above its top
+    edge to below its bottom edge and back (capsd.pitch_calibration).
+    """
+    n = int(duration_s / _DT) + 2
+    t = np.arange(n) * _DT
+    w = 2.0 * math.pi / period_s
+    mid, half = 0.5 * (top_z_m + bottom_z_m), 0.5 * (top_z_m - bottom_z_m)
+    p = np.tile(np.array([position_m[0], position_m[1], 0.0], dtype=np.float64), (n, 1))
+    v, a = np.zeros((n, 3)), np.zeros((n, 3))
+    p[:, 2] = mid + half * np.cos(w * t)
+    v[:, 2] = -half * w * np.sin(w * t)
+    a[:, 2] = -half * w * w * np.cos(w * t)
+    return RovMotion(Track(_DT, p, v, a))
+
+
+def profile_depths(tank: Tank) -> tuple[float, float]:
+    """(top, bottom) z of the pitch manoeuvre: 0.4 m under the surface to the lower flight level.
+
+    No deeper than the lower flight level: that passes ~0.6 m over the racks' tops.
+    """
+    return -0.4, min(-0.8, tank.rov_depths[1])
+
+
+def symmetric_standoff_m(top_m: float, bottom_m: float, *, pitch_rad: float) -> float:
+    """The horizontal distance from which two depths straddle the sonar's boresight evenly.
+
+    `top_m` and `bottom_m` are heights below the sonar; the boresight is depressed `pitch_rad`:
+    the top as far above it as the bottom below it.
+    """
+    lo, hi = 0.05, 100.0
+    for _ in range(60):  # the depressions' sum falls as the distance grows
+        mid = 0.5 * (lo + hi)
+        if math.atan2(top_m, mid) + math.atan2(bottom_m, mid) > 2.0 * pitch_rad:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
 # ------------------------------------------------------------------------ the ASV
 
 

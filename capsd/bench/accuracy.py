@@ -172,11 +172,14 @@ def self_calibrate(
 ) -> tuple[SonarMountConfig, RovConfig, InstallationConfig, dict[str, Any]]:
     """The run's installation calibrated as a team would: a 2-minute calibration manoeuvre.
 
-    The ASV turns on the spot while the ROV floats at the surface before its dive. Another
-    dive of the same installation and autopilot boot (its own seed; the errors shared).
+    The ASV turns on the spot while the ROV floats at the surface before its dive; then the ROV
+    parked while the ASV swings round it; then the ROV going down and up in front of the still
+    ASV. Another dive of the same installation and autopilot boot (its own seed; the errors
+    shared).
     """
     from capsd.bench.calibrate import (
         calibration_dive,
+        pitch_dive,
         range_offset_dive,
         wanted_correction,
         wanted_depth_offset,
@@ -250,6 +253,23 @@ def self_calibrate(
     if ranged.fit.determined:
         summary["determined"].append("along")
     cal = applied(config.sonar, located.rov, prior, fit, depth, ranged.fit)
+    # Then, told that, the pitch: the ROV going down and up through the aperture.
+    pitched = pitch_dive(
+        manoeuvre,
+        mount=cal.mount,
+        rov=cal.rov,
+        duration_s=duration_s,
+        progress=progress,
+        progress_offset_s=2 * duration_s,
+    )
+    summary |= {
+        "elevation_offset_deg": round(pitched.fit.offset_deg, 3),
+        "elevation_offset_wanted_deg": round(pitched.wanted_offset_deg, 3),
+        "elevation_offset_sigma_deg": round(pitched.fit.offset_sigma_deg, 3),
+    }
+    if pitched.fit.determined:
+        summary["determined"].append("pitch")
+    cal = applied(config.sonar, located.rov, prior, fit, depth, ranged.fit, pitched.fit)
     return cal.mount, cal.rov, cal.installation, summary
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +25,7 @@ from capsd.mount_calibration import Observation, corrected, fit_mount
 from capsd.mounts import RovConfig, SonarMountConfig
 from capsd.offline_pipeline import Variant, locator_config, run
 from capsd.payloads import AsvPose, Payload, RovAttitude, RovDepth, RovFix, SonarFrame
+from capsd.pitch_calibration import PitchFit, echo_samples, fit_pitch, rov_places
 from capsd.pose_lookup import PoseLookup
 from capsd.progress import Progress
 from capsd.range_calibration import RangeFit, fit_range_offset
@@ -33,11 +34,46 @@ from capsd.simulator.config import Config as SimConfig
 from capsd.simulator.install_errors import InstallErrorsConfig
 from capsd.simulator.sim import Simulation
 from capsd.simulator.world import TankName, TrajectoryName
+from capsd.sonar_geometry import to_polar
 
 # Yaw within 0.1 deg and roll (tilt) within 0.3 deg, mean over the seeds (issue 24).
 YAW_TARGET_DEG = 0.1
 TILT_TARGET_DEG = 0.3
 SHIFT_TARGET_MM = 15.0
+
+
+@dataclass
+class Kept:
+    """What a recording of a manoeuvre holds, by stream: a sink for the offline pipeline.
+
+    Frames at most one every `frame_every_s` (0: every one; None: none, they are large).
+    """
+
+    frame_every_s: float | None = None
+    frames: list[SonarFrame] = field(default_factory=list)
+    poses: list[AsvPose] = field(default_factory=list)
+    fixes: list[RovFix] = field(default_factory=list)
+    depths: list[RovDepth] = field(default_factory=list)
+    attitudes: list[RovAttitude] = field(default_factory=list)
+
+    def __call__(self, payload: Payload) -> None:
+        if isinstance(payload, AsvPose):
+            self.poses.append(payload)
+        elif isinstance(payload, RovFix):
+            self.fixes.append(payload)
+        elif isinstance(payload, RovDepth):
+            self.depths.append(payload)
+        elif isinstance(payload, RovAttitude):
+            self.attitudes.append(payload)
+        elif (
+            isinstance(payload, SonarFrame)
+            and self.frame_every_s is not None
+            and (
+                not self.frames
+                or payload.stamp_ns >= self.frames[-1].stamp_ns + int(self.frame_every_s * 1e9)
+            )
+        ):
+            self.frames.append(payload)
 
 
 @dataclass(frozen=True)
@@ -60,30 +96,15 @@ def calibration_dive(
 
     As `capsd calibrate` reads a recording: the poses interpolated to the frame's stamp.
     """
-    frames: list[SonarFrame] = []
-    poses: list[AsvPose] = []
-    depths: list[RovDepth] = []
-    attitudes: list[RovAttitude] = []
-
-    def sink(payload: Payload) -> None:
-        if isinstance(payload, AsvPose):
-            poses.append(payload)
-        elif isinstance(payload, RovDepth):
-            depths.append(payload)
-        elif isinstance(payload, RovAttitude):
-            attitudes.append(payload)
-        elif isinstance(payload, SonarFrame) and (
-            not frames or payload.stamp_ns >= frames[-1].stamp_ns + int(every_s * 1e9)
-        ):
-            frames.append(payload)
+    kept = Kept(frame_every_s=every_s)
 
     # The box-centre detector: fixes are not what this run is for, and it costs nothing.
     run(config, duration_s=duration_s, variants=[Variant("pose only", detector="box_centre")],
-        sink=sink, progress=progress)  # fmt: skip
-    lookup = PoseLookup(poses)
-    out = [Observation(f, asv) for f in frames if (asv := lookup.at(f.stamp_ns)) is not None]
+        sink=kept, progress=progress)  # fmt: skip
+    lookup = PoseLookup(kept.poses)
+    out = [Observation(f, asv) for f in kept.frames if (asv := lookup.at(f.stamp_ns)) is not None]
     # out[4:]: not the pose estimator's first seconds (a heading prior 20 deg off).
-    return Dive(out[4:], depths, attitudes)
+    return Dive(out[4:], kept.depths, kept.attitudes)
 
 
 def wanted_depth_offset(config: SimConfig, dive: Dive) -> float:
@@ -161,26 +182,18 @@ def range_offset_dive(
         asv_standoff_m=None,
         rates=Rates(sonar_hz=5.0),
     )
-    poses: list[AsvPose] = []
-    fixes: list[RovFix] = []
-
-    def keep(payload: Payload) -> None:
-        if isinstance(payload, AsvPose):
-            poses.append(payload)
-        elif isinstance(payload, RovFix):
-            fixes.append(payload)
-
+    kept = Kept()
     scored = run(
         orbit,
         duration_s=duration_s,
         variants=[Variant("ours", sonar=mount, rov=rov)],
-        sink=keep,
+        sink=kept,
         progress=progress,
         progress_offset_s=progress_offset_s,
     )["ours"]
-    lookup = PoseLookup(poses)
+    lookup = PoseLookup(kept.poses)
     transform = mount.transform()
-    fit = fit_range_offset(fixes, lookup, mount=transform)
+    fit = fit_range_offset(kept.fixes, lookup, mount=transform)
     world = Simulation(orbit, horizon_s=duration_s + 10.0)
     along = []
     for ping in scored.pings:
@@ -195,6 +208,78 @@ def range_offset_dive(
         along.append(float(off @ sight))
     drawn_x = float(world.mount.translation[0] - config.sonar.transform().translation[0])
     return RangeDive(fit, float(np.mean(along)) if along else math.nan, drawn_x)
+
+
+@dataclass(frozen=True)
+class PitchDive:
+    """The pitch manoeuvre's fit, and what it should find."""
+
+    fit: PitchFit
+    # How far the elevations the services compute (the configured mount, the ASV pose estimate,
+    # the ROV's place from its fixes and depth readings) are off the truth, averaged at the two
+    # edges (the plateau's centre is the mean of its edges): the pitch error, and what the
+    # sonar height's and the depth reading's errors do at those ranges.
+    wanted_offset_deg: float
+    drawn_pitch_deg: float  # the mount's pitch error alone (a correction, as the fit's)
+    drawn_height_mm: float  # the sonar's height error (up), which the fit takes in at its ranges
+
+
+def pitch_dive(
+    config: SimConfig,
+    *,
+    mount: SonarMountConfig,
+    rov: RovConfig,
+    duration_s: float,
+    progress: Progress | None = None,
+    progress_offset_s: float = 0.0,
+) -> PitchDive:
+    """The ASV still, the ROV going down and up in front of it, the locator told `mount`."""
+    profile = msgspec.structs.replace(
+        config,
+        trajectory="square",
+        asv_mode="follow",  # a ROV that only changes depth: the ASV stands still, facing it
+        rov_mode="profile",
+        profile_period_s=duration_s,
+        asv_standoff_m=None,
+        rates=Rates(sonar_hz=5.0),
+    )
+    kept = Kept(frame_every_s=0.0)
+    run(profile, duration_s=duration_s, variants=[Variant("ours", sonar=mount, rov=rov)],
+        sink=kept, progress=progress, progress_offset_s=progress_offset_s)  # fmt: skip
+    lookup = PoseLookup(kept.poses)
+    observations = [
+        Observation(f, a) for f in kept.frames if (a := lookup.at(f.stamp_ns)) is not None
+    ]
+    places = rov_places(kept.fixes, kept.depths, [o.frame.stamp_ns for o in observations])
+    transform = mount.transform()
+    model = mount.beam_model
+    samples = echo_samples(observations, places, mount=transform, beam_model=model)
+    fit = fit_pitch(samples)
+    world = Simulation(profile, horizon_s=duration_s + 10.0)
+    upper, lower = [], []
+    centre, half = math.radians(fit.offset_deg), math.radians(fit.half_width_deg)
+    for stamp, seen in zip(samples.stamps_ns, samples.elevation_rad, strict=True):
+        t = (int(stamp) - OFFLINE_START_NS) / 1e9
+        rov_true = world.rov_state(t).position_m
+        _, _, true = to_polar(
+            model, world.asv_pose(t).compose(world.mount).inverse().apply(rov_true)
+        )
+        if abs(seen - (centre + half)) < math.radians(3.0):
+            upper.append(float(seen) - true)
+        elif abs(seen - (centre - half)) < math.radians(3.0):
+            lower.append(float(seen) - true)
+    drawn = []
+    for obs in observations:
+        t = (obs.frame.stamp_ns - OFFLINE_START_NS) / 1e9
+        wanted = obs.asv.inverse().compose(world.asv_pose(t)).compose(world.mount)
+        drawn.append(matrix_to_euler_zyx(transform.rotation.T @ wanted.rotation)[1])
+    wanted_offset = (
+        math.degrees(0.5 * (float(np.mean(upper)) + float(np.mean(lower))))
+        if upper and lower
+        else math.nan
+    )
+    height_m = float(world.mount.translation[2] - transform.translation[2])  # B's z is up
+    return PitchDive(fit, wanted_offset, math.degrees(float(np.mean(drawn))), height_m * 1000)
 
 
 def bench(
@@ -227,6 +312,10 @@ def bench(
         cal = applied(loc.sonar, loc.rov, loc.installation, fit, depth)
         # As long as the turn (120 s: one swing there and back, ORBIT_PERIOD_S).
         ranged = range_offset_dive(config, mount=cal.mount, rov=cal.rov, duration_s=duration_s)
+        # Then, told that as well, the pitch from the ROV going down and up in front of the ASV.
+        cal = applied(loc.sonar, loc.rov, loc.installation, fit, depth, ranged.fit)
+        pitched = pitch_dive(config, mount=cal.mount, rov=cal.rov, duration_s=duration_s)
+        pf = pitched.fit
         rows.append(
             {
                 "seed": config.seed,
@@ -256,6 +345,16 @@ def bench(
                 "drawn_x_mm": round(ranged.drawn_x_m * 1000, 1),
                 "orbit_spread_deg": round(ranged.fit.spread_deg, 1),
                 "orbit_fixes": ranged.fit.fixes,
+                "wanted_elevation_offset_deg": round(pitched.wanted_offset_deg, 3),
+                "fitted_elevation_offset_deg": round(pf.offset_deg, 3),
+                "elevation_offset_sigma_deg": round(pf.offset_sigma_deg, 3),
+                "elevation_offset_error_deg": round(pf.offset_deg - pitched.wanted_offset_deg, 3),
+                "pitch_determined": pf.determined,
+                "profile_frames_above_below": [pf.above, pf.below],
+                "profile_range_m": round(pf.range_m, 2),
+                "aperture_half_width_deg": round(pf.half_width_deg, 2),
+                "drawn_pitch_correction_deg": round(pitched.drawn_pitch_deg, 3),
+                "drawn_height_mm": round(pitched.drawn_height_mm, 1),
                 "measurements": fit.measurements,
                 "yaw_determined": fit.yaw_determined,
                 "roll_determined": fit.roll_determined,
@@ -273,6 +372,11 @@ def bench(
     shift_err = float(np.mean([r["shift_error_mm"] for r in rows]))
     depth_err = float(np.mean([abs(r["depth_offset_error_mm"]) for r in rows]))
     along_err = float(np.mean([abs(r["along_error_mm"]) for r in rows]))
+    pitch_err = float(np.mean([abs(r["elevation_offset_error_deg"]) for r in rows]))
+    pitch_vs_drawn = float(
+        np.mean([abs(-r["fitted_elevation_offset_deg"] - r["drawn_pitch_correction_deg"])
+                 for r in rows])
+    )  # fmt: skip
     print(
         f"{tank}/{trajectory}, {seeds} seeds, {duration_s:g} s each, realistic installation "
         "errors; corrections in degrees (wanted: what the hidden errors call for)"
@@ -280,7 +384,9 @@ def bench(
     print(f"{'seed':>5} {'yaw want':>9} {'fitted':>8} {'sigma':>6} {'roll want':>10} "
           f"{'fitted':>8} {'sigma':>6} {'y err mm':>9} {'scale':>7} {'edges':>6} "
           f"{'depth off want mm':>17} {'fitted':>7} {'sigma':>6} "
-          f"{'along want mm':>13} {'fitted':>7} {'sigma':>6} {'drawn x':>8}")  # fmt: skip
+          f"{'along want mm':>13} {'fitted':>7} {'sigma':>6} {'drawn x':>8} "
+          f"{'elev off want':>13} {'fitted':>7} {'sigma':>6} {'pitch drawn':>11} "
+          f"{'height drawn mm':>15}")  # fmt: skip
     for r in rows:
         print(
             f"{r['seed']:>5} {r['wanted_yaw_deg']:>9.3f} {r['fitted_yaw_deg']:>8.3f} "
@@ -290,7 +396,10 @@ def bench(
             f"{r['measurements']:>6} {r['wanted_depth_offset_mm']:>17.1f} "
             f"{r['fitted_depth_offset_mm']:>7.1f} {r['depth_offset_sigma_mm']:>6.1f} "
             f"{r['wanted_along_mm']:>13.1f} {r['fitted_along_mm']:>7.1f} "
-            f"{r['along_sigma_mm']:>6.1f} {r['drawn_x_mm']:>8.1f}"
+            f"{r['along_sigma_mm']:>6.1f} {r['drawn_x_mm']:>8.1f} "
+            f"{r['wanted_elevation_offset_deg']:>13.3f} {r['fitted_elevation_offset_deg']:>7.3f} "
+            f"{r['elevation_offset_sigma_deg']:>6.3f} {r['drawn_pitch_correction_deg']:>11.3f} "
+            f"{r['drawn_height_mm']:>15.1f}"
         )
     print(
         f"mean |yaw error| {yaw_err:.3f} deg (target <= {YAW_TARGET_DEG}: "
@@ -300,8 +409,12 @@ def bench(
         f"{shift_err:.1f} mm sideways (target <= {SHIFT_TARGET_MM:g}: "
         f"{'met' if shift_err <= SHIFT_TARGET_MM else 'NOT met'}); mean |depth offset error| "
         f"{depth_err:.1f} mm (the ROV floating at the surface); mean |range offset error| "
-        f"{along_err:.1f} mm (the ROV parked, the ASV swinging round it); pitch and z not "
-        f"determined (said so); {time.monotonic() - started:.0f} s"
+        f"{along_err:.1f} mm (the ROV parked, the ASV swinging round it); mean |elevation "
+        f"offset error| {pitch_err:.3f} deg (the ROV going down and up: the pitch and the "
+        f"sonar height's effect at its ranges; target <= {TILT_TARGET_DEG}: "
+        f"{'met' if pitch_err <= TILT_TARGET_DEG else 'NOT met'}), against the drawn pitch "
+        f"alone {pitch_vs_drawn:.3f} deg; the sonar's height not determined (said so); "
+        f"{time.monotonic() - started:.0f} s"
     )
     figures = {
         "tank": tank,
@@ -313,6 +426,8 @@ def bench(
         "mean_shift_error_mm": round(shift_err, 2),
         "mean_abs_depth_offset_error_mm": round(depth_err, 2),
         "mean_abs_along_error_mm": round(along_err, 2),
+        "mean_abs_elevation_offset_error_deg": round(pitch_err, 4),
+        "mean_abs_pitch_error_vs_drawn_deg": round(pitch_vs_drawn, 4),
     }
     if out is not None:
         out.parent.mkdir(parents=True, exist_ok=True)

@@ -291,9 +291,11 @@ def register(sub: Subcommands) -> None:
     bcal = bench_sub.add_parser(
         "calibrate",
         help="how well `capsd calibrate` recovers the simulator's hidden mount errors",
-        description="Per seed, a simulated run of the calibration manoeuvre (the ASV turning "
-        "on the spot) with realistic installation errors, through the services' own pose "
-        "estimate; the fitted corrections against those the hidden errors call for.",
+        description="Per seed, simulated runs of the calibration manoeuvres (the ASV turning "
+        "on the spot while the ROV floats; the ASV swinging round the parked ROV; the ROV "
+        "going down and up in front of the still ASV) with realistic installation errors, "
+        "through the services' own pose estimate and locator; the fitted corrections against "
+        "those the hidden errors call for.",
     )
     bcal.add_argument("--seeds", type=positive_int, default=5, help="runs (seeds 500, 501, ...)")
     bcal.add_argument(

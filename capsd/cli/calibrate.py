@@ -70,7 +70,9 @@ def register(sub: Subcommands) -> None:
         "the locator config with what was determined (docs/INSTALL-ERRORS.md). Then, with "
         "that config, `--what range` on a recording of the ROV parked while the ASV swings "
         "round it facing it: the sonar's forward position from the fixes' offset along the "
-        "line of sight.",
+        "line of sight. And `--what pitch` on a recording (the same config) of the ASV still and "
+        "the ROV in front of it going slowly down and up through the sonar's vertical aperture, "
+        "beyond both its edges: the sonar's pitch from where the ROV's echo fades.",
     )
     cal.add_argument("recording", type=Path, help="an MCAP recording with frames and ASV poses")
     cal.add_argument(
@@ -82,10 +84,12 @@ def register(sub: Subcommands) -> None:
     cal.add_argument("-o", "--out", type=Path, required=True, help="the calibrated config")
     cal.add_argument(
         "--what",
-        choices=("all", "mount", "depth", "range"),  # capsd.calibrate.What
+        choices=("all", "mount", "depth", "range", "pitch"),  # capsd.calibrate.What
         default="all",
         help="mount: the sonar mount only; depth: the depth offset only (no sonar frames "
         "needed); all (default): both; range: the sonar's forward position from the fixes "
-        "of a parked ROV (a recording made with the calibrated config, the locator running)",
+        "of a parked ROV (a recording made with the calibrated config, the locator running); "
+        "pitch: the sonar's pitch from the ROV going down and up in front of the still ASV (the "
+        "same)",
     )
     cal.set_defaults(func=_cmd_calibrate)

@@ -13,6 +13,8 @@ from capsd.payloads import RovAttitude, RovDepth, SonarFrame
 from capsd.simulator.config import OFFLINE_START_NS, Config
 from capsd.simulator.install_errors import InstallErrors, InstallErrorsConfig
 from capsd.simulator.sim import Simulation
+from capsd.simulator.world import TankName
+from capsd.sonar_geometry import to_polar
 from capsd.sound_speed import speed_of_sound_m_s
 
 REALISTIC = InstallErrorsConfig(mode="realistic")
@@ -122,6 +124,31 @@ def test_the_range_offset_manoeuvre_swings_the_asv_round_a_parked_rov() -> None:
     # The line of sight turns far enough for capsd.range_calibration, the sonar on the ROV.
     assert math.degrees(np.ptp(np.unwrap(bearings))) > 60.0
     assert np.median(facing) < 10.0
+
+
+@pytest.mark.parametrize("tank", ["pond", "nfp", "mockup"])
+def test_the_pitch_manoeuvre_takes_the_rov_through_the_aperture_and_back(tank: TankName) -> None:
+    sim = Simulation(
+        Config(tank=tank, asv_mode="follow", rov_mode="profile", seed=2), horizon_s=130
+    )
+    rov = np.array([sim.rov_state(float(t)).position_m for t in range(0, 121, 5)])
+    assert np.ptp(rov[:, :2], axis=0).max() < 1e-9  # its place in the plane held
+    assert rov[0, 2] == pytest.approx(-0.4)  # from just under the surface
+    assert rov[12, 2] < -0.79  # down to the lower flight level at half time
+    assert rov[24, 2] == pytest.approx(-0.4)  # and back up
+    elevations = []
+    for t in (0.0, 60.0):
+        asv = sim.asv_pose(t)
+        assert np.linalg.norm(asv.translation[:2] - sim.asv_pose(100.0).translation[:2]) < 0.1
+        sonar = asv.compose(sim.mount)
+        _, _, elevation = to_polar("conical", sonar.inverse().apply(sim.rov_state(t).position_m))
+        elevations.append(math.degrees(elevation))
+    top, bottom = elevations
+    # Beyond both edges of the 20 deg aperture and its skirts, about evenly (the mount's drawn
+    # errors and the waves aside).
+    assert top > 15.0
+    assert bottom < -15.0
+    assert abs(top + bottom) < 3.0
 
 
 def test_labels_are_in_the_sonar_s_range_units_as_its_frames() -> None:

@@ -28,3 +28,10 @@ def test_bench_calibrate_writes_its_figures(tmp_path: Path) -> None:
     assert "mean |range offset error|" in proc.stdout
     assert run["orbit_fixes"] > 50
     assert abs(run["along_error_mm"]) < 30.0
+    # Then the ROV going down and up through the aperture: the elevation offset against the
+    # truth at the edges (half a minute: both edges crossed, not yet known to 0.15 deg).
+    assert "mean |elevation offset error|" in proc.stdout
+    above, below = run["profile_frames_above_below"]
+    assert above > 10
+    assert below > 10
+    assert abs(run["elevation_offset_error_deg"]) <= 4.0 * run["elevation_offset_sigma_deg"]
