@@ -9,7 +9,8 @@ put in exactly one class, the first that holds:
 - `no_detections`: in view, but the recording has no detections for the ping (the detector
   did not answer, or the frame was dropped);
 - `missed`: in view, no candidate at or above `min_confidence` within `match_m` of the label
-  (in range and in arc length, as `capsd bench detect` matches);
+  (in range and in arc length, as `capsd bench detect` matches); "in the skirt" when the
+  ROV's centre lies beyond the aperture's edge and only part of it is in view;
 - `no_fix`: a candidate on the ROV, but no fix for the ping in the recording;
 - `refused`: a candidate on the ROV, the fix not good; split by the locator's `no_fix_reason`
   (or, with a position, its track state: a tentative track is "unsure" until confirmed);
@@ -134,7 +135,10 @@ def judge(
         return ping("no_detections", "")
     if not _matched(detections, label, thresholds):
         confident = sum(d.confidence >= thresholds.min_confidence for d in detections.detections)
-        return ping("missed", "candidates elsewhere" if confident else "no candidate")
+        detail = "candidates elsewhere" if confident else "no candidate"
+        if abs(label.elevation_rad) > thresholds.vertical_aperture_rad / 2.0:
+            detail += ", centre in the skirt"
+        return ping("missed", detail)
     if fix is None:
         return ping("no_fix", "")
     if not good:

@@ -73,6 +73,9 @@ PINGS: list[tuple[SonarLabel, SonarDetections | None, RovFix | None, str, str]] 
     # a good fix on clutter while the ROV was out of view: counted as such
     (_label(10, visible=False, elevation_deg=15.0), _detections(10, ELSEWHERE), _fix(10, "good"),
      "out_of_view", "above the aperture"),
+    # in view by a part of it, its centre 12 deg below the boresight
+    (_label(11, elevation_deg=-12.0), _detections(11, FAINT), None,
+     "missed", "no candidate, centre in the skirt"),
 ]  # fmt: skip
 
 
@@ -107,7 +110,7 @@ def test_each_ping_lands_in_its_class(tmp_path: Path) -> None:
     assert [p.fix_error_m for p in losses.pings if p.kind == "good"] == [
         0.0, pytest.approx(0.5)
     ]  # fmt: skip
-    assert len(since(losses, 5.0).pings) == 6
+    assert len(since(losses, 5.0).pings) == 7
 
 
 def test_the_command_prints_and_writes_the_classes(
@@ -117,7 +120,7 @@ def test_the_command_prints_and_writes_the_classes(
     _write(recording)
     assert main(["losses", str(recording), "--out", str(tmp_path / "out")]) == 0
     printed = capfd.readouterr().out
-    assert "11 labelled pings" in printed
+    assert "12 labelled pings" in printed
     assert "map_clutter" in printed
     summary = json.loads((tmp_path / "out" / "losses.json").read_text())
     assert summary["classes"]["out_of_view"]["pings"] == 4
