@@ -508,7 +508,8 @@ def profiling(
 def profile_depths(tank: Tank) -> tuple[float, float]:
     """(top, bottom) z of the pitch manoeuvre: 0.4 m under the surface to the lower flight level.
 
-    No deeper than the lower flight level: that passes ~0.6 m over the racks' tops.
+    No deeper than the lower flight level (it passes ~0.6 m over the racks' tops), and at
+    least 0.8 m down in a shallow tank.
     """
     return -0.4, min(-0.8, tank.rov_depths[1])
 

@@ -20,7 +20,7 @@ import numpy as np
 
 from capsd.calibrate import applied
 from capsd.depth_calibration import fit_depth_offset
-from capsd.geometry import matrix_to_euler_zyx
+from capsd.geometry import Transform, matrix_to_euler_zyx
 from capsd.mount_calibration import Observation, corrected, fit_mount
 from capsd.mounts import RovConfig, SonarMountConfig
 from capsd.offline_pipeline import Variant, locator_config, run
@@ -120,6 +120,18 @@ def wanted_depth_offset(config: SimConfig, dive: Dive) -> float:
     return e.pressure_arm_m[2] - e.depth_bias_m - e.depth_drift_m_per_s * mid_s
 
 
+def wanted_mounts(world: Simulation, observations: list[Observation]) -> list[Transform]:
+    """Per frame, the mount a fix needs: H_W_B_est^-1 H_W_B_true H_B_S_true.
+
+    Composed with the ASV pose the services estimate, it puts the sonar where it truly is.
+    """
+    out = []
+    for obs in observations:
+        truth = world.asv_pose((obs.frame.stamp_ns - OFFLINE_START_NS) / 1e9)
+        out.append(obs.asv.inverse().compose(truth).compose(world.mount))
+    return out
+
+
 def wanted_correction(
     config: SimConfig, observations: list[Observation]
 ) -> tuple[float, float, float]:
@@ -133,11 +145,8 @@ def wanted_correction(
     last_s = max((o.frame.stamp_ns - OFFLINE_START_NS) / 1e9 for o in observations)
     sim = Simulation(config, horizon_s=last_s + 5.0)  # the same motion as the run's
     sonar_nominal = config.sonar.transform()
-    sonar_true = sim.mount
     angles, shifts = [], []
-    for obs in observations:
-        truth = sim.asv_pose((obs.frame.stamp_ns - OFFLINE_START_NS) / 1e9)
-        wanted = obs.asv.inverse().compose(truth).compose(sonar_true)
+    for wanted in wanted_mounts(sim, observations):
         yaw, _, roll = matrix_to_euler_zyx(sonar_nominal.rotation.T @ wanted.rotation)
         angles.append((yaw, roll))
         shifts.append(float(wanted.translation[1] - sonar_nominal.translation[1]))
@@ -268,11 +277,10 @@ def pitch_dive(
             upper.append(float(seen) - true)
         elif abs(seen - (centre - half)) < math.radians(3.0):
             lower.append(float(seen) - true)
-    drawn = []
-    for obs in observations:
-        t = (obs.frame.stamp_ns - OFFLINE_START_NS) / 1e9
-        wanted = obs.asv.inverse().compose(world.asv_pose(t)).compose(world.mount)
-        drawn.append(matrix_to_euler_zyx(transform.rotation.T @ wanted.rotation)[1])
+    drawn = [
+        matrix_to_euler_zyx(transform.rotation.T @ wanted.rotation)[1]
+        for wanted in wanted_mounts(world, observations)
+    ]
     wanted_offset = (
         math.degrees(0.5 * (float(np.mean(upper)) + float(np.mean(lower))))
         if upper and lower
