@@ -81,6 +81,14 @@ def test_after_learning_every_ping_is_stamped_when_taken_even_after_a_stall(
         assert stamp.taken_ns <= arrival
         late += stamp.late_s > LATE_S
     assert clock.learnt
+    # A silence longer than half the counter's wrap (2.1 s for a nanosecond u32) may hide a
+    # wrap: the clock drops its mapping there by design and learns it again, so the backlog
+    # is stamped on arrival, not flagged late (hypothesis found it: 0.16 s pings, a 2 s stall).
+    first_stalled = next(k for k, ping in enumerate(pings) if not ping[3])
+    silence_s = (pings[first_stalled][2] - pings[first_stalled - 1][2]) / 1e9
+    if silence_s > 0.5 * U32 * tick_ns / 1e9:
+        assert clock.resets == 1
+        return
     # Pings in the stall were late by up to stall_s: some are flagged (not all: the last ones
     # taken just before the stall ended are on time).
     assert late >= int((stall_s - LATE_S) / period_s) - 1
