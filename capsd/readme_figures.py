@@ -253,6 +253,42 @@ def detect_table(figures: dict[str, Any]) -> list[str]:
     return lines
 
 
+def finetune_table(figures: dict[str, Any]) -> list[str]:
+    """The fine-tune path: shipped against fine-tuned weights at the dive's site and elsewhere."""
+    groups = figures["groups"]
+    labels = figures["labels"]
+    tank, trajectory, seed = figures["dive"]
+    lines = [
+        f"First dive: {tank} {trajectory} (seed {seed}), {figures['dive_duration_s']:g} s in a "
+        f"look outside the training variety; {labels['labelled']} of {labels['frames']} "
+        f"recorded pings labelled from confident tracked fixes; fine-tuned in "
+        f"{figures['finetune_seconds'] / 60:.1f} min (operating point "
+        f"{figures['operating_point']['offset']:.2f} against the shipped "
+        f"{figures['operating_point']['shipped_offset']:.2f}); held-out runs "
+        f"{figures['eval_duration_s']:g} s each.",
+        "",
+        "| look / weights | detected | false alarms / frame | range err median (p90) "
+        "| bearing err median (p90) | clear / overlapping clutter | 4-8 / 8-14 m |",
+        "|---|---:|---:|---:|---:|---:|---:|",
+    ]
+
+    def rates(weights: str, look: str, names: tuple[str, ...]) -> str:
+        found = [groups.get(f"{weights} / {look} / {n}", {}).get("detection_rate") for n in names]
+        return " / ".join(_pct(r).removesuffix(" %") for r in found) + " %"
+
+    for look, label in (("this site", "the dive's site (its look)"), ("heldout", "held-out look")):
+        for weights in ("shipped", "fine-tuned"):
+            g = groups[f"{weights} / {look} / all"]
+            lines.append(
+                f"| {label}, {weights} | {_pct(g['detection_rate'])} "
+                f"| {g['false_alarms_per_frame']:.3f} | {_err(g, 'range_err_cm', 'cm', 2)} "
+                f"| {_err(g, 'azimuth_err_deg', 'deg', 2)} "
+                f"| {rates(weights, look, ('clear', 'overlap'))} "
+                f"| {rates(weights, look, ('4-8 m', '8-14 m'))} |"
+            )
+    return lines
+
+
 def consistency_table(figures: dict[str, Any]) -> list[str]:
     """NEES of the fixes with no floor, the derived floor and the configured one."""
     lines = [
@@ -354,6 +390,7 @@ RENDERERS: dict[str, tuple[Callable[[dict[str, Any]], list[str]], str]] = {
     "latency_table": (latency_table, "capsd bench latency"),
     "detect_table": (detect_table, "capsd bench detect --json FILE"),
     "consistency_table": (consistency_table, "capsd bench consistency"),
+    "finetune_table": (finetune_table, "capsd bench finetune"),
     "calibrate_table": (calibrate_table, "capsd bench calibrate"),
     "self_calibrated_table": (
         self_calibrated_table,

@@ -106,7 +106,7 @@ def run(*, out: Path, duration_s: float, eval_duration_s: float) -> int:
         print("no confident tracked fix in the first dive: nothing to fine-tune on")
         return 1
     write_labels(labels, out / "labels")
-    finetune(DEFAULT_WEIGHTS, out / "labels", out / "weights", FinetuneConfig())
+    tuned = finetune(DEFAULT_WEIGHTS, out / "labels", out / "weights", FinetuneConfig())
     detectors = {"shipped": _cnn(DEFAULT_WEIGHTS), "fine-tuned": _cnn(out / "weights/polar_net.pt")}
     # The dive's own look (what a site's fine-tune is for), and, to see what it costs
     # elsewhere, the bench's held-out look of each run.
@@ -121,9 +121,11 @@ def run(*, out: Path, duration_s: float, eval_duration_s: float) -> int:
     print(HEADER)
     rows = {}
     for name in sorted(tallies):
-        if name.endswith("/ all") and not name.startswith("paper"):
+        if name.startswith("paper"):
+            continue
+        rows[name] = tallies[name].summary()  # every group: clear/overlap, range bands
+        if name.endswith("/ all"):
             print(tallies[name].row(name))
-            rows[name] = tallies[name].summary()
     result = {
         "dive": list(DIVE),
         "dive_duration_s": duration_s,
@@ -132,6 +134,9 @@ def run(*, out: Path, duration_s: float, eval_duration_s: float) -> int:
         "held_out": [list(r) for r in HELD_OUT],
         "eval_duration_s": eval_duration_s,
         "groups": rows,
+        "finetune_seconds": tuned["seconds"],
+        "finetune_samples": tuned["samples"],
+        "operating_point": tuned["operating_point"],
         "seconds": round(time.monotonic() - started, 1),
     }
     (out / "finetune.json").write_text(json.dumps(result, indent=2, sort_keys=True) + "\n")
