@@ -11,6 +11,12 @@ and azimuth error (median and p95 of absolute values). The paper's pipeline is t
 the centre of a perfect bounding box of the ROV's echo in the Cartesian fan image, converted
 back to (R, theta).
 
+With `--depth-gate truth`, each detector runs as the service does with its depth-aware search
+(proposals kept to the ranges where the ROV's depth plane crosses the fan, candidates off that
+plane rejected), given the true ASV pose and the ROV's true depth: what the deployed detector
+finds when the ASV pose and the depth sensor are right. Without it (the default), the detector
+alone, every frame searched whole, as a detector without pose or depth works.
+
 Throughput (`--throughput`): per-frame latency of each detector on 512-beam x 1000-bin frames,
 pinned to one CPU core (one torch and one OpenCV thread), median and p99; the CNN both with
 the service's tracking (frames 25 ms apart) and searching every frame alone (the worst case).
@@ -27,7 +33,7 @@ from collections import defaultdict
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, Protocol
 
 import msgspec
 import numpy as np
@@ -35,7 +41,9 @@ import numpy as np
 from capsd.mounts import SonarMountConfig
 from capsd.payloads import Detection, SonarFrame, SonarLabel
 from capsd.progress import Progress
+from capsd.services.sonar_detect.depth_gate import DepthGate
 from capsd.services.sonar_detect.paper_box import box_centre
+from capsd.services.sonar_detect.service import DepthGateConfig, detect_gated
 from capsd.simulator.config import OFFLINE_START_NS, Config, SonarImageConfig, Streams
 from capsd.simulator.install_errors import InstallErrorsConfig
 from capsd.simulator.sim import Simulation
@@ -68,7 +76,34 @@ MIN_CONFIDENCE = 0.5  # the sonar_detect service's default
 MATCH_M = 0.5
 GHOST_M = 0.3
 
-Detector = Callable[[SonarFrame], list[Detection]]
+
+class Detector(Protocol):
+    """A detector's `detect`: the frame's candidates, proposals only inside `range_window`."""
+
+    def __call__(
+        self, frame: SonarFrame, *, range_window: tuple[float, float] | None = None
+    ) -> list[Detection]: ...
+
+
+# Whether the bench gives the detectors the service's depth-aware search (from the truth).
+DepthGateMode = Literal["off", "truth"]
+
+
+@dataclass(frozen=True)
+class _Bound:
+    """A `detect` function where `detect_gated` wants an object that has one."""
+
+    detect: Detector
+
+
+def truth_gate(sim: Simulation, t_s: float, label: SonarLabel) -> DepthGate:
+    """The service's depth gate (default settings) from the true ASV pose and ROV depth.
+
+    The ROV's true centre stands in for the depth reading (the gate's tolerance covers the
+    sensor's lever arm); the mount is the simulator's own (installation errors are off here).
+    """
+    gate = DepthGateConfig(sonar=sim.config.sonar)
+    return gate.gate_at(sim.asv_pose(t_s), label.rov_position_m[2])
 
 
 @dataclass
@@ -183,10 +218,12 @@ def evaluate(
     looks: tuple[Variety, ...] = LOOKS,
     look_seed: int | None = None,
     starts_s: tuple[float, ...] = (0.0,),
+    depth_gate: DepthGateMode = "off",
 ) -> dict[str, Tally]:
     """Every detector on every held-out run in every look (drawn from `look_seed` if given).
 
-    Each run's pings from each of `starts_s` s into its vehicles' paths, for `duration_s`.
+    Each run's pings from each of `starts_s` s into its vehicles' paths, for `duration_s`;
+    with `depth_gate` "truth", through the service's depth-aware search (`truth_gate`).
 
     Tallies are keyed 'detector / look / group', group: clear, overlap (clutter overlapping
     the ROV), all, or a range band of the ROV's true range.
@@ -206,8 +243,11 @@ def evaluate(
                 for t_s, frame, label in sim.labelled_pings(
                     start_ns=OFFLINE_START_NS, duration_s=duration_s, from_s=start_s
                 ):
+                    gate = truth_gate(sim, t_s, label) if depth_gate == "truth" else None
                     for name, detect in detectors.items():
-                        found = [d for d in detect(frame) if d.confidence >= MIN_CONFIDENCE]
+                        found, _ = detect_gated(
+                            _Bound(detect), frame, gate, min_confidence=MIN_CONFIDENCE
+                        )
                         score(tallies, f"{name} / {look}", label, found)
                     score(tallies, f"paper: box centre / {look}", label, box_centre(label))
                     bar.update(done + t_s - start_s)
@@ -359,9 +399,10 @@ def run(
     json_out: Path | None = None,
     options: CnnOptions = CnnOptions(),
     starts_s: tuple[float, ...] = BENCH_STARTS_S,
+    depth_gate: DepthGateMode = "off",
 ) -> int:
     detectors = _detectors(which, weights, options=options)
-    tallies = evaluate(detectors, duration_s=duration_s, starts_s=starts_s)
+    tallies = evaluate(detectors, duration_s=duration_s, starts_s=starts_s, depth_gate=depth_gate)
     if json_out is not None:
         json_out.parent.mkdir(parents=True, exist_ok=True)
         figures = {
@@ -370,6 +411,7 @@ def run(
             "duration_s_per_stretch": duration_s,
             "stretches_start_s_into_paths": list(starts_s),
             "min_confidence": MIN_CONFIDENCE,
+            "depth_gate": depth_gate,
             "groups": {name: tally.summary() for name, tally in sorted(tallies.items())},
         }
         json_out.write_text(json.dumps(figures, indent=1) + "\n")
@@ -381,6 +423,8 @@ def run(
         + ", ".join(f"{t}/{tr} ({m}) seed {s}" for t, tr, m, s in RUNS)
     )
     print(f"candidates with confidence >= {MIN_CONFIDENCE}; a match is within {MATCH_M} m")
+    if depth_gate == "truth":
+        print("depth-aware search as the service runs it, from the true ASV pose and ROV depth")
     print(HEADER)
     for name in sorted(tallies):
         print(tallies[name].row(name))

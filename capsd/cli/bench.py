@@ -77,6 +77,7 @@ def _cmd_bench_detect(args: argparse.Namespace) -> int:
         json_out=args.json,
         options=options,
         starts_s=starts,
+        depth_gate=args.depth_gate,
     )
 
 
@@ -250,6 +251,13 @@ def register(sub: Subcommands) -> None:
         metavar="PT",
         help="CNN weights to compare in one run (default: the shipped ones), each named by "
         "its folder",
+    )
+    bdet.add_argument(
+        "--depth-gate",
+        choices=("off", "truth"),
+        default="off",
+        help="truth: the service's depth-aware search, given the true ASV pose and ROV depth "
+        "(what the deployed detector finds); off: the detector alone (default: %(default)s)",
     )
     bdet.add_argument(
         "--search-refines",

@@ -112,6 +112,18 @@ class DepthGateConfig(ConfigSection, frozen=True, kw_only=True):
     max_age_s: Annotated[float, msgspec.Meta(gt=0.0, le=10.0)] = 0.5
     sonar: SonarMountConfig = SonarMountConfig()  # H_B_S, as the locator's
 
+    def gate_at(self, asv_in_world: Transform, rov_z_m: float) -> DepthGate:
+        """The gate for a ping whose ASV pose (H_W_B) and ROV depth plane (world z) are these."""
+        return DepthGate(
+            sonar_in_world=asv_in_world.compose(self.sonar.transform()),
+            rov_z_m=rov_z_m,
+            tolerance_m=self.tolerance_m,
+            half_aperture_rad=math.radians(
+                self.sonar.vertical_aperture_deg / 2 + self.aperture_margin_deg
+            ),
+            beam_model=self.sonar.beam_model,
+        )
+
 
 class Config(ServiceConfig, frozen=True, kw_only=True):
     """Sonar detection configuration."""
@@ -194,7 +206,6 @@ class GateInputs:
 
     def __init__(self, config: DepthGateConfig):
         self.config = config
-        self._mount = config.sonar.transform()
         self.pose: AsvPose | None = None
         self.depth: RovDepth | None = None
 
@@ -208,15 +219,7 @@ class GateInputs:
         if abs(stamp_ns - pose.stamp_ns) > limit_ns or abs(stamp_ns - depth.stamp_ns) > limit_ns:
             return None
         asv = Transform(quat_to_matrix(np.array(pose.orientation_xyzw)), np.array(pose.position_m))
-        return DepthGate(
-            sonar_in_world=asv.compose(self._mount),
-            rov_z_m=-depth.depth_m,
-            tolerance_m=c.tolerance_m,
-            half_aperture_rad=math.radians(
-                c.sonar.vertical_aperture_deg / 2 + c.aperture_margin_deg
-            ),
-            beam_model=c.sonar.beam_model,
-        )
+        return c.gate_at(asv, -depth.depth_m)
 
 
 def main(config: Config) -> int:

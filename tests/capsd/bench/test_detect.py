@@ -1,4 +1,4 @@
-"""The detection bench: where in the runs' paths it scores."""
+"""The detection bench: where in the runs' paths it scores, and its depth-aware search."""
 
 from __future__ import annotations
 
@@ -6,10 +6,11 @@ from pathlib import Path
 
 import pytest
 
-from capsd.bench.detect import RUNS, band_of, evaluate
+from capsd.bench.detect import RUNS, band_of, evaluate, sonar_only, truth_gate
 from capsd.cli import main
 from capsd.payloads import Detection, SonarFrame
 from capsd.simulator.config import OFFLINE_START_NS
+from capsd.simulator.sim import Simulation
 
 
 class _Stamps:
@@ -17,9 +18,13 @@ class _Stamps:
 
     def __init__(self) -> None:
         self.stamps: list[int] = []
+        self.windows: list[tuple[float, float] | None] = []
 
-    def __call__(self, frame: SonarFrame) -> list[Detection]:
+    def __call__(
+        self, frame: SonarFrame, *, range_window: tuple[float, float] | None = None
+    ) -> list[Detection]:
         self.stamps.append(frame.stamp_ns)
+        self.windows.append(range_window)
         return []
 
 
@@ -85,3 +90,31 @@ def test_range_bands_start_close_for_small_tanks_and_end_at_20_m() -> None:
     assert band_of(1.5) == "1.5-4 m"
     assert band_of(19.99) == "14-20 m"
     assert band_of(20.0) is None
+
+
+def test_the_truth_gate_keeps_the_rov_and_bounds_the_search() -> None:
+    tank, trajectory, mode, seed = RUNS[1]
+    sim = Simulation(sonar_only(tank, trajectory, mode, seed), horizon_s=10.0)
+    visible = 0
+    for t_s, frame, label in sim.labelled_pings(start_ns=OFFLINE_START_NS, duration_s=3.0):
+        if not label.visible:
+            continue
+        visible += 1
+        gate = truth_gate(sim, t_s, label)
+        assert gate.plausible(label.range_m, label.azimuth_rad)
+        window = gate.range_window(max(abs(a) for a in frame.azimuths_rad))
+        assert window is not None
+        near, far = window
+        assert near <= label.range_m <= far
+        # Where the ROV's plane cannot be (well short of the window): rejected.
+        assert not gate.plausible(0.5 * near, label.azimuth_rad)
+    assert visible > 10
+
+
+def test_the_bench_hands_the_service_search_window_only_with_the_gate() -> None:
+    alone, gated = _Stamps(), _Stamps()
+    evaluate({"none": alone}, duration_s=1.0, runs=RUNS[:1], looks=("off",))
+    evaluate({"none": gated}, duration_s=1.0, runs=RUNS[:1], looks=("off",), depth_gate="truth")
+    assert alone.stamps == gated.stamps
+    assert all(w is None for w in alone.windows)
+    assert all(w is not None and 0.0 <= w[0] < w[1] for w in gated.windows)
