@@ -100,10 +100,10 @@ def truth_gate(sim: Simulation, t_s: float, label: SonarLabel) -> DepthGate:
     """The service's depth gate (default settings) from the true ASV pose and ROV depth.
 
     The ROV's true centre stands in for the depth reading (the gate's tolerance covers the
-    sensor's lever arm); the mount is the simulator's own (installation errors are off here).
+    sensor's lever arm); the sonar's pose is the simulator's true one.
     """
     gate = DepthGateConfig(sonar=sim.config.sonar)
-    return gate.gate_at(sim.asv_pose(t_s), label.rov_position_m[2])
+    return gate.gate_at(sim.asv_pose(t_s).compose(sim.mount), label.rov_position_m[2])
 
 
 @dataclass

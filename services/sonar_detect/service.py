@@ -112,10 +112,10 @@ class DepthGateConfig(ConfigSection, frozen=True, kw_only=True):
     max_age_s: Annotated[float, msgspec.Meta(gt=0.0, le=10.0)] = 0.5
     sonar: SonarMountConfig = SonarMountConfig()  # H_B_S, as the locator's
 
-    def gate_at(self, asv_in_world: Transform, rov_z_m: float) -> DepthGate:
-        """The gate for a ping whose ASV pose (H_W_B) and ROV depth plane (world z) are these."""
+    def gate_at(self, sonar_in_world: Transform, rov_z_m: float) -> DepthGate:
+        """The gate for a ping whose sonar pose (H_W_S) and ROV depth plane (world z) are these."""
         return DepthGate(
-            sonar_in_world=asv_in_world.compose(self.sonar.transform()),
+            sonar_in_world=sonar_in_world,
             rov_z_m=rov_z_m,
             tolerance_m=self.tolerance_m,
             half_aperture_rad=math.radians(
@@ -206,6 +206,7 @@ class GateInputs:
 
     def __init__(self, config: DepthGateConfig):
         self.config = config
+        self._mount = config.sonar.transform()
         self.pose: AsvPose | None = None
         self.depth: RovDepth | None = None
 
@@ -219,7 +220,7 @@ class GateInputs:
         if abs(stamp_ns - pose.stamp_ns) > limit_ns or abs(stamp_ns - depth.stamp_ns) > limit_ns:
             return None
         asv = Transform(quat_to_matrix(np.array(pose.orientation_xyzw)), np.array(pose.position_m))
-        return c.gate_at(asv, -depth.depth_m)
+        return c.gate_at(asv.compose(self._mount), -depth.depth_m)
 
 
 def main(config: Config) -> int:
