@@ -14,7 +14,10 @@ of sight (capsd.range_calibration) moves the sonar's forward position.
 
 `--what pitch` reads a third, also made with the calibrated config: the ASV still, the ROV
 holding its place in front of it and going slowly down and up through the sonar's vertical
-aperture; where its echo fades above and below (capsd.pitch_calibration) gives the pitch.
+aperture; where its echo fades above and below (capsd.pitch_calibration) gives the pitch. Two
+such profiles at different distances (about 1.5 m and as far as the floor allows) give the
+sonar's height too (`--orbit`: the range manoeuvre's recording, whose forward position took
+part of the height in); from one, the offset is written as the pitch.
 """
 
 from __future__ import annotations
@@ -34,7 +37,13 @@ from capsd.keys import Subject, subject_of
 from capsd.mount_calibration import MountFit, Observation, corrected, fit_mount
 from capsd.mounts import RovConfig, SonarMountConfig
 from capsd.payloads import AsvPose, Payload, RovAttitude, RovDepth, RovFix, SonarFrame
-from capsd.pitch_calibration import PitchFit, echo_samples, fit_pitch, rov_places
+from capsd.pitch_calibration import (
+    ProfilesFit,
+    echo_samples,
+    fit_profiles,
+    rov_places,
+    split_profiles,
+)
 from capsd.pose_lookup import PoseLookup
 from capsd.range_calibration import RangeFit, fit_range_offset
 from capsd.recording import Recorded, read
@@ -58,7 +67,7 @@ class Calibration:
     rov: RovConfig
     installation: InstallationConfig  # what the locator should still allow for
     range_fit: RangeFit | None = None
-    pitch_fit: PitchFit | None = None
+    pitch_fit: ProfilesFit | None = None
 
     def lines(self) -> list[str]:
         """What a person reads: each estimate, its uncertainty, and what could not be told."""
@@ -153,8 +162,12 @@ def calibrate(
     tank: TankBounds,
     prior: InstallationConfig,
     what: What = "all",
+    orbit: Path | None = None,
 ) -> Calibration:
-    """The fits asked for, and the configs with what they determined applied."""
+    """The fits asked for, and the configs with what they determined applied.
+
+    `orbit`: with `what="pitch"`, the range manoeuvre's recording (the sonar's height needs it).
+    """
     streams = _streams(recording)
     mount_fit = depth_fit = None
     if what in ("all", "mount"):
@@ -165,15 +178,13 @@ def calibrate(
         )
     range_fit = pitch_fit = None
     if what == "range":
-        poses = _decoded(streams.poses, AsvPose)
-        if not poses:
-            raise CapsdError(f"{recording}: no ASV poses in it (asv_pose must run while recording)")
-        fixes = _decoded(streams.fixes, RovFix)
-        try:
-            range_fit = fit_range_offset(fixes, PoseLookup(poses), mount=mount.transform())
-        except CapsdError as exc:
-            raise CapsdError(f"{recording}: {exc}") from None
+        range_fit = _range_fit(streams, recording, mount)
     if what == "pitch":
+        # The range offset took part of a height error into the forward position: the height
+        # is written only knowing how much (the orbit's recording).
+        coupling = (
+            None if orbit is None else _range_fit(_streams(orbit), orbit, mount).height_coupling
+        )
         observations = _observations(streams, recording, every_s=PITCH_EVERY_S)
         try:
             places = rov_places(
@@ -181,14 +192,26 @@ def calibrate(
                 _decoded(streams.depths, RovDepth),
                 [o.frame.stamp_ns for o in observations],
             )
-            pitch_fit = fit_pitch(
-                echo_samples(
-                    observations, places, mount=mount.transform(), beam_model=mount.beam_model
-                )
+            samples = echo_samples(
+                observations, places, mount=mount.transform(), beam_model=mount.beam_model
             )
+            pitch_fit = fit_profiles(split_profiles(samples), height_coupling=coupling)
         except CapsdError as exc:
             raise CapsdError(f"{recording}: {exc}") from None
     return applied(mount, rov, prior, mount_fit, depth_fit, range_fit, pitch_fit)
+
+
+def _range_fit(streams: _Streams, recording: Path, mount: SonarMountConfig) -> RangeFit:
+    """The range offset from a recording of the parked ROV (its good fixes, the ASV's poses)."""
+    poses = _decoded(streams.poses, AsvPose)
+    if not poses:
+        raise CapsdError(f"{recording}: no ASV poses in it (asv_pose must run while recording)")
+    try:
+        return fit_range_offset(
+            _decoded(streams.fixes, RovFix), PoseLookup(poses), mount=mount.transform()
+        )
+    except CapsdError as exc:
+        raise CapsdError(f"{recording}: {exc}") from None
 
 
 def applied(
@@ -198,7 +221,7 @@ def applied(
     mount_fit: MountFit | None,
     depth_fit: DepthFit | None,
     range_fit: RangeFit | None = None,
-    pitch_fit: PitchFit | None = None,
+    pitch_fit: ProfilesFit | None = None,
 ) -> Calibration:
     """The configs with what the fits determined applied, and what is left to allow for."""
     if mount_fit is not None:
@@ -211,6 +234,12 @@ def applied(
     if pitch_fit is not None and pitch_fit.determined:
         pitch = round(mount.pitch_deg + pitch_fit.pitch_correction_deg, 4)
         mount = msgspec.structs.replace(mount, pitch_deg=pitch)
+    if pitch_fit is not None and pitch_fit.height_determined:
+        # B's z is up: the sonar truly sits height_m higher; the forward position gives back
+        # what the range offset took of the height.
+        x, y, z = mount.position_m
+        position = (round(x + pitch_fit.forward_m, 4), y, round(z + pitch_fit.height_m, 4))
+        mount = msgspec.structs.replace(mount, position_m=position)
     if depth_fit is not None and depth_fit.determined:
         rov = msgspec.structs.replace(rov, depth_offset_m=round(depth_fit.offset_m, 4))
     installation = installation_after(prior, mount_fit, depth_fit, range_fit, pitch_fit)
@@ -237,7 +266,7 @@ def installation_after(
     mount_fit: MountFit | None,
     depth_fit: DepthFit | None,
     range_fit: RangeFit | None = None,
-    pitch_fit: PitchFit | None = None,
+    pitch_fit: ProfilesFit | None = None,
 ) -> InstallationConfig:
     """What the installation may still get wrong after the fits.
 
@@ -254,6 +283,10 @@ def installation_after(
         x = range_fit.along_sigma_m
     if pitch_fit is not None and pitch_fit.determined:
         pitch = pitch_fit.offset_sigma_deg
+    if pitch_fit is not None and pitch_fit.height_determined:
+        z = pitch_fit.height_sigma_m
+        coupling = pitch_fit.height_coupling or 0.0
+        x = math.hypot(x, coupling * pitch_fit.height_sigma_m)
     depth = prior.depth_offset_m
     if depth_fit is not None and depth_fit.determined:
         depth = depth_fit.sigma_m

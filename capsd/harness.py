@@ -355,16 +355,18 @@ def _calibrated(run: Any, folder: Path, *, duration_s: float) -> dict[str, Any]:
     import msgspec
 
     from capsd.bench.accuracy import self_calibrate
+    from capsd.bench.calibrate import profile_standoffs_m
     from capsd.progress import Progress
 
-    print(
-        f"calibrating the installation: a simulated calibration dive (3 x {duration_s:g} s, "
-        "offline), fitted by capsd calibrate's code",
-        flush=True,
-    )
     # The dive is its own run: no live autopilots (the demo's ports), the ASV turns on the spot.
     offline = msgspec.structs.replace(run, guided=None, asv_guided=None, asv_mode="spin")
-    progress = Progress(3 * duration_s, label="calibration dive", unit=" s")
+    manoeuvres = 2 + len(profile_standoffs_m(offline, offline.sonar))
+    print(
+        f"calibrating the installation: a simulated calibration dive ({manoeuvres} x "
+        f"{duration_s:g} s, offline), fitted by capsd calibrate's code",
+        flush=True,
+    )
+    progress = Progress(manoeuvres * duration_s, label="calibration dive", unit=" s")
     sonar, rov, installation, summary = self_calibrate(
         offline, duration_s=duration_s, progress=progress
     )

@@ -15,7 +15,11 @@ centre is how far the computed elevations are off.
 
 What it measures is the elevation offset at the manoeuvre's ranges: the pitch error plus what
 an error in the sonar's height does to an elevation there (2 cm at 2.5 m is 0.46 deg). That is
-what the aperture tests feel at such ranges; it is applied as the mount's pitch.
+what the aperture tests feel at such ranges. From one distance it is applied as the mount's
+pitch. Profiles at two distances tell the two apart: the pitch offsets every elevation alike,
+the height by its angle at that distance (2 cm is 0.46 deg at 2.5 m, 0.25 deg at 4.5 m), so the
+offsets found at each distance are fitted as pitch plus height times that angle per metre
+(`fit_profiles`), and the height is written when it is known within HEIGHT_SIGMA_MAX_M.
 """
 
 from __future__ import annotations
@@ -41,6 +45,10 @@ Floats = npt.NDArray[np.float64]
 BEFORE_M, AFTER_M, HALF_WIDTH_M = 0.35, 0.15, 0.3
 TOP_SHARE = 0.1  # the strength: the mean of the window's brightest tenth
 MAX_FIX_GAP_S = 60.0  # outside the aperture there are no fixes: the last place still holds
+# The ROV holds its place: its x, y the median of the good fixes this near in time, not the
+# nearest fix alone (at 1.5 m a fix's 2 cm is most of a degree of elevation, and the last fix
+# before the ROV leaves the aperture, held while it is out of view, is the least sure).
+PLACE_WINDOW_S = 20.0
 MIN_BEYOND = 10  # frames beyond each edge (and as many inside) for the edges to be fitted
 # Written only when known this well: as the roll (capsd.mount_calibration), tilt matters far
 # less than heading (the depth constraint forgives it; the aperture's edges are soft).
@@ -52,6 +60,14 @@ INDEPENDENT_EVERY_S = 0.5  # neighbouring frames' strengths share the ROV's aspe
 # edges are not quite symmetric about the boresight (the ROV's outline seen from above and
 # from the side; with the truth's own geometry that seed's plateau centred 0.31 deg off).
 MODEL_SIGMA_DEG = 0.14
+LIFT_STEP_M = 0.01  # the sonar raised this much to see what its height does to an elevation
+# Profiles at distances further apart than this are told apart (a recording's transit between
+# them falls between); frames within PROFILE_HALF_SPREAD_M of a profile's distance are its.
+PROFILE_BIN_M = 0.1
+PROFILE_HALF_SPREAD_M = 0.3
+PROFILE_SHARE = 0.25
+# The sonar's height is written when known this well (issue 24's target for its position).
+HEIGHT_SIGMA_MAX_M = 0.015
 
 
 @dataclass(frozen=True)
@@ -62,6 +78,20 @@ class EchoSamples:
     elevation_rad: Floats
     range_m: Floats
     strength: Floats
+    distance_m: Floats  # horizontal, from the sonar to the ROV
+    # How much the computed elevation is off per metre the sonar truly sits higher than the
+    # mount says (the ROV then lies lower in it than computed): what a height error does here.
+    height_gain_rad_per_m: Floats
+    # The same per metre the mount puts the sonar further forward than it truly is.
+    forward_gain_rad_per_m: Floats
+
+    def subset(self, keep: npt.NDArray[np.bool_]) -> EchoSamples:
+        """The samples where `keep` holds."""
+        return EchoSamples(
+            self.stamps_ns[keep], self.elevation_rad[keep], self.range_m[keep],
+            self.strength[keep], self.distance_m[keep], self.height_gain_rad_per_m[keep],
+            self.forward_gain_rad_per_m[keep],
+        )  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -77,6 +107,10 @@ class PitchFit:
     below: int  # frames beyond the bottom edge
     range_m: float  # the median range of the frames near the edges
     residual: float
+    distance_m: float = math.nan  # the median horizontal distance from the sonar to the ROV
+    # What a height error does to the centre (the mean of the two edges' EchoSamples gains).
+    height_gain_rad_per_m: float = math.nan
+    forward_gain_rad_per_m: float = math.nan  # the same for a forward error
 
     @property
     def pitch_correction_deg(self) -> float:
@@ -113,11 +147,12 @@ class PitchFit:
 def rov_places(
     fixes: Sequence[RovFix], depths: Sequence[RovDepth], stamps_ns: Sequence[int]
 ) -> list[Floats | None]:
-    """The ROV's centre at each stamp: the nearest good fix's x, y; z from the depth readings.
+    """The ROV's centre at each stamp: x, y from the good fixes; z from the depth readings.
 
-    Outside the aperture there are no fixes; the ROV holds its place in the plane, so the
-    nearest one stands (within MAX_FIX_GAP_S). Its z follows the depth readings, offset by
-    how the good fixes' z lies against them (the pressure port's lever arm and any offset).
+    The ROV holds its place in the plane: its x, y the median of the good fixes within
+    PLACE_WINDOW_S; outside the aperture there are none, and the nearest one stands (within
+    MAX_FIX_GAP_S). Its z follows the depth readings, offset by how the good fixes' z lies
+    against them (the pressure port's lever arm and any offset).
     """
     good = [f for f in fixes if f.quality == "good" and f.position_m is not None]
     if len(good) < 2 or len(depths) < 2:
@@ -139,7 +174,9 @@ def rov_places(
             out.append(None)
             continue
         z = float(np.interp(float(stamp), depth_ns, depth_z)) + offset
-        out.append(np.array([fix_m[k, 0], fix_m[k, 1], z]))
+        window = np.abs(fix_ns - stamp) <= PLACE_WINDOW_S * 1e9
+        x, y = np.median(fix_m[window, :2], axis=0) if window.any() else fix_m[k, :2]
+        out.append(np.array([float(x), float(y), z]))
     return out
 
 
@@ -151,17 +188,27 @@ def echo_samples(
     beam_model: BeamModel,
 ) -> EchoSamples:
     """Each frame's ROV elevation (the given mount) and the strength of its echo there."""
-    rows: list[tuple[int, float, float, float]] = []
+    rows: list[tuple[int, float, float, float, float, float, float]] = []
+    raised = Transform(mount.rotation, mount.translation + np.array([0.0, 0.0, LIFT_STEP_M]))
+    back = Transform(mount.rotation, mount.translation - np.array([LIFT_STEP_M, 0.0, 0.0]))
     for obs, place in zip(observations, places, strict=True):
         if place is None:
             continue
         frame = obs.frame
+        sonar = obs.asv.compose(mount)
         try:
-            range_m, azimuth, elevation = to_polar(
-                beam_model, obs.asv.compose(mount).inverse().apply(place)
+            range_m, azimuth, elevation = to_polar(beam_model, sonar.inverse().apply(place))
+            _, _, elevation_raised = to_polar(
+                beam_model, obs.asv.compose(raised).inverse().apply(place)
+            )
+            _, _, elevation_back = to_polar(
+                beam_model, obs.asv.compose(back).inverse().apply(place)
             )
         except ValueError:
             continue
+        gain = (elevation - elevation_raised) / LIFT_STEP_M
+        forward_gain = (elevation - elevation_back) / LIFT_STEP_M
+        distance = float(np.hypot(*(np.asarray(place)[:2] - sonar.translation[:2])))
         bins = frame.range_start_m + (np.arange(frame.n_ranges) + 0.5) * frame.range_resolution_m
         rows_in = np.nonzero((bins > range_m - BEFORE_M) & (bins < range_m + AFTER_M))[0]
         beams = np.asarray(frame.azimuths_rad)
@@ -171,15 +218,45 @@ def echo_samples(
         window = unit_image(frame)[rows_in[0] : rows_in[-1] + 1, beams_in[0] : beams_in[-1] + 1]
         values = np.sort(window.ravel())
         top = values[-max(1, int(len(values) * TOP_SHARE)) :]
-        rows.append((frame.stamp_ns, elevation, range_m, float(np.mean(top))))
+        strength = float(np.mean(top))
+        rows.append((frame.stamp_ns, elevation, range_m, strength, distance, gain, forward_gain))
     if not rows:
-        return EchoSamples(
-            np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0), np.zeros(0)
-        )  # fmt: skip
+        e = np.zeros(0)
+        return EchoSamples(np.zeros(0, dtype=np.int64), e, e, e, e, e, e)
     data = np.array([r[1:] for r in rows])
     return EchoSamples(
-        np.array([r[0] for r in rows], dtype=np.int64), data[:, 0], data[:, 1], data[:, 2]
-    )
+        np.array([r[0] for r in rows], dtype=np.int64),
+        data[:, 0], data[:, 1], data[:, 2], data[:, 3], data[:, 4], data[:, 5],
+    )  # fmt: skip
+
+
+def split_profiles(samples: EchoSamples) -> list[EchoSamples]:
+    """The samples of each profile, nearest first: one per distance the ROV held from the sonar.
+
+    A distance held is a peak of the distances' histogram with enough frames for a fit and at
+    least PROFILE_SHARE of the largest peak's; the frames of a transit between two profiles
+    spread thin, fall outside every peak's spread and are left out.
+    """
+    d = samples.distance_m
+    if len(d) == 0:
+        return []
+    edges = np.arange(float(d.min()) - PROFILE_BIN_M, float(d.max()) + 2 * PROFILE_BIN_M,
+                      PROFILE_BIN_M)  # fmt: skip
+    counts, _ = np.histogram(d, bins=edges)
+    centres = 0.5 * (edges[:-1] + edges[1:])
+    # Frames within the spread of each bin: a profile's frames whatever its drift.
+    near = np.array([np.sum(np.abs(d - c) <= PROFILE_HALF_SPREAD_M) for c in centres])
+    order = np.argsort(-near, kind="stable")
+    # A distance held: as many frames about it as a fit needs, and a good share of the most
+    # any distance holds (a transit's frames spread thin).
+    least = max(3 * MIN_BEYOND, PROFILE_SHARE * float(near.max()))
+    peaks: list[float] = []
+    for i in order:
+        if near[i] < least:
+            break
+        if counts[i] and all(abs(centres[i] - p) > 2 * PROFILE_HALF_SPREAD_M for p in peaks):
+            peaks.append(float(np.median(d[np.abs(d - centres[i]) <= PROFILE_HALF_SPREAD_M])))
+    return [samples.subset(np.abs(d - p) <= PROFILE_HALF_SPREAD_M) for p in sorted(peaks)]
 
 
 def _plateau(params: Floats, elevation: Floats) -> Floats:
@@ -238,6 +315,15 @@ def fit_pitch(samples: EchoSamples) -> PitchFit:
     below = int(np.sum(e < centre - margin)) if contrast_ok else 0
     near_edges = np.abs(np.abs(e - centre) - half) < math.radians(3.0)
     range_m = float(np.median(samples.range_m[near_edges])) if near_edges.any() else math.nan
+    # The centre is the mean of the edges: so is what a height error does to it.
+    upper = near_edges & (e > centre)
+    lower = near_edges & (e < centre)
+
+    def at_edges(gains: Floats) -> float:
+        if not (upper.any() and lower.any()):
+            return math.nan
+        return 0.5 * (float(np.mean(gains[upper])) + float(np.mean(gains[lower])))
+
     return PitchFit(
         offset_deg=math.degrees(centre),
         offset_sigma_deg=math.degrees(sigma),
@@ -248,7 +334,177 @@ def fit_pitch(samples: EchoSamples) -> PitchFit:
         below=below,
         range_m=range_m,
         residual=math.sqrt(variance),
+        distance_m=float(np.median(samples.distance_m)),
+        height_gain_rad_per_m=at_edges(samples.height_gain_rad_per_m),
+        forward_gain_rad_per_m=at_edges(samples.forward_gain_rad_per_m),
     )
 
 
-__all__ = ["EchoSamples", "PitchFit", "echo_samples", "fit_pitch", "rov_places"]
+@dataclass(frozen=True)
+class ProfilesFit:
+    """The pitch and height from the profiles' elevation offsets (or the offset, from one)."""
+
+    fits: tuple[PitchFit, ...]  # one per distance, nearest first
+    # With two or more determined profiles: offset_k = pitch + height * gain_k, by weighted
+    # least squares. pitch_offset_deg is the part alike at every range (the pitch error, as
+    # PitchFit's offset: positive, the mount puts the ROV higher than it is); height_m how
+    # much higher the sonar truly sits than configured. NaN from fewer profiles.
+    pitch_offset_deg: float = math.nan
+    pitch_offset_sigma_deg: float = math.nan
+    height_m: float = math.nan
+    height_sigma_m: float = math.nan
+    # The range offset's height coupling (capsd.range_calibration.RangeFit): the forward
+    # position it wrote took in that much of a height error per metre, which the height found
+    # here gives back (`forward_m`). None: not known (the range manoeuvre's fit not given), so
+    # the height is not written: alone it would move the fixes along the sight.
+    height_coupling: float | None = None
+
+    @property
+    def used(self) -> tuple[PitchFit, ...]:
+        """The profiles whose centre was determined."""
+        return tuple(f for f in self.fits if f.determined)
+
+    @property
+    def height_determined(self) -> bool:
+        """Whether the height (and with it the pitch alone) is known well enough to write.
+
+        The two go together: their errors cancel at the profiles' ranges (the pitch alone is
+        the offset extrapolated to where a height error does nothing, and less sure).
+        """
+        return (
+            len(self.used) >= 2
+            and self.height_sigma_m <= HEIGHT_SIGMA_MAX_M
+            and self.height_coupling is not None
+        )
+
+    @property
+    def forward_m(self) -> float:
+        """How far forward the sonar's position moves with the height (0 where none is written).
+
+        The range offset's fit put the fixes right along the sight with the old height; with
+        the new one they would move by the coupling times the height, so the forward position
+        gives that back.
+        """
+        if not self.height_determined or self.height_coupling is None:
+            return 0.0
+        return self.height_coupling * self.height_m
+
+    @property
+    def determined(self) -> bool:
+        """Whether the pitch is written (alone: the offset at the profiles' ranges)."""
+        return self.height_determined or bool(self.used)
+
+    @property
+    def offset_deg(self) -> float:
+        """The elevation offset written as the pitch (the pitch alone, if the height is known).
+
+        Else the determined profiles' weighted mean: right at their ranges.
+        """
+        if self.height_determined:
+            return self.pitch_offset_deg
+        used = self.used or self.fits
+        weights = np.array([1.0 / f.offset_sigma_deg**2 for f in used])
+        return float(np.average([f.offset_deg for f in used], weights=weights))
+
+    @property
+    def offset_sigma_deg(self) -> float:
+        """The written pitch's 1-sigma."""
+        if self.height_determined:
+            return self.pitch_offset_sigma_deg
+        used = self.used or self.fits
+        return float(1.0 / math.sqrt(sum(1.0 / f.offset_sigma_deg**2 for f in used)))
+
+    @property
+    def pitch_correction_deg(self) -> float:
+        """What to add to the mount's pitch (positive down)."""
+        return -self.offset_deg
+
+    def lines(self) -> list[str]:
+        """What a person reads: each profile, then what they tell together."""
+        out = [line for f in self.fits for line in f.lines()]
+        if len(self.used) < 2:
+            out.append(
+                f"the sonar's height NOT determined: {len(self.used)} profile(s) determined, "
+                "needs two at different distances (e.g. 1.5 m and 4 m)"
+            )
+            return out
+        if self.height_determined:
+            verdict = (
+                f"determined: the sonar sits {self.height_m * 1000:+.1f} mm higher than "
+                f"configured (its forward position moves by {self.forward_m * 1000:+.1f} mm, "
+                f"what the range offset took of it) and its pitch moves by "
+                f"{-self.pitch_offset_deg:+.3f} deg"
+            )
+        elif self.height_coupling is None:
+            verdict = (
+                "height NOT written: the range manoeuvre's recording is needed too (--orbit), "
+                "its forward position took part of the height in; the pitch takes the "
+                "profiles' mean offset"
+            )
+        else:
+            verdict = (
+                f"height NOT determined (1-sigma <= {HEIGHT_SIGMA_MAX_M * 1000:g} mm needed): "
+                "the pitch takes the profiles' mean offset"
+            )
+        out.append(
+            f"from {len(self.used)} distances "
+            f"({', '.join(f'{f.distance_m:.1f}' for f in self.used)} m): height "
+            f"{self.height_m * 1000:+.1f} mm (1 sigma {self.height_sigma_m * 1000:.1f}), "
+            f"pitch offset {self.pitch_offset_deg:+.3f} deg (1 sigma "
+            f"{self.pitch_offset_sigma_deg:.3f}): {verdict}"
+        )
+        return out
+
+
+def fit_profiles(profiles: Sequence[EchoSamples], *, height_coupling: float | None) -> ProfilesFit:
+    """Each profile's plateau; from two or more distances, the pitch and height apart.
+
+    `height_coupling`: the range offset fit's (RangeFit.height_coupling), 0.0 where the
+    forward position is known otherwise, None where it is not known (the height then only
+    reported). With it, the forward position the range fit wrote is off by minus the coupling
+    times the height, which moves each profile's centre by its forward gain too: the height's
+    gain at each profile is its own less the forward gain times the coupling.
+    """
+    if not profiles:
+        raise CapsdError(
+            "no profile: the pitch needs the ROV going down and up through the aperture in "
+            "front of the still ASV (about two minutes)"
+        )
+    fits = tuple(fit_pitch(p) for p in profiles)
+    coupling = 0.0 if height_coupling is None else height_coupling
+    used = [
+        f
+        for f in fits
+        if f.determined
+        and math.isfinite(f.height_gain_rad_per_m)
+        and math.isfinite(f.forward_gain_rad_per_m)
+    ]
+    gains = [f.height_gain_rad_per_m - coupling * f.forward_gain_rad_per_m for f in used]
+    if len(used) < 2 or max(gains) - min(gains) < 1e-3:
+        return ProfilesFit(fits, height_coupling=height_coupling)
+    design = np.array([[1.0, g] for g in gains])
+    offsets = np.radians([f.offset_deg for f in used])
+    weights = 1.0 / np.radians([f.offset_sigma_deg for f in used]) ** 2
+    normal = design.T @ (design * weights[:, None])
+    covariance = np.linalg.inv(normal)
+    pitch, height = covariance @ (design.T @ (weights * offsets))
+    return ProfilesFit(
+        fits,
+        pitch_offset_deg=math.degrees(float(pitch)),
+        pitch_offset_sigma_deg=math.degrees(math.sqrt(float(covariance[0, 0]))),
+        height_m=float(height),
+        height_sigma_m=math.sqrt(float(covariance[1, 1])),
+        height_coupling=height_coupling,
+    )
+
+
+__all__ = [
+    "EchoSamples",
+    "PitchFit",
+    "ProfilesFit",
+    "echo_samples",
+    "fit_pitch",
+    "fit_profiles",
+    "rov_places",
+    "split_profiles",
+]

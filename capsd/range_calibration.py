@@ -52,6 +52,11 @@ class RangeFit:
     fixes: int
     spread_deg: float
     residual_m: float
+    # How much the along offset grows per metre the sonar truly sits higher than configured:
+    # the depth constraint turns a height error into horizontal range by the sight's dip
+    # (the mean over the fixes of their drop over their horizontal distance). The pitch
+    # manoeuvre's height fit needs it: the forward position written took that part in.
+    height_coupling: float = math.nan
 
     @property
     def determined(self) -> bool:
@@ -83,6 +88,7 @@ class RangeFit:
 def fit_range_offset(fixes: Sequence[RovFix], poses: PoseLookup, *, mount: Transform) -> RangeFit:
     """The offsets from the good fixes of a parked ROV, each with the sonar's place then."""
     rows: list[tuple[float, float, float, int]] = []  # x, y, line-of-sight bearing, stamp
+    dips: list[float] = []  # each fix's drop below the sonar over its horizontal distance
     for fix in fixes:
         if fix.quality != "good" or fix.raw_position_m is None:
             continue
@@ -93,6 +99,8 @@ def fit_range_offset(fixes: Sequence[RovFix], poses: PoseLookup, *, mount: Trans
         x, y = fix.raw_position_m[0], fix.raw_position_m[1]
         angle = math.atan2(y - float(sonar[1]), x - float(sonar[0]))
         rows.append((x, y, angle, fix.stamp_ns))
+        horizontal = math.hypot(x - float(sonar[0]), y - float(sonar[1]))
+        dips.append((float(sonar[2]) - fix.raw_position_m[2]) / max(horizontal, 0.1))
     if len(rows) < 4:
         raise CapsdError(
             f"{len(rows)} good fixes with an ASV pose: the range offset needs the parked ROV "
@@ -126,6 +134,7 @@ def fit_range_offset(fixes: Sequence[RovFix], poses: PoseLookup, *, mount: Trans
         fixes=n,
         spread_deg=math.degrees(float(angles.max() - angles.min())),
         residual_m=float(np.sqrt(variance)),
+        height_coupling=float(np.mean(dips)),
     )
 
 

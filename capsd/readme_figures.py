@@ -306,6 +306,23 @@ def consistency_table(figures: dict[str, Any]) -> list[str]:
     return lines
 
 
+def _written_position(runs: list[dict[str, Any]]) -> str:
+    """The mean errors of the sonar position written, against the drawn one (since session 27)."""
+    if not runs or "forward_error_mm" not in runs[0]:
+        return ""
+
+    def mean_abs(key: str) -> str:
+        values = [abs(r[key]) for r in runs if r.get(key) is not None]
+        return f"{sum(values) / len(values):.1f}" if values else "-"
+
+    return (
+        f" The sonar position written against the drawn one: mean |forward error| "
+        f"{mean_abs('forward_error_mm')} mm ({mean_abs('forward_error_after_range_mm')} mm "
+        f"after the range step alone), mean |height error| "
+        f"{mean_abs('height_error_written_mm')} mm."
+    )
+
+
 def calibrate_table(figures: dict[str, Any]) -> list[str]:
     """`capsd calibrate` per seed against the corrections the hidden errors call for."""
     lines = [
@@ -316,21 +333,39 @@ def calibrate_table(figures: dict[str, Any]) -> list[str]:
         f"|range offset error| {figures.get('mean_abs_along_error_mm', '-')} mm, "
         f"|elevation offset error| {figures.get('mean_abs_elevation_offset_error_deg', '-')} deg "
         f"(against the drawn pitch alone "
-        f"{figures.get('mean_abs_pitch_error_vs_drawn_deg', '-')} deg).",
+        f"{figures.get('mean_abs_pitch_error_vs_drawn_deg', '-')} deg)"
+        + (
+            f"; the sonar's height determined on {figures['height_determined_runs']} of "
+            f"{len(figures['runs'])}, mean |height error| "
+            f"{figures.get('mean_abs_height_error_mm') or '-'} mm against what the elevations "
+            f"need, {figures.get('mean_abs_height_error_vs_drawn_mm') or '-'} mm against the "
+            "drawn height alone."
+            if "height_determined_runs" in figures
+            else "."
+        )
+        + _written_position(figures["runs"]),
         "",
         "| seed | yaw wanted / fitted (sigma) deg | roll wanted / fitted (sigma) deg "
         "| sideways error mm | depth offset wanted / fitted (sigma) mm "
         "| range offset wanted / fitted (sigma) mm | sonar's drawn forward error mm "
         "| elevation offset wanted / fitted (sigma) deg | drawn pitch correction deg, height mm "
+        "| height wanted / fitted (sigma) mm "
+        "| written position error: forward (after the range step alone), height mm "
         "| determined |",
-        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|",
     ]
     for r in figures["runs"]:
         determined = [
             k
-            for k in ("yaw", "roll", "shift", "depth_offset", "along", "pitch")
+            for k in ("yaw", "roll", "shift", "depth_offset", "along", "pitch", "height")
             if r.get(f"{k}_determined")
         ]
+        height = (
+            f"{r.get('wanted_height_mm')} / {r.get('fitted_height_mm')} "
+            f"({r.get('height_sigma_mm')})"
+            if r.get("fitted_height_mm") is not None
+            else "-"
+        )
         lines.append(
             f"| {r['seed']} | {r['wanted_yaw_deg']} / {r['fitted_yaw_deg']} "
             f"({r['yaw_sigma_deg']}) | {r['wanted_roll_deg']} / {r['fitted_roll_deg']} "
@@ -343,7 +378,9 @@ def calibrate_table(figures: dict[str, Any]) -> list[str]:
             f"{r.get('fitted_elevation_offset_deg', '-')} "
             f"({r.get('elevation_offset_sigma_deg', '-')}) "
             f"| {r.get('drawn_pitch_correction_deg', '-')}, {r.get('drawn_height_mm', '-')} "
-            f"| {', '.join(determined)} |"
+            f"| {height} | {r.get('forward_error_mm', '-')} "
+            f"({r.get('forward_error_after_range_mm', '-')}), "
+            f"{r.get('height_error_written_mm', '-')} | {', '.join(determined)} |"
         )
     return lines
 

@@ -181,7 +181,10 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     # the range-offset manoeuvre, with asv_mode: orbit).
     # profile: the ROV holds its place in the plane where its trajectory starts and goes down
     # and up through the sonar's vertical aperture, 2 minutes a round trip (the pitch
-    # manoeuvre, with asv_mode: follow, which then stands still facing it).
+    # manoeuvre, with asv_mode: follow, which then stands still facing it). With
+    # asv_standoff_m, the ASV stands that far off and the ROV's depths span the aperture's
+    # edges as seen from there (capsd.simulator.world.profile_span: a second distance
+    # separates the sonar's pitch from its height).
     rov_mode: Literal["trajectory", "surface", "parked", "profile"] = "trajectory"
     profile_period_s: Annotated[float, msgspec.Meta(ge=10.0, le=3600.0)] = 120.0  # down and up
     seed: int = 0

@@ -54,6 +54,7 @@ from capsd.simulator.world import (
     floating,
     hovering,
     profile_depths,
+    profile_span,
     profiling,
     rov_motion,
     symmetric_standoff_m,
@@ -137,6 +138,18 @@ class Simulation:
             self.rov = planned = hovering(self.rov.track.p[0], duration_s=self.horizon_s)
         elif config.rov_mode == "profile":
             top, bottom = profile_depths(self.tank)
+            if config.asv_standoff_m is not None:
+                # Planned on the nominal mount, as a team would: the aperture's edges from
+                # the given distance, whatever depths they fall at.
+                nominal = config.sonar
+                top, bottom = profile_span(
+                    self.tank,
+                    distance_m=config.asv_standoff_m - nominal.position_m[0],
+                    sonar_z_m=nominal.position_m[2],
+                    pitch_rad=math.radians(nominal.pitch_deg),
+                    half_aperture_rad=math.radians(0.5 * nominal.vertical_aperture_deg),
+                    rov_half_height_m=float(BLUEROV2_SEMI_AXES[2]),
+                )
             self.rov = planned = profiling(
                 self.rov.track.p[0],
                 top_z_m=top,

@@ -514,6 +514,62 @@ def profile_depths(tank: Tank) -> tuple[float, float]:
     return -0.4, min(-0.8, tank.rov_depths[1])
 
 
+# Beyond the aperture's edges at the far standoff: the ROV's own half height seen from there,
+# the edges' softness (about 1 deg) twice over, and the depression a wave's roll adds.
+PROFILE_EDGE_MARGIN_DEG = 10.0
+PROFILE_TOP_Z_M = -0.3  # the ROV's top 0.17 m under the surface
+PROFILE_FLOOR_CLEARANCE_M = 0.6  # over the floor's sandbags and debris
+
+
+def profile_span(
+    tank: Tank,
+    *,
+    distance_m: float,
+    sonar_z_m: float,
+    pitch_rad: float,
+    half_aperture_rad: float,
+    rov_half_height_m: float,
+) -> tuple[float, float]:
+    """(top, bottom) z for the pitch manoeuvre at a given horizontal distance from the sonar.
+
+    From `PROFILE_EDGE_MARGIN_DEG` (and the ROV's half height seen from there) above the
+    aperture's top edge to as far below its bottom edge, as the surface and the floor allow: a
+    second profile at another distance is what separates the sonar's pitch from its height.
+    """
+    margin = math.atan2(rov_half_height_m, distance_m) + math.radians(PROFILE_EDGE_MARGIN_DEG)
+    top_dep = pitch_rad - half_aperture_rad - margin
+    bottom_dep = min(pitch_rad + half_aperture_rad + margin, math.radians(89.0))
+    top = min(sonar_z_m - distance_m * math.tan(top_dep), PROFILE_TOP_Z_M)
+    bottom = max(
+        sonar_z_m - distance_m * math.tan(bottom_dep),
+        -tank.depth_m + PROFILE_FLOOR_CLEARANCE_M,
+    )
+    return top, min(bottom, top - 0.4)
+
+
+NEAR_PROFILE_M = 1.5  # where a height error tilts an elevation most and the ROV still fits
+FAR_PROFILE_MAX_M = 6.0
+FAR_PROFILE_MARGIN_DEG = 8.0  # below the bottom edge, for the far profile's depth
+MIN_PROFILE_SEPARATION_M = 1.0
+
+
+def profile_distances_m(
+    tank: Tank, *, sonar_z_m: float, pitch_rad: float, half_aperture_rad: float
+) -> tuple[float, ...]:
+    """The horizontal distances from the sonar for the pitch manoeuvre's profiles.
+
+    Near, where a height error tilts an elevation most, and as far as the floor lets the ROV
+    go below the aperture's bottom edge there. A tank too shallow for both (the mockup) gets
+    none: one profile where the fixed depths straddle the boresight (`profile_depths`).
+    """
+    room = sonar_z_m - (-tank.depth_m + PROFILE_FLOOR_CLEARANCE_M)
+    depression = pitch_rad + half_aperture_rad + math.radians(FAR_PROFILE_MARGIN_DEG)
+    far = min(FAR_PROFILE_MAX_M, room / math.tan(depression))
+    if far < NEAR_PROFILE_M + MIN_PROFILE_SEPARATION_M:
+        return ()
+    return NEAR_PROFILE_M, round(far, 2)
+
+
 def symmetric_standoff_m(top_m: float, bottom_m: float, *, pitch_rad: float) -> float:
     """The horizontal distance from which two depths straddle the sonar's boresight evenly.
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import time
 from pathlib import Path
 from typing import Any, Literal
@@ -174,7 +175,8 @@ def self_calibrate(
 
     The ASV turns on the spot while the ROV floats at the surface before its dive; then the ROV
     parked while the ASV swings round it; then the ROV going down and up in front of the still
-    ASV. Another dive of the same installation and autopilot boot (its own seed; the errors
+    ASV, from near and far where the tank is deep enough (the sonar's height from the two).
+    Another dive of the same installation and autopilot boot (its own seed; the errors
     shared).
     """
     from capsd.bench.calibrate import (
@@ -259,6 +261,7 @@ def self_calibrate(
         mount=cal.mount,
         rov=cal.rov,
         duration_s=duration_s,
+        height_coupling=ranged.fit.height_coupling,
         progress=progress,
         progress_offset_s=2 * duration_s,
     )
@@ -267,8 +270,25 @@ def self_calibrate(
         "elevation_offset_wanted_deg": round(pitched.wanted_offset_deg, 3),
         "elevation_offset_sigma_deg": round(pitched.fit.offset_sigma_deg, 3),
     }
+    height = pitched.fit.height_m if pitched.fit.height_determined else math.nan
+    summary |= {
+        "profile_distances_m": [round(f.distance_m, 2) for f in pitched.fit.fits],
+        "height_mm": round(height * 1000, 1) if math.isfinite(height) else None,
+        "height_wanted_mm": (
+            round(pitched.wanted_height_m * 1000, 1)
+            if math.isfinite(pitched.wanted_height_m)
+            else None
+        ),
+        "height_sigma_mm": (
+            round(pitched.fit.height_sigma_m * 1000, 1) if math.isfinite(height) else None
+        ),
+        "height_drawn_mm": round(pitched.drawn_height_mm, 1),
+        "forward_from_height_mm": round(pitched.fit.forward_m * 1000, 1),
+    }
     if pitched.fit.determined:
         summary["determined"].append("pitch")
+    if pitched.fit.height_determined:
+        summary["determined"].append("height")
     cal = applied(config.sonar, located.rov, prior, fit, depth, ranged.fit, pitched.fit)
     return cal.mount, cal.rov, cal.installation, summary
 

@@ -25,7 +25,14 @@ from capsd.mount_calibration import Observation, corrected, fit_mount
 from capsd.mounts import RovConfig, SonarMountConfig
 from capsd.offline_pipeline import Variant, locator_config, run
 from capsd.payloads import AsvPose, Payload, RovAttitude, RovDepth, RovFix, SonarFrame
-from capsd.pitch_calibration import PitchFit, echo_samples, fit_pitch, rov_places
+from capsd.pitch_calibration import (
+    EchoSamples,
+    ProfilesFit,
+    echo_samples,
+    fit_pitch,
+    fit_profiles,
+    rov_places,
+)
 from capsd.pose_lookup import PoseLookup
 from capsd.progress import Progress
 from capsd.range_calibration import RangeFit, fit_range_offset
@@ -33,7 +40,7 @@ from capsd.simulator.config import OFFLINE_START_NS, Rates
 from capsd.simulator.config import Config as SimConfig
 from capsd.simulator.install_errors import InstallErrorsConfig
 from capsd.simulator.sim import Simulation
-from capsd.simulator.world import TankName, TrajectoryName
+from capsd.simulator.world import TankName, TrajectoryName, profile_distances_m
 from capsd.sonar_geometry import to_polar
 
 # Yaw within 0.1 deg and roll (tilt) within 0.3 deg, mean over the seeds (issue 24).
@@ -219,37 +226,76 @@ def range_offset_dive(
     return RangeDive(fit, float(np.mean(along)) if along else math.nan, drawn_x)
 
 
-@dataclass(frozen=True)
-class PitchDive:
-    """The pitch manoeuvre's fit, and what it should find."""
+def profile_standoffs_m(config: SimConfig, mount: SonarMountConfig) -> tuple[float | None, ...]:
+    """The ASV's standoffs from the ROV for the pitch manoeuvre's profiles.
 
-    fit: PitchFit
+    The world's distances from the sonar, which sits ahead of the ASV's origin; (None,): one
+    profile, the depths fixed.
+    """
+    distances = profile_distances_m(
+        config.world_tank(),
+        sonar_z_m=mount.position_m[2],
+        pitch_rad=math.radians(mount.pitch_deg),
+        half_aperture_rad=math.radians(0.5 * mount.vertical_aperture_deg),
+    )
+    return tuple(d + mount.position_m[0] for d in distances) or (None,)
+
+
+@dataclass(frozen=True)
+class Profile:
+    """One profile's samples, what the elevations were truly off at its edges, its gain."""
+
+    samples: EchoSamples
     # How far the elevations the services compute (the configured mount, the ASV pose estimate,
     # the ROV's place from its fixes and depth readings) are off the truth, averaged at the two
     # edges (the plateau's centre is the mean of its edges): the pitch error, and what the
-    # sonar height's and the depth reading's errors do at those ranges.
+    # sonar height's and the depth reading's errors do at this distance.
     wanted_offset_deg: float
     drawn_pitch_deg: float  # the mount's pitch error alone (a correction, as the fit's)
-    drawn_height_mm: float  # the sonar's height error (up), which the fit takes in at its ranges
 
 
-def pitch_dive(
+@dataclass(frozen=True)
+class PitchDive:
+    """The pitch manoeuvre's fit (a profile per distance), and what it should find."""
+
+    fit: ProfilesFit
+    profiles: tuple[Profile, ...]  # as the fit's, nearest first
+    # The wanted offsets split as the fit splits its own (pitch alike at every range, height by
+    # each profile's gain): the pitch and height the elevations need, NaN from one profile.
+    wanted_pitch_offset_deg: float
+    wanted_height_m: float
+    drawn_height_mm: float  # the sonar's height error (up) alone
+
+    @property
+    def wanted_offset_deg(self) -> float:
+        """What the written offset should be: the pitch alone, or the profiles' mean offset."""
+        if self.fit.height_determined:
+            return self.wanted_pitch_offset_deg
+        return float(np.mean([p.wanted_offset_deg for p in self.profiles]))
+
+    @property
+    def drawn_pitch_deg(self) -> float:
+        return float(np.mean([p.drawn_pitch_deg for p in self.profiles]))
+
+
+def _profile(
     config: SimConfig,
     *,
     mount: SonarMountConfig,
     rov: RovConfig,
     duration_s: float,
-    progress: Progress | None = None,
-    progress_offset_s: float = 0.0,
-) -> PitchDive:
-    """The ASV still, the ROV going down and up in front of it, the locator told `mount`."""
+    standoff_m: float | None,
+    progress: Progress | None,
+    progress_offset_s: float,
+) -> Profile:
+    """The ASV still `standoff_m` off, the ROV going down and up in front of it."""
     profile = msgspec.structs.replace(
         config,
         trajectory="square",
         asv_mode="follow",  # a ROV that only changes depth: the ASV stands still, facing it
         rov_mode="profile",
         profile_period_s=duration_s,
-        asv_standoff_m=None,
+        asv_standoff_m=standoff_m,
         rates=Rates(sonar_hz=5.0),
     )
     kept = Kept(frame_every_s=0.0)
@@ -286,8 +332,49 @@ def pitch_dive(
         if upper and lower
         else math.nan
     )
-    height_m = float(world.mount.translation[2] - transform.translation[2])  # B's z is up
-    return PitchDive(fit, wanted_offset, math.degrees(float(np.mean(drawn))), height_m * 1000)
+    return Profile(samples, wanted_offset, math.degrees(float(np.mean(drawn))))
+
+
+def pitch_dive(
+    config: SimConfig,
+    *,
+    mount: SonarMountConfig,
+    rov: RovConfig,
+    duration_s: float,
+    height_coupling: float | None,
+    standoffs_m: tuple[float | None, ...] | None = None,
+    progress: Progress | None = None,
+    progress_offset_s: float = 0.0,
+) -> PitchDive:
+    """A profile from each standoff (None: where the fixed depths straddle the boresight).
+
+    The locator told `mount`; `duration_s` each; by default profile_standoffs_m's.
+    `height_coupling`: the range offset fit's (the height is written only with it).
+    """
+    if standoffs_m is None:
+        standoffs_m = profile_standoffs_m(config, mount)
+    profiles = tuple(
+        _profile(config, mount=mount, rov=rov, duration_s=duration_s, standoff_m=standoff,
+                 progress=progress, progress_offset_s=progress_offset_s + i * duration_s)
+        for i, standoff in enumerate(standoffs_m)
+    )  # fmt: skip
+    fit = fit_profiles([p.samples for p in profiles], height_coupling=height_coupling)
+    wanted_pitch = wanted_height = math.nan
+    coupling = height_coupling or 0.0
+    gains = [f.height_gain_rad_per_m - coupling * f.forward_gain_rad_per_m for f in fit.fits]
+    if len(profiles) >= 2 and all(math.isfinite(g) for g in gains):
+        design = np.array([[1.0, g] for g in gains])
+        wanted = np.radians([p.wanted_offset_deg for p in profiles])
+        solution, *_ = np.linalg.lstsq(design, wanted, rcond=None)
+        wanted_pitch, wanted_height = math.degrees(float(solution[0])), float(solution[1])
+    world = Simulation(config, horizon_s=10.0)
+    height_m = float(world.mount.translation[2] - mount.transform().translation[2])  # B's z up
+    return PitchDive(fit, profiles, wanted_pitch, wanted_height, height_m * 1000)
+
+
+def _mm(metres: float) -> float | None:
+    """Millimetres to 0.1 (None where not determined: NaN is not JSON)."""
+    return round(metres * 1000, 1) if math.isfinite(metres) else None
 
 
 def bench(
@@ -322,8 +409,11 @@ def bench(
         ranged = range_offset_dive(config, mount=cal.mount, rov=cal.rov, duration_s=duration_s)
         # Then, told that as well, the pitch from the ROV going down and up in front of the ASV.
         cal = applied(loc.sonar, loc.rov, loc.installation, fit, depth, ranged.fit)
-        pitched = pitch_dive(config, mount=cal.mount, rov=cal.rov, duration_s=duration_s)
+        pitched = pitch_dive(config, mount=cal.mount, rov=cal.rov, duration_s=duration_s,
+                             height_coupling=ranged.fit.height_coupling)  # fmt: skip
         pf = pitched.fit
+        final = applied(loc.sonar, loc.rov, loc.installation, fit, depth, ranged.fit, pf).mount
+        true_mount = Simulation(config, horizon_s=10.0).mount.translation
         rows.append(
             {
                 "seed": config.seed,
@@ -358,11 +448,39 @@ def bench(
                 "elevation_offset_sigma_deg": round(pf.offset_sigma_deg, 3),
                 "elevation_offset_error_deg": round(pf.offset_deg - pitched.wanted_offset_deg, 3),
                 "pitch_determined": pf.determined,
-                "profile_frames_above_below": [pf.above, pf.below],
-                "profile_range_m": round(pf.range_m, 2),
-                "aperture_half_width_deg": round(pf.half_width_deg, 2),
+                "height_determined": pf.height_determined,
+                "profiles": [
+                    {
+                        "distance_m": round(f.distance_m, 2),
+                        "offset_deg": round(f.offset_deg, 3),
+                        "offset_sigma_deg": round(f.offset_sigma_deg, 3),
+                        "wanted_offset_deg": round(p.wanted_offset_deg, 3),
+                        "height_gain_deg_per_cm": round(
+                            math.degrees(f.height_gain_rad_per_m) / 100, 4
+                        ),
+                        "frames_above_below": [f.above, f.below],
+                        "aperture_half_width_deg": round(f.half_width_deg, 2),
+                        "determined": f.determined,
+                    }
+                    for f, p in zip(pf.fits, pitched.profiles, strict=True)
+                ],
+                "fitted_height_mm": _mm(pf.height_m),
+                "height_sigma_mm": _mm(pf.height_sigma_m),
+                # What the elevations need (the profiles' wanted offsets split as the fit
+                # splits its own): the sonar's height error less what the ROV's depth reading
+                # still gets wrong after its surface check.
+                "wanted_height_mm": _mm(pitched.wanted_height_m),
+                "height_error_mm": _mm(pf.height_m - pitched.wanted_height_m),
+                "height_error_vs_drawn_mm": _mm(pf.height_m - pitched.drawn_height_mm / 1000),
                 "drawn_pitch_correction_deg": round(pitched.drawn_pitch_deg, 3),
+                "pitch_error_vs_drawn_deg": round(-pf.offset_deg - pitched.drawn_pitch_deg, 3),
                 "drawn_height_mm": round(pitched.drawn_height_mm, 1),
+                "height_coupling": round(ranged.fit.height_coupling, 3),
+                "forward_m_from_height_mm": round(pf.forward_m * 1000, 1),
+                # The written position against the sonar's true one (B's x forward, z up).
+                "forward_error_after_range_mm": _mm(cal.mount.position_m[0] - float(true_mount[0])),
+                "forward_error_mm": _mm(final.position_m[0] - float(true_mount[0])),
+                "height_error_written_mm": _mm(final.position_m[2] - float(true_mount[2])),
                 "measurements": fit.measurements,
                 "yaw_determined": fit.yaw_determined,
                 "roll_determined": fit.roll_determined,
@@ -381,10 +499,16 @@ def bench(
     depth_err = float(np.mean([abs(r["depth_offset_error_mm"]) for r in rows]))
     along_err = float(np.mean([abs(r["along_error_mm"]) for r in rows]))
     pitch_err = float(np.mean([abs(r["elevation_offset_error_deg"]) for r in rows]))
-    pitch_vs_drawn = float(
-        np.mean([abs(-r["fitted_elevation_offset_deg"] - r["drawn_pitch_correction_deg"])
-                 for r in rows])
-    )  # fmt: skip
+    pitch_vs_drawn = float(np.mean([abs(r["pitch_error_vs_drawn_deg"]) for r in rows]))
+    heights = [r for r in rows if r["height_determined"]]
+    height_err = (
+        float(np.mean([abs(r["height_error_mm"]) for r in heights])) if heights else math.nan
+    )
+    height_vs_drawn = (
+        float(np.mean([abs(r["height_error_vs_drawn_mm"]) for r in heights]))
+        if heights
+        else math.nan
+    )
     print(
         f"{tank}/{trajectory}, {seeds} seeds, {duration_s:g} s each, realistic installation "
         "errors; corrections in degrees (wanted: what the hidden errors call for)"
@@ -421,7 +545,10 @@ def bench(
         f"offset error| {pitch_err:.3f} deg (the ROV going down and up: the pitch and the "
         f"sonar height's effect at its ranges; target <= {TILT_TARGET_DEG}: "
         f"{'met' if pitch_err <= TILT_TARGET_DEG else 'NOT met'}), against the drawn pitch "
-        f"alone {pitch_vs_drawn:.3f} deg; the sonar's height not determined (said so); "
+        f"alone {pitch_vs_drawn:.3f} deg; the sonar's height determined on {len(heights)} of "
+        f"{len(rows)} runs, mean |height error| {height_err:.1f} mm against what the "
+        f"elevations need, {height_vs_drawn:.1f} mm against the drawn height alone (target <= "
+        f"{SHIFT_TARGET_MM:g}: {'met' if height_vs_drawn <= SHIFT_TARGET_MM else 'NOT met'}); "
         f"{time.monotonic() - started:.0f} s"
     )
     figures = {
@@ -436,6 +563,9 @@ def bench(
         "mean_abs_along_error_mm": round(along_err, 2),
         "mean_abs_elevation_offset_error_deg": round(pitch_err, 4),
         "mean_abs_pitch_error_vs_drawn_deg": round(pitch_vs_drawn, 4),
+        "height_determined_runs": len(heights),
+        "mean_abs_height_error_mm": round(height_err, 2) if heights else None,
+        "mean_abs_height_error_vs_drawn_mm": round(height_vs_drawn, 2) if heights else None,
     }
     if out is not None:
         out.parent.mkdir(parents=True, exist_ok=True)

@@ -33,6 +33,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
             tank=locator.tank,
             prior=locator.installation,
             what=args.what,
+            orbit=args.orbit,
         )
     except CapsdError as exc:
         return fail(f"calibrate: {exc}", EXIT_CONFIG)
@@ -72,7 +73,8 @@ def register(sub: Subcommands) -> None:
         "round it facing it: the sonar's forward position from the fixes' offset along the "
         "line of sight. And `--what pitch` on a recording (the same config) of the ASV still and "
         "the ROV in front of it going slowly down and up through the sonar's vertical aperture, "
-        "beyond both its edges: the sonar's pitch from where the ROV's echo fades.",
+        "beyond both its edges: the sonar's pitch from where the ROV's echo fades; flown from two "
+        "distances (about 1.5 m and as far as the floor allows), with --orbit, its height too.",
     )
     cal.add_argument("recording", type=Path, help="an MCAP recording with frames and ASV poses")
     cal.add_argument(
@@ -91,5 +93,13 @@ def register(sub: Subcommands) -> None:
         "of a parked ROV (a recording made with the calibrated config, the locator running); "
         "pitch: the sonar's pitch from the ROV going down and up in front of the still ASV (the "
         "same)",
+    )
+    cal.add_argument(
+        "--orbit",
+        type=Path,
+        default=None,
+        help="with --what pitch: the range manoeuvre's recording (the parked ROV); from two "
+        "profiles at different distances the sonar's height is then written too, and the "
+        "forward position gives back what the range offset took of it",
     )
     cal.set_defaults(func=_cmd_calibrate)

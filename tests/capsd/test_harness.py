@@ -46,10 +46,16 @@ def test_a_calibration_dive_gives_the_services_the_calibrated_mount(tmp_path: Pa
     assert found["drawn"] == json.loads(json.dumps(live.errors.summary()))
     before = msgspec.convert(tape["locator"].get("sonar", {}), SonarMountConfig)
     after = msgspec.convert(dived["locator"]["sonar"], SonarMountConfig)
-    # Fixes too far along the sight: the sonar sits that much further back than the tape said.
+    # Fixes too far along the sight: the sonar sits that much further back than the tape said;
+    # where the two profiles determined its height, it moves by that, and forward by what the
+    # range offset took of it.
     assert after.position_m[0] == pytest.approx(
-        before.position_m[0] - found["along_mm"] / 1000, abs=1e-3
+        before.position_m[0] - (found["along_mm"] - found["forward_from_height_mm"]) / 1000,
+        abs=1e-3,
     )
+    height = found["height_mm"] / 1000 if "height" in found["determined"] else 0.0
+    assert after.position_m[2] == pytest.approx(before.position_m[2] + height, abs=1e-3)
+    assert ("height" in found["determined"]) == (found["forward_from_height_mm"] != 0.0)
     assert dived["locator"]["rov"]["depth_offset_m"] == pytest.approx(
         found["depth_offset_mm"] / 1000, abs=1e-3
     )

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import functools
 import math
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -21,10 +23,21 @@ from capsd.geometry import Transform, matrix_to_quat
 from capsd.mount_calibration import Observation
 from capsd.mounts import RovConfig, SonarMountConfig
 from capsd.payloads import AsvPose, RovDepth, RovFix, SonarFrame
-from capsd.pitch_calibration import EchoSamples, echo_samples, fit_pitch, rov_places
+from capsd.pitch_calibration import (
+    HEIGHT_SIGMA_MAX_M,
+    EchoSamples,
+    echo_samples,
+    fit_pitch,
+    fit_profiles,
+    rov_places,
+    split_profiles,
+)
+from capsd.pose_lookup import PoseLookup
+from capsd.range_calibration import fit_range_offset
 from capsd.recording import McapRecorder, Sample
 from capsd.services.locator.service import InstallationConfig
 from capsd.sonar_geometry import to_polar
+from tests.capsd.test_range_calibration import _orbit
 from tests.conftest import REPO
 
 START_NS = 1_800_000_000_000_000_000
@@ -67,20 +80,33 @@ def _frame(
 
 
 def _profile(
-    *, pitch_error_deg: float, bottom_z: float = -3.4, frames: int = 600, seed: int = 0
+    *,
+    pitch_error_deg: float,
+    height_error_m: float = 0.0,
+    forward_error_m: float = 0.0,
+    ahead_m: float = 3.0,
+    bottom_z: float = -3.4,
+    frames: int = 600,
+    first: int = 0,
+    seed: int = 0,
 ) -> tuple[list[SonarFrame], list[RovFix], list[RovDepth]]:
-    """The ROV 3 m ahead going from 0.4 m deep to `bottom_z` and back.
+    """The ROV `ahead_m` ahead going from 0.4 m deep to `bottom_z` and back.
 
-    Seen by a sonar pitched `pitch_error_deg` further down than configured: its echo fades 10
-    deg either side of the true boresight.
+    Seen by a sonar pitched `pitch_error_deg` further down than configured, sitting
+    `height_error_m` higher and `forward_error_m` further back: its echo fades 10 deg either
+    side of the true boresight. Frames numbered from `first`.
     """
     rng = np.random.default_rng(seed)
-    true = SonarMountConfig(pitch_deg=NOMINAL.pitch_deg + pitch_error_deg).transform()
+    x, y, z0 = NOMINAL.position_m
+    true = SonarMountConfig(
+        pitch_deg=NOMINAL.pitch_deg + pitch_error_deg,
+        position_m=(x - forward_error_m, y, z0 + height_error_m),
+    ).transform()
     out_frames, fixes, depths = [], [], []
-    for k in range(frames):
-        t = k / 5.0
+    for k in range(first, first + frames):
+        t = (k - first) / 5.0
         z = 0.5 * (-0.4 + bottom_z) + 0.5 * (-0.4 - bottom_z) * math.cos(2 * math.pi * t / 120.0)
-        rov = np.array([3.0, 0.05, z])
+        rov = np.array([ahead_m, 0.05, z])
         range_m, azimuth, elevation = to_polar("conical", ASV.compose(true).inverse().apply(rov))
         weight = 1.0 / (1.0 + math.exp((abs(math.degrees(elevation)) - 10.0) / 0.7))
         frame = _frame(k, (range_m, azimuth) if weight > 0.01 else None, 150.0 * weight, rng)
@@ -113,8 +139,11 @@ def test_the_pitch_is_found_and_applied_as_a_pitch_correction() -> None:
     assert fit.above >= 10
     assert fit.below >= 10
     assert fit.half_width_deg == pytest.approx(10.0, abs=1.0)
-    cal = applied(NOMINAL, RovConfig(), InstallationConfig(), None, None, None, fit)
+    cal = applied(NOMINAL, RovConfig(), InstallationConfig(), None, None, None, fit_profiles(
+        [_samples(frames, fixes, depths, NOMINAL)], height_coupling=None
+    ))  # fmt: skip
     assert cal.mount.pitch_deg == pytest.approx(30.0 - fit.offset_deg, abs=1e-3)
+    assert cal.mount.position_m == NOMINAL.position_m  # one distance: no height
     assert cal.installation.sonar_angles_deg[1] == pytest.approx(fit.offset_sigma_deg, abs=1e-4)
     # Told the corrected mount, the same frames show no offset left.
     again = fit_pitch(_samples(frames, fixes, depths, cal.mount))
@@ -128,7 +157,9 @@ def test_a_profile_that_never_leaves_the_bottom_edge_determines_nothing() -> Non
     assert fit.below < 10
     assert not fit.determined
     assert "NOT determined" in fit.lines()[0]
-    cal = applied(NOMINAL, RovConfig(), InstallationConfig(), None, None, None, fit)
+    cal = applied(NOMINAL, RovConfig(), InstallationConfig(), None, None, None, fit_profiles(
+        [_samples(frames, fixes, depths, NOMINAL)], height_coupling=None
+    ))  # fmt: skip
     assert cal.mount.pitch_deg == NOMINAL.pitch_deg
     assert not cal.determined_anything
 
@@ -161,15 +192,91 @@ def test_the_plateau_centre_is_recovered_within_its_sigma(
     inside = 1.0 / (1.0 + np.exp((np.abs(e - c) - w) / k))
     strength = 0.3 + 0.6 * inside + rng.normal(0.0, noise, n)
     stamps = START_NS + np.arange(n, dtype=np.int64) * 200_000_000
-    fit = fit_pitch(EchoSamples(stamps, e, np.full(n, 3.0), strength))
+    flat = np.full(n, 3.0)
+    fit = fit_pitch(EchoSamples(stamps, e, flat, strength, flat, np.full(n, 0.2), flat))
     assert fit.offset_deg == pytest.approx(centre_deg, abs=0.2)
     assert fit.determined
 
 
-def test_capsd_calibrate_pitch_writes_the_pitch(tmp_path: Path) -> None:
-    frames, fixes, depths = _profile(pitch_error_deg=-0.8)
-    recording = tmp_path / "profile.mcap"
-    recorder = McapRecorder(recording)
+def _two_profiles(
+    *, pitch_error_deg: float, height_error_m: float, forward_error_m: float = 0.0
+) -> tuple[list[SonarFrame], list[RovFix], list[RovDepth]]:
+    """Profiles 1.5 m and 4.2 m from the sonar, 2 minutes each, with a transit between them."""
+    errors = functools.partial(
+        _profile,
+        pitch_error_deg=pitch_error_deg,
+        height_error_m=height_error_m,
+        forward_error_m=forward_error_m,
+    )
+    near = errors(ahead_m=1.8, bottom_z=-2.6, seed=1)
+    far = errors(ahead_m=4.5, bottom_z=-4.8, first=800, seed=2)
+    # The transit: the ROV moving away just under the surface, tracked (its fixes as if the
+    # locator saw it), its frames between the profiles' distances.
+    transit = []
+    for i in range(200):
+        ahead = 1.8 + 0.0135 * i
+        frames, _, depths = errors(ahead_m=ahead, frames=1, first=600 + i, seed=3 + i)
+        fix = RovFix(stamp_ns=frames[0].stamp_ns, seq=600 + i, method="capsd", quality="good",
+                     position_m=(ahead, 0.05, -0.4))  # fmt: skip
+        transit.append((frames, [fix], depths))
+    parts = [near, *transit, far]
+    return (
+        [f for p in parts for f in p[0]],
+        [f for p in parts for f in p[1]],
+        [d for p in parts for d in p[2]],
+    )
+
+
+def test_two_distances_tell_the_height_from_the_pitch() -> None:
+    frames, fixes, depths = _two_profiles(pitch_error_deg=0.6, height_error_m=0.04)
+    profiles = split_profiles(_samples(frames, fixes, depths, NOMINAL))
+    assert [round(float(np.median(p.distance_m)), 1) for p in profiles] == [1.5, 4.2]
+    # The transit's frames are in neither profile.
+    assert sum(len(p.stamps_ns) for p in profiles) < len(frames) - 100
+    # The forward position known (no range offset fitted): no coupling.
+    fit = fit_profiles(profiles, height_coupling=0.0)
+    # Each distance alone takes the height (up: the ROV computed higher than it is) for pitch,
+    # the near one more than the far one.
+    near, far = fit.fits
+    assert near.offset_deg > far.offset_deg + 0.5
+    assert far.offset_deg > -0.6 + 0.2
+    assert fit.height_determined
+    assert fit.height_sigma_m <= HEIGHT_SIGMA_MAX_M
+    assert fit.height_m == pytest.approx(0.04, abs=2.5 * fit.height_sigma_m)
+    assert fit.pitch_offset_deg == pytest.approx(-0.6, abs=2.5 * fit.pitch_offset_sigma_deg)
+    assert "sits +" in fit.lines()[-1]
+    cal = applied(NOMINAL, RovConfig(), InstallationConfig(), None, None, None, fit)
+    assert cal.mount.position_m[2] == pytest.approx(-0.2 + fit.height_m, abs=1e-4)
+    assert cal.mount.pitch_deg == pytest.approx(30.0 - fit.pitch_offset_deg, abs=1e-3)
+    assert cal.installation.sonar_position_m[2] == pytest.approx(fit.height_sigma_m, abs=1e-4)
+    # Told the corrected mount, neither distance shows an offset beyond the fit's own error.
+    again = fit_profiles(
+        split_profiles(_samples(frames, fixes, depths, cal.mount)), height_coupling=0.0
+    )
+    for before, after in zip(fit.fits, again.fits, strict=True):
+        assert abs(after.offset_deg) < 0.5 * abs(before.offset_deg)
+        assert abs(after.offset_deg) < 2 * after.offset_sigma_deg
+
+
+def test_one_distance_leaves_the_height_undetermined_and_says_so() -> None:
+    frames, fixes, depths = _profile(pitch_error_deg=0.3, height_error_m=0.04)
+    fit = fit_profiles(
+        split_profiles(_samples(frames, fixes, depths, NOMINAL)), height_coupling=0.0
+    )
+    assert len(fit.fits) == 1
+    assert fit.determined
+    assert not fit.height_determined
+    assert "height NOT determined" in fit.lines()[-1]
+    cal = applied(NOMINAL, RovConfig(), InstallationConfig(), None, None, None, fit)
+    assert cal.mount.position_m == NOMINAL.position_m
+    assert cal.mount.pitch_deg == pytest.approx(30.0 - fit.fits[0].offset_deg, abs=1e-3)
+
+
+def _record(
+    path: Path, frames: list[SonarFrame], fixes: list[RovFix], depths: list[RovDepth]
+) -> None:
+    """A recording as `capsd record 'cap/**'` writes it, the ASV's poses around each frame."""
+    recorder = McapRecorder(path)
     frame_codec, pose_codec = Codec(SonarFrame), Codec(AsvPose)
     fix_codec, depth_codec = Codec(RovFix), Codec(RovDepth)
     frame_key = topics.SONAR_FRAME.key("tank", "asv")
@@ -194,22 +301,79 @@ def test_capsd_calibrate_pitch_writes_the_pitch(tmp_path: Path) -> None:
         if (fix := fixes_at.get(frame.stamp_ns)) is not None:
             recorder.write(Sample(fix_key, fix_codec.encoding, fix_codec.encode(fix), fix.stamp_ns))
     recorder.close()
+
+
+def _calibrate_pitch(tmp_path: Path, recording: Path, *extra: str) -> tuple[str, dict[str, Any]]:
+    """`capsd calibrate REC --what pitch` on a tape-measured config: its output, what it wrote."""
     locator = tmp_path / "locator.yaml"
     locator.write_text(
         "site: tank\nsonar: {position_m: [0.3, 0.0, -0.2], pitch_deg: 30.0}\n"
-        "installation: {sonar_angles_deg: [1.0, 1.0, 1.0]}\n"
+        "installation: {sonar_angles_deg: [1.0, 1.0, 1.0], sonar_position_m: [0.02, 0.02, 0.02]}\n"
     )
     out = tmp_path / "calibrated.yaml"
     proc = subprocess.run(
         [sys.executable, "-m", "capsd", "calibrate", str(recording), "--what", "pitch",
-         "--locator-config", str(locator), "-o", str(out)],
+         "--locator-config", str(locator), "-o", str(out), *extra],
         capture_output=True, text=True, timeout=60, cwd=REPO,
     )  # fmt: skip
     assert proc.returncode == 0, proc.stdout + proc.stderr
-    assert "determined: the sonar's pitch moves by -0." in proc.stdout
-    written = yaml.safe_load(out.read_text())
+    written: dict[str, Any] = yaml.safe_load(out.read_text())
+    return proc.stdout, written
+
+
+def test_capsd_calibrate_pitch_writes_the_pitch(tmp_path: Path) -> None:
+    recording = tmp_path / "profile.mcap"
+    _record(recording, *_profile(pitch_error_deg=-0.8))
+    stdout, written = _calibrate_pitch(tmp_path, recording)
+    assert "determined: the sonar's pitch moves by -0." in stdout
+    assert "height NOT determined" in stdout
     assert written["sonar"]["pitch_deg"] == pytest.approx(29.2, abs=0.3)
     assert written["sonar"]["position_m"] == [0.3, 0.0, -0.2]
     yaw, pitch, roll = written["installation"]["sonar_angles_deg"]
     assert (yaw, roll) == (1.0, 1.0)  # not asked for: the tape's
     assert pitch < 0.3  # the fit's 1-sigma in place of the tape's
+    assert written["installation"]["sonar_position_m"] == [0.02, 0.02, 0.02]
+
+
+def test_capsd_calibrate_pitch_needs_the_orbit_to_write_the_height(tmp_path: Path) -> None:
+    recording = tmp_path / "profiles.mcap"
+    _record(recording, *_two_profiles(pitch_error_deg=-0.4, height_error_m=-0.05))
+    stdout, written = _calibrate_pitch(tmp_path, recording)
+    assert "from 2 distances (1.5, 4.2 m)" in stdout
+    assert "height NOT written: the range manoeuvre's recording is needed too" in stdout
+    assert written["sonar"]["position_m"] == [0.3, 0.0, -0.2]
+
+
+def test_capsd_calibrate_pitch_writes_the_height_from_two_distances(tmp_path: Path) -> None:
+    # The range manoeuvre first: its fixes put right along the sight by moving the sonar's
+    # forward position, which took the height error in by the sight's dip (the coupling).
+    poses, fixes = _orbit(swing_deg=120.0, along_m=0.0, across_m=0.0, noise_m=0.01)
+    orbit = tmp_path / "orbit.mcap"
+    recorder = McapRecorder(orbit)
+    for payload, key in [
+        *((p, topics.ASV_POSE.key("tank", "asv")) for p in poses),
+        *((f, topics.ROV_FIX.key("tank", "topside")) for f in fixes),
+    ]:
+        codec = Codec(type(payload))
+        recorder.write(Sample(key, codec.encoding, codec.encode(payload), payload.stamp_ns))
+    recorder.close()
+    coupling = fit_range_offset(fixes, PoseLookup(poses), mount=NOMINAL.transform())
+    assert coupling.height_coupling == pytest.approx(1.8 / 4.7, abs=0.02)  # the orbit's dip
+    # So the configured forward position is off by minus the coupling times the height.
+    height = -0.05
+    forward = -coupling.height_coupling * height
+    recording = tmp_path / "profiles.mcap"
+    _record(recording, *_two_profiles(pitch_error_deg=-0.4, height_error_m=height,
+                                      forward_error_m=forward))  # fmt: skip
+    stdout, written = _calibrate_pitch(tmp_path, recording, "--orbit", str(orbit))
+    assert "determined: the sonar sits -" in stdout
+    x, y, z = written["sonar"]["position_m"]
+    assert y == 0.0
+    height_sigma = written["installation"]["sonar_position_m"][2]
+    assert height_sigma < 0.015  # the fit's 1-sigma in place of the tape's 2 cm
+    assert z == pytest.approx(-0.2 + height, abs=2.5 * height_sigma)
+    # The forward position given back: where the sonar truly is.
+    assert x == pytest.approx(0.3 - forward, abs=2.5 * coupling.height_coupling * height_sigma)
+    assert x < 0.3
+    pitch_sigma = written["installation"]["sonar_angles_deg"][1]
+    assert written["sonar"]["pitch_deg"] == pytest.approx(29.6, abs=2.5 * pitch_sigma)

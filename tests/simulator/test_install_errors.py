@@ -13,7 +13,7 @@ from capsd.payloads import RovAttitude, RovDepth, SonarFrame
 from capsd.simulator.config import OFFLINE_START_NS, Config
 from capsd.simulator.install_errors import InstallErrors, InstallErrorsConfig
 from capsd.simulator.sim import Simulation
-from capsd.simulator.world import TankName
+from capsd.simulator.world import TankName, make_tank, profile_distances_m
 from capsd.sonar_geometry import to_polar
 from capsd.sound_speed import speed_of_sound_m_s
 
@@ -149,6 +149,55 @@ def test_the_pitch_manoeuvre_takes_the_rov_through_the_aperture_and_back(tank: T
     assert top > 15.0
     assert bottom < -15.0
     assert abs(top + bottom) < 3.0
+
+
+@pytest.mark.parametrize("tank", ["pond", "nfp"])
+def test_the_pitch_manoeuvre_from_near_and_far_spans_the_aperture_from_both(
+    tank: TankName,
+) -> None:
+    # The sonar's height needs a second distance: the tank's near and far profiles, each from
+    # above the aperture to below it as seen from its own distance, the far one over the floor.
+    nominal = Config().sonar
+    distances = profile_distances_m(
+        make_tank(tank),
+        sonar_z_m=nominal.position_m[2],
+        pitch_rad=math.radians(nominal.pitch_deg),
+        half_aperture_rad=math.radians(0.5 * nominal.vertical_aperture_deg),
+    )
+    assert len(distances) == 2
+    assert distances[1] > distances[0] + 2.0
+    for distance in distances:
+        standoff = distance + nominal.position_m[0]
+        config = Config(
+            tank=tank, asv_mode="follow", rov_mode="profile", asv_standoff_m=standoff, seed=2
+        )
+        sim = Simulation(config, horizon_s=130)
+        rov = np.array([sim.rov_state(float(t)).position_m for t in range(0, 121, 5)])
+        assert np.ptp(rov[:, :2], axis=0).max() < 1e-9
+        assert rov[:, 2].min() >= -sim.tank.depth_m + 0.6 - 1e-9  # over the floor's debris
+        elevations = []
+        for t in (0.0, 60.0):
+            sonar = sim.asv_pose(t).compose(sim.mount)
+            place = sim.rov_state(t).position_m
+            apart = float(np.hypot(*(place[:2] - sonar.translation[:2])))
+            assert apart == pytest.approx(distance, abs=0.15)
+            p_s = sonar.inverse().apply(place)
+            elevations.append(math.degrees(to_polar("conical", p_s)[2]))
+        top, bottom = elevations
+        # Beyond both edges of the aperture and its skirts (wider near: the ROV's own size).
+        assert top > 13.0
+        assert bottom < -15.0
+
+
+def test_a_tank_too_shallow_for_a_far_profile_gets_the_one_profile() -> None:
+    nominal = Config().sonar
+    distances = profile_distances_m(
+        make_tank("mockup"),
+        sonar_z_m=nominal.position_m[2],
+        pitch_rad=math.radians(nominal.pitch_deg),
+        half_aperture_rad=math.radians(0.5 * nominal.vertical_aperture_deg),
+    )
+    assert distances == ()
 
 
 def test_labels_are_in_the_sonar_s_range_units_as_its_frames() -> None:

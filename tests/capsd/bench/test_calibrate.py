@@ -28,10 +28,19 @@ def test_bench_calibrate_writes_its_figures(tmp_path: Path) -> None:
     assert "mean |range offset error|" in proc.stdout
     assert run["orbit_fixes"] > 50
     assert abs(run["along_error_mm"]) < 30.0
-    # Then the ROV going down and up through the aperture: the elevation offset against the
-    # truth at the edges (half a minute: both edges crossed, not yet known to 0.15 deg).
+    # Then the ROV going down and up through the aperture, near and far (the pond is deep
+    # enough for both): the elevation offset against the truth at the edges (half a minute
+    # each: both edges crossed, not yet known to 0.15 deg).
     assert "mean |elevation offset error|" in proc.stdout
-    above, below = run["profile_frames_above_below"]
-    assert above > 10
-    assert below > 10
+    near, far = run["profiles"]
+    assert near["distance_m"] < 2.0 < 3.0 < far["distance_m"]
+    assert near["height_gain_deg_per_cm"] > 1.5 * far["height_gain_deg_per_cm"]
+    for profile in (near, far):
+        above, below = profile["frames_above_below"]
+        assert above > 10
+        assert below > 10
     assert abs(run["elevation_offset_error_deg"]) <= 4.0 * run["elevation_offset_sigma_deg"]
+    # The two tell the sonar's height (written only when known within 15 mm): said either way.
+    assert "the sonar's height determined on" in proc.stdout
+    if run["height_determined"]:
+        assert abs(run["height_error_mm"]) <= 4.0 * run["height_sigma_mm"]
