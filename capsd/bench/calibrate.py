@@ -243,7 +243,7 @@ def profile_standoffs_m(config: SimConfig, mount: SonarMountConfig) -> tuple[flo
 
 @dataclass(frozen=True)
 class Profile:
-    """One profile's samples, what the elevations were truly off at its edges, its gain."""
+    """One profile's samples, and what the elevations were truly off at its edges."""
 
     samples: EchoSamples
     # How far the elevations the services compute (the configured mount, the ASV pose estimate,
