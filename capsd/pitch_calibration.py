@@ -17,9 +17,10 @@ What it measures is the elevation offset at the manoeuvre's ranges: the pitch er
 an error in the sonar's height does to an elevation there (2 cm at 2.5 m is 0.46 deg). That is
 what the aperture tests feel at such ranges. From one distance it is applied as the mount's
 pitch. Profiles at two distances tell the two apart: the pitch offsets every elevation alike,
-the height by its angle at that distance (2 cm is 0.46 deg at 2.5 m, 0.25 deg at 4.5 m), so the
-offsets found at each distance are fitted as pitch plus height times that angle per metre
-(`fit_profiles`), and the height is written when it is known within HEIGHT_SIGMA_MAX_M.
+the height by its angle at that distance (at the edges of a 30 deg-down aperture about 0.27
+deg per cm at 1.5 m, 0.11 at 3.8 m: `capsd bench calibrate`), so the offsets found at each
+distance are fitted as pitch plus height times that angle per metre (`fit_profiles`), and the
+height is written when it is known within HEIGHT_SIGMA_MAX_M.
 """
 
 from __future__ import annotations
@@ -61,8 +62,10 @@ INDEPENDENT_EVERY_S = 0.5  # neighbouring frames' strengths share the ROV's aspe
 # from the side; with the truth's own geometry that seed's plateau centred 0.31 deg off).
 MODEL_SIGMA_DEG = 0.14
 LIFT_STEP_M = 0.01  # the sonar raised this much to see what its height does to an elevation
-# Profiles at distances further apart than this are told apart (a recording's transit between
-# them falls between); frames within PROFILE_HALF_SPREAD_M of a profile's distance are its.
+# split_profiles: the distances' histogram in PROFILE_BIN_M bins; a profile's frames are those
+# within PROFILE_HALF_SPREAD_M of its distance, and profiles more than twice that apart are
+# told apart (a recording's transit between them falls between); a profile holds at least
+# PROFILE_SHARE of the frames the largest one holds.
 PROFILE_BIN_M = 0.1
 PROFILE_HALF_SPREAD_M = 0.3
 PROFILE_SHARE = 0.25

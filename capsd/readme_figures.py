@@ -307,7 +307,10 @@ def consistency_table(figures: dict[str, Any]) -> list[str]:
 
 
 def _written_position(runs: list[dict[str, Any]]) -> str:
-    """The mean errors of the sonar position written, against the drawn one (since session 27)."""
+    """The mean forward error of the sonar position written, against the drawn one.
+
+    (Since session 27; the height's is the bench's own mean, in the sentence before.)
+    """
     if not runs or "forward_error_mm" not in runs[0]:
         return ""
 
@@ -318,8 +321,7 @@ def _written_position(runs: list[dict[str, Any]]) -> str:
     return (
         f" The sonar position written against the drawn one: mean |forward error| "
         f"{mean_abs('forward_error_mm')} mm ({mean_abs('forward_error_after_range_mm')} mm "
-        f"after the range step alone), mean |height error| "
-        f"{mean_abs('height_error_written_mm')} mm."
+        f"after the range step alone)."
     )
 
 

@@ -514,8 +514,9 @@ def profile_depths(tank: Tank) -> tuple[float, float]:
     return -0.4, min(-0.8, tank.rov_depths[1])
 
 
-# Beyond the aperture's edges at the far standoff: the ROV's own half height seen from there,
-# the edges' softness (about 1 deg) twice over, and the depression a wave's roll adds.
+# Beyond the aperture's nominal edges (besides the ROV's own half height seen from there): the
+# echo fades 3-6 deg outside them (fitted half widths 13.3-15.6 deg against the 10 deg
+# aperture), its edges' softness twice over (1-1.5 deg each), and a pitch error of up to 2 deg.
 PROFILE_EDGE_MARGIN_DEG = 10.0
 PROFILE_TOP_Z_M = -0.3  # the ROV's top 0.17 m under the surface
 PROFILE_FLOOR_CLEARANCE_M = 0.6  # over the floor's sandbags and debris
