@@ -9,8 +9,10 @@ sonar's heading, roll and horizontal position against the ASV's LiDAR-derived fr
 uncertainty. Only what the data determined is written into the new locator config.
 
 `--what range` reads another recording, made with the calibrated config: the ROV parked (on
-the floor or a stand) while the ASV swings round it facing it; the fixes' offset along the line
-of sight (capsd.range_calibration) moves the sonar's forward position.
+the floor or a stand) while the ASV swings round it, facing it and looking to either side of
+it; the fixes' offset along the line of sight (capsd.range_calibration) is the range offset
+added to every detection's range, their offset along the ASV's axis the sonar's forward
+position (when the ROV was seen across enough of the fan).
 
 `--what pitch` reads a third, also made with the calibrated config: the ASV still, the ROV
 holding its place in front of it and going slowly down and up through the sonar's vertical
@@ -227,19 +229,24 @@ def applied(
     if mount_fit is not None:
         mount = corrected(mount, mount_fit)
     if range_fit is not None and range_fit.determined:
-        # Fixes too far along the line of sight: the sonar sits that much further back than
-        # configured (the orbit faces the ROV: the sonar's axis is the line of sight).
+        # Ranges too long: every detection's range less that much; fixes too far along the
+        # ASV's axis: the sonar sits that much further back than configured.
         x, y, z = mount.position_m
-        mount = msgspec.structs.replace(mount, position_m=(round(x - range_fit.along_m, 4), y, z))
+        if range_fit.forward_determined:
+            x = round(x - range_fit.forward_m, 4)
+        offset = round(mount.range_offset_m - range_fit.range_offset_m, 4)
+        mount = msgspec.structs.replace(mount, position_m=(x, y, z), range_offset_m=offset)
     if pitch_fit is not None and pitch_fit.determined:
         pitch = round(mount.pitch_deg + pitch_fit.pitch_correction_deg, 4)
         mount = msgspec.structs.replace(mount, pitch_deg=pitch)
     if pitch_fit is not None and pitch_fit.height_determined:
-        # B's z is up: the sonar truly sits height_m higher; the forward position gives back
-        # what the range offset took of the height.
+        # B's z is up: the sonar truly sits height_m higher; the range offset gives back what
+        # it took of the height.
         x, y, z = mount.position_m
-        position = (round(x + pitch_fit.forward_m, 4), y, round(z + pitch_fit.height_m, 4))
-        mount = msgspec.structs.replace(mount, position_m=position)
+        offset = round(mount.range_offset_m + pitch_fit.range_give_back_m, 4)
+        mount = msgspec.structs.replace(
+            mount, position_m=(x, y, round(z + pitch_fit.height_m, 4)), range_offset_m=offset
+        )
     if depth_fit is not None and depth_fit.determined:
         rov = msgspec.structs.replace(rov, depth_offset_m=round(depth_fit.offset_m, 4))
     installation = installation_after(prior, mount_fit, depth_fit, range_fit, pitch_fit)
@@ -280,7 +287,10 @@ def installation_after(
         roll = mount_fit.roll_sigma_deg if mount_fit.roll_determined else roll
         y = mount_fit.shift_y_sigma_m if mount_fit.shift_determined else y
     if range_fit is not None and range_fit.determined:
-        x = range_fit.along_sigma_m
+        # Near the boresight a range offset moves a fix as the forward position does.
+        x = range_fit.range_offset_sigma_m
+        if range_fit.forward_determined:
+            x = math.hypot(x, range_fit.forward_sigma_m)
     if pitch_fit is not None and pitch_fit.determined:
         pitch = pitch_fit.offset_sigma_deg
     if pitch_fit is not None and pitch_fit.height_determined:
@@ -311,6 +321,7 @@ def write_config(source: Path, out: Path, calibration: Calibration, recording: P
             yaw_deg=mount.yaw_deg,
             pitch_deg=mount.pitch_deg,
             roll_deg=mount.roll_deg,
+            range_offset_m=mount.range_offset_m,
         )
         data["sonar"] = sonar
     if calibration.depth_fit is not None and calibration.depth_fit.determined:

@@ -21,6 +21,11 @@ class SonarMountConfig(ConfigSection, frozen=True, kw_only=True):
     roll_deg: Annotated[float, msgspec.Meta(ge=-180.0, le=180.0)] = 0.0
     vertical_aperture_deg: Annotated[float, msgspec.Meta(gt=0.0, le=90.0)] = 20.0
     beam_model: BeamModel = "conical"
+    # Added to every detection's range before a fix (the locator's): where the echo's range
+    # sits from the ROV's centre beyond what the detector allows for, and the sonar's own zero
+    # (which bin edge a range stands for). `capsd calibrate --what range` measures it; the
+    # simulator's sonar has none of its own (its range errors are the drawn sound speed's).
+    range_offset_m: Annotated[float, msgspec.Meta(ge=-0.5, le=0.5)] = 0.0
 
     def transform(self) -> Transform:
         """H_B_S in radians (the one place its degrees are converted)."""

@@ -114,6 +114,23 @@ class PitchFit:
     # What a height error does to the centre (the mean of the two edges' EchoSamples gains).
     height_gain_rad_per_m: float = math.nan
     forward_gain_rad_per_m: float = math.nan  # the same for a forward error
+    # The sight's dip below the horizontal while the ROV is inside the aperture (where its
+    # fixes, and so its place, come from): the median over the plateau's frames.
+    dip_rad: float = math.nan
+
+    def height_gain_with(self, coupling: float | None) -> float:
+        """What a height error does to the centre, with what it does to the ROV's place.
+
+        The place comes from fixes: the depth constraint puts them tan(dip) further out per
+        metre the sonar truly sits higher, and the range offset (capsd.range_calibration),
+        fitted with the old height, took `coupling` of slant range per metre back, which is
+        1 / cos(dip) of horizontal here. A place further out is as a sonar further back
+        (the forward gain). None: the range offset's fit not known; the place taken as right.
+        """
+        if coupling is None:
+            return self.height_gain_rad_per_m
+        place = math.tan(self.dip_rad) - coupling / math.cos(self.dip_rad)
+        return self.height_gain_rad_per_m - place * self.forward_gain_rad_per_m
 
     @property
     def pitch_correction_deg(self) -> float:
@@ -318,6 +335,9 @@ def fit_pitch(samples: EchoSamples) -> PitchFit:
     below = int(np.sum(e < centre - margin)) if contrast_ok else 0
     near_edges = np.abs(np.abs(e - centre) - half) < math.radians(3.0)
     range_m = float(np.median(samples.range_m[near_edges])) if near_edges.any() else math.nan
+    seen = np.abs(e - centre) < half
+    dips = np.arccos(np.clip(samples.distance_m / np.maximum(samples.range_m, 1e-6), 0.0, 1.0))
+    dip = float(np.median(dips[seen])) if seen.any() else math.nan
     # The centre is the mean of the edges: so is what a height error does to it.
     upper = near_edges & (e > centre)
     lower = near_edges & (e < centre)
@@ -340,6 +360,7 @@ def fit_pitch(samples: EchoSamples) -> PitchFit:
         distance_m=float(np.median(samples.distance_m)),
         height_gain_rad_per_m=at_edges(samples.height_gain_rad_per_m),
         forward_gain_rad_per_m=at_edges(samples.forward_gain_rad_per_m),
+        dip_rad=dip,
     )
 
 
@@ -356,10 +377,10 @@ class ProfilesFit:
     pitch_offset_sigma_deg: float = math.nan
     height_m: float = math.nan
     height_sigma_m: float = math.nan
-    # The range offset's height coupling (capsd.range_calibration.RangeFit): the forward
-    # position it wrote took in that much of a height error per metre, which the height found
-    # here gives back (`forward_m`). None: not known (the range manoeuvre's fit not given), so
-    # the height is not written: alone it would move the fixes along the sight.
+    # The range offset's height coupling (capsd.range_calibration.RangeFit): the range offset
+    # it wrote took in that much slant range per metre of a height error, which the height
+    # found here gives back (`range_give_back_m`). None: not known (the range manoeuvre's fit
+    # not given), so the height is not written: alone it would move the fixes along the sight.
     height_coupling: float | None = None
 
     @property
@@ -381,12 +402,12 @@ class ProfilesFit:
         )
 
     @property
-    def forward_m(self) -> float:
-        """How far forward the sonar's position moves with the height (0 where none is written).
+    def range_give_back_m(self) -> float:
+        """What the range offset moves by with the height (0 where none is written).
 
         The range offset's fit put the fixes right along the sight with the old height; with
-        the new one they would move by the coupling times the height, so the forward position
-        gives that back.
+        the new one the depth constraint no longer puts them out, so the range offset gives
+        back the coupling times the height.
         """
         if not self.height_determined or self.height_coupling is None:
             return 0.0
@@ -434,14 +455,14 @@ class ProfilesFit:
         if self.height_determined:
             verdict = (
                 f"determined: the sonar sits {self.height_m * 1000:+.1f} mm higher than "
-                f"configured (its forward position moves by {self.forward_m * 1000:+.1f} mm, "
-                f"what the range offset took of it) and its pitch moves by "
+                f"configured (the range offset moves by {self.range_give_back_m * 1000:+.1f} "
+                f"mm, what it took of the height) and its pitch moves by "
                 f"{-self.pitch_offset_deg:+.3f} deg"
             )
         elif self.height_coupling is None:
             verdict = (
                 "height NOT written: the range manoeuvre's recording is needed too (--orbit), "
-                "its forward position took part of the height in; the pitch takes the "
+                "its range offset took part of the height in; the pitch takes the "
                 "profiles' mean offset"
             )
         else:
@@ -462,11 +483,9 @@ class ProfilesFit:
 def fit_profiles(profiles: Sequence[EchoSamples], *, height_coupling: float | None) -> ProfilesFit:
     """Each profile's plateau; from two or more distances, the pitch and height apart.
 
-    `height_coupling`: the range offset fit's (RangeFit.height_coupling), 0.0 where the
-    forward position is known otherwise, None where it is not known (the height then only
-    reported). With it, the forward position the range fit wrote is off by minus the coupling
-    times the height, which moves each profile's centre by its forward gain too: the height's
-    gain at each profile is its own less the forward gain times the coupling.
+    `height_coupling`: the range offset fit's (RangeFit.height_coupling), None where it is
+    not known (the height then only reported). The height's gain at each profile takes in
+    what it does to the ROV's place there (PitchFit.height_gain_with).
     """
     if not profiles:
         raise CapsdError(
@@ -474,15 +493,8 @@ def fit_profiles(profiles: Sequence[EchoSamples], *, height_coupling: float | No
             "front of the still ASV (about two minutes)"
         )
     fits = tuple(fit_pitch(p) for p in profiles)
-    coupling = 0.0 if height_coupling is None else height_coupling
-    used = [
-        f
-        for f in fits
-        if f.determined
-        and math.isfinite(f.height_gain_rad_per_m)
-        and math.isfinite(f.forward_gain_rad_per_m)
-    ]
-    gains = [f.height_gain_rad_per_m - coupling * f.forward_gain_rad_per_m for f in used]
+    used = [f for f in fits if f.determined and math.isfinite(f.height_gain_with(height_coupling))]
+    gains = [f.height_gain_with(height_coupling) for f in used]
     if len(used) < 2 or max(gains) - min(gains) < 1e-3:
         return ProfilesFit(fits, height_coupling=height_coupling)
     design = np.array([[1.0, g] for g in gains])

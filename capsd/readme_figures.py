@@ -306,22 +306,29 @@ def consistency_table(figures: dict[str, Any]) -> list[str]:
     return lines
 
 
-def _written_position(runs: list[dict[str, Any]]) -> str:
-    """The mean forward error of the sonar position written, against the drawn one.
+DETERMINED_TERMS = (
+    "yaw", "roll", "shift", "depth_offset", "range_offset", "forward", "pitch", "height",
+)  # fmt: skip
 
-    (Since session 27; the height's is the bench's own mean, in the sentence before.)
+
+def _written_position(runs: list[dict[str, Any]]) -> str:
+    """The sonar's forward position written: against where the fixes need it and the drawn one.
+
+    (Since session 28; the height's is the bench's own mean, in the sentence before.)
     """
-    if not runs or "forward_error_mm" not in runs[0]:
+    if not runs or "forward_error_vs_wanted_mm" not in runs[0]:
         return ""
 
     def mean_abs(key: str) -> str:
         values = [abs(r[key]) for r in runs if r.get(key) is not None]
         return f"{sum(values) / len(values):.1f}" if values else "-"
 
+    determined = sum(1 for r in runs if r.get("forward_determined"))
     return (
-        f" The sonar position written against the drawn one: mean |forward error| "
-        f"{mean_abs('forward_error_mm')} mm ({mean_abs('forward_error_after_range_mm')} mm "
-        f"after the range step alone)."
+        f" The sonar's forward position determined on {determined} of {len(runs)}, written "
+        f"mean |error| {mean_abs('forward_error_vs_wanted_mm')} mm against where the fixes "
+        f"need it (the LiDAR's drawn forward error in it, as in the sideways figure), "
+        f"{mean_abs('forward_error_mm')} mm against the sonar's drawn position alone."
     )
 
 
@@ -332,7 +339,7 @@ def calibrate_table(figures: dict[str, Any]) -> list[str]:
         f"mean |yaw error| {figures['mean_abs_yaw_error_deg']} deg, |roll error| "
         f"{figures['mean_abs_roll_error_deg']} deg, sideways {figures['mean_shift_error_mm']} mm, "
         f"|depth offset error| {figures['mean_abs_depth_offset_error_mm']} mm, "
-        f"|range offset error| {figures.get('mean_abs_along_error_mm', '-')} mm, "
+        f"|range offset error| {figures.get('mean_abs_range_offset_error_mm', '-')} mm, "
         f"|elevation offset error| {figures.get('mean_abs_elevation_offset_error_deg', '-')} deg "
         f"(against the drawn pitch alone "
         f"{figures.get('mean_abs_pitch_error_vs_drawn_deg', '-')} deg)"
@@ -349,19 +356,16 @@ def calibrate_table(figures: dict[str, Any]) -> list[str]:
         "",
         "| seed | yaw wanted / fitted (sigma) deg | roll wanted / fitted (sigma) deg "
         "| sideways error mm | depth offset wanted / fitted (sigma) mm "
-        "| range offset wanted / fitted (sigma) mm | sonar's drawn forward error mm "
+        "| range offset wanted / fitted (sigma) mm | forward wanted / fitted (sigma) mm "
+        "| sonar's drawn forward error mm "
         "| elevation offset wanted / fitted (sigma) deg | drawn pitch correction deg, height mm "
         "| height wanted / fitted (sigma) mm "
-        "| written position error: forward (after the range step alone), height mm "
+        "| written position error: forward against wanted (against drawn), height mm "
         "| determined |",
-        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|",
     ]
     for r in figures["runs"]:
-        determined = [
-            k
-            for k in ("yaw", "roll", "shift", "depth_offset", "along", "pitch", "height")
-            if r.get(f"{k}_determined")
-        ]
+        determined = [k for k in DETERMINED_TERMS if r.get(f"{k}_determined")]
         height = (
             f"{r.get('wanted_height_mm')} / {r.get('fitted_height_mm')} "
             f"({r.get('height_sigma_mm')})"
@@ -374,27 +378,35 @@ def calibrate_table(figures: dict[str, Any]) -> list[str]:
             f"({r['roll_sigma_deg']}) | {r['shift_error_mm']} "
             f"| {r['wanted_depth_offset_mm']} / {r['fitted_depth_offset_mm']} "
             f"({r['depth_offset_sigma_mm']}) "
-            f"| {r.get('wanted_along_mm', '-')} / {r.get('fitted_along_mm', '-')} "
-            f"({r.get('along_sigma_mm', '-')}) | {r.get('drawn_x_mm', '-')} "
+            f"| {r.get('wanted_range_offset_mm', '-')} / {r.get('fitted_range_offset_mm', '-')} "
+            f"({r.get('range_offset_sigma_mm', '-')}) "
+            f"| {r.get('wanted_forward_mm', '-')} / {r.get('fitted_forward_mm', '-')} "
+            f"({r.get('forward_sigma_mm', '-')}) | {r.get('drawn_x_mm', '-')} "
             f"| {r.get('wanted_elevation_offset_deg', '-')} / "
             f"{r.get('fitted_elevation_offset_deg', '-')} "
             f"({r.get('elevation_offset_sigma_deg', '-')}) "
             f"| {r.get('drawn_pitch_correction_deg', '-')}, {r.get('drawn_height_mm', '-')} "
-            f"| {height} | {r.get('forward_error_mm', '-')} "
-            f"({r.get('forward_error_after_range_mm', '-')}), "
+            f"| {height} | {r.get('forward_error_vs_wanted_mm', '-')} "
+            f"({r.get('forward_error_mm', '-')}), "
             f"{r.get('height_error_written_mm', '-')} | {', '.join(determined)} |"
         )
     return lines
+
+
+def fitted_wanted(calibration: dict[str, Any], name: str) -> str:
+    """'fitted / wanted' of one calibrated term ('-' fitted where it was not determined)."""
+    fitted = calibration.get(f"{name}_mm")
+    return f"{'-' if fitted is None else fitted} / {calibration.get(f'{name}_wanted_mm', '-')}"
 
 
 def self_calibrated_table(figures: dict[str, Any]) -> list[str]:
     """With installation errors: ours uncalibrated, then both methods after self-calibration."""
     lines = [
         "| run | ours uncalibrated | yaw fitted / wanted (deg) | depth offset fitted / wanted "
-        "(mm) | range offset fitted / wanted (mm) | ours "
+        "(mm) | range offset fitted / wanted (mm) | forward fitted / wanted (mm) | ours "
         "| baseline (box range, mount, depth and range calibrated) | ratio "
         "| ours: mean NEES, share within the 95 % bound | a perfect detector: ratio |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     perfect = figures.get("perfect_detector_self_calibrated", {})
     for name, c in _in_order(figures["common_self_calibrated"]):
@@ -403,7 +415,7 @@ def self_calibrated_table(figures: dict[str, Any]) -> list[str]:
         before_cell = "-" if before is None else f"{before:.1f}"
         if "ratio" not in c:
             lines.append(
-                f"| {_run_name(name)} | {before_cell} | - | - | - | - | - | - | - "
+                f"| {_run_name(name)} | {before_cell} | - | - | - | - | - | - | - | - "
                 f"| {_ratio(perfect.get(name))} |"
             )
             continue
@@ -411,7 +423,7 @@ def self_calibrated_table(figures: dict[str, Any]) -> list[str]:
         lines.append(
             f"| {_run_name(name)} | {before_cell} | {cal['yaw_deg']} / {cal['yaw_wanted_deg']} "
             f"| {cal['depth_offset_mm']} / {cal['depth_offset_wanted_mm']} "
-            f"| {cal.get('along_mm', '-')} / {cal.get('along_wanted_mm', '-')} "
+            f"| {fitted_wanted(cal, 'range_offset')} | {fitted_wanted(cal, 'forward')} "
             f"| {c['ours_med_mm']:.1f} | {c['other_med_mm']:.1f} "
             f"| {c['ratio']:.2f} {_ci(c['ratio_ci'], 2)} "
             f"| {ours['nees_mean']}, {_pct(ours['nees_within_95'])} "

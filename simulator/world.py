@@ -662,8 +662,8 @@ def asv_motion(
     sonar sweeps every wall at every angle). `orbit`: it swings to and fro on a circle of
     `standoff_m` about where the ROV starts, ORBIT_SWING_DEG to either side of the tank-centre
     side, one swing every ORBIT_PERIOD_S, nearer and further by ORBIT_IN_OUT, facing the ROV
-    (the range-offset manoeuvre: the line of sight turns about a parked ROV and dips more and
-    less steeply).
+    and looking ORBIT_LOOK_DEG to either side of it (the range-offset manoeuvre: the line of
+    sight turns about a parked ROV and dips more and less steeply, the ROV seen across the fan).
     """
     n = len(rov.track.p)
     dt = rov.track.dt
@@ -702,6 +702,13 @@ def asv_motion(
     if mode == "spin":
         yaw = bearing[0] + SPIN_RAD_S * dt * np.arange(n)
         return AsvMotion(track, yaw, waves)
+    if mode == "orbit":
+        # Looking to either side of the ROV as well, so that it is seen across the fan: a
+        # forward offset of the sonar then moves fixes across the line of sight, a range
+        # offset never does (capsd.range_calibration tells them apart so).
+        phase = 2.0 * math.pi * np.arange(n) * dt / ORBIT_LOOK_S
+        bearing = bearing + math.radians(ORBIT_LOOK_DEG) * np.sin(phase)
+        yaw[0] = bearing[0]
     alpha = dt / 2.0
     for k in range(1, n):
         yaw[k] = yaw[k - 1] + alpha * (bearing[k] - yaw[k - 1])
@@ -715,3 +722,5 @@ ORBIT_PERIOD_S = 120.0
 ORBIT_SWING_DEG = 75.0
 ORBIT_IN_OUT = 0.3
 ORBIT_IN_OUT_S = 60.0
+ORBIT_LOOK_DEG = 25.0  # the ROV that far to either side of the boresight, 3 times a swing
+ORBIT_LOOK_S = 40.0

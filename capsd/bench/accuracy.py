@@ -24,9 +24,11 @@ import msgspec
 
 from capsd.accuracy import HEADER, Accuracy, bootstrap_med, row
 from capsd.bench.baseline import box_range_bias
+from capsd.errors import CapsdError
 from capsd.mounts import RovConfig, SonarMountConfig
 from capsd.offline_pipeline import PERFECT_DETECTOR, Variant, ablations, locator_config, run
 from capsd.progress import Progress
+from capsd.readme_figures import fitted_wanted
 from capsd.services.locator.service import InstallationConfig
 from capsd.simulator.config import Config as SimConfig
 from capsd.simulator.install_errors import InstallErrorsConfig
@@ -211,7 +213,7 @@ def self_calibrate(
     seen = dive.observations
     fit = fit_mount(seen, mount=located.sonar, tank=located.tank)
     depth = fit_depth_offset(dive.depths, dive.attitudes, rov=located.rov)
-    want_yaw, want_roll, want_y = wanted_correction(manoeuvre, seen)
+    want_yaw, want_roll, want_y, _ = wanted_correction(manoeuvre, seen)
     summary: dict[str, Any] = {
         # What the dive's installation drew (hidden from the services): the run's own.
         "drawn": Simulation(manoeuvre, horizon_s=10.0).errors.summary(),
@@ -247,24 +249,34 @@ def self_calibrate(
         progress_offset_s=duration_s,
     )
     summary |= {
-        "along_mm": round(ranged.fit.along_m * 1000, 1),
-        "along_wanted_mm": round(ranged.wanted_along_m * 1000, 1),
-        "along_sigma_mm": round(ranged.fit.along_sigma_m * 1000, 1),
+        "range_offset_mm": round(ranged.fit.range_offset_m * 1000, 1),
+        "range_offset_wanted_mm": round(ranged.wanted_range_offset_m * 1000, 1),
+        "range_offset_sigma_mm": round(ranged.fit.range_offset_sigma_m * 1000, 1),
+        "forward_mm": (
+            round(ranged.fit.forward_m * 1000, 1) if ranged.fit.forward_determined else None
+        ),
+        "forward_wanted_mm": round(ranged.wanted_forward_m * 1000, 1),
         "x_drawn_mm": round(ranged.drawn_x_m * 1000, 1),
     }
     if ranged.fit.determined:
-        summary["determined"].append("along")
+        summary["determined"].append("range_offset")
+    if ranged.fit.forward_determined:
+        summary["determined"].append("forward")
     cal = applied(config.sonar, located.rov, prior, fit, depth, ranged.fit)
     # Then, told that, the pitch: the ROV going down and up through the aperture.
-    pitched = pitch_dive(
-        manoeuvre,
-        mount=cal.mount,
-        rov=cal.rov,
-        duration_s=duration_s,
-        height_coupling=ranged.fit.height_coupling,
-        progress=progress,
-        progress_offset_s=2 * duration_s,
-    )
+    try:
+        pitched = pitch_dive(
+            manoeuvre,
+            mount=cal.mount,
+            rov=cal.rov,
+            duration_s=duration_s,
+            height_coupling=ranged.fit.height_coupling,
+            progress=progress,
+            progress_offset_s=2 * duration_s,
+        )
+    except CapsdError as exc:  # no profile tracked (a short dive): the rest still stands
+        summary |= {"pitch_not_fitted": str(exc), "range_give_back_mm": 0.0}
+        return cal.mount, cal.rov, cal.installation, summary
     summary |= {
         "elevation_offset_deg": round(pitched.fit.offset_deg, 3),
         "elevation_offset_wanted_deg": round(pitched.wanted_offset_deg, 3),
@@ -283,7 +295,7 @@ def self_calibrate(
             round(pitched.fit.height_sigma_m * 1000, 1) if math.isfinite(height) else None
         ),
         "height_drawn_mm": round(pitched.drawn_height_mm, 1),
-        "forward_from_height_mm": round(pitched.fit.forward_m * 1000, 1),
+        "range_give_back_mm": round(pitched.fit.range_give_back_m * 1000, 1),
     }
     if pitched.fit.determined:
         summary["determined"].append("pitch")
@@ -441,16 +453,19 @@ def self_calibrated_report(figures: dict[str, Any]) -> list[str]:
         f"spot for {CALIBRATION_S:g} s while the ROV floats at the surface, fitted by `capsd "
         "calibrate`'s code (the sonar mount from the walls, the depth reading's offset from "
         "the float), then, told that, the ROV parked while the ASV swings round it (the range "
-        "offset along the line of sight: `capsd calibrate --what range`); what they "
+        "offset along the line of sight and the sonar's forward position: `capsd calibrate "
+        "--what range`), then the ROV going down and up in front of it at two distances (the "
+        "pitch and the sonar's height: `--what pitch`); what they "
         "determined is given to both methods (the baseline also keeps its box-range "
         "correction). On common pings, 95 % block-bootstrap intervals.",
         "",
         "| run | yaw fitted / wanted deg | roll fitted / wanted deg | y fitted / wanted mm "
         "| depth offset fitted / wanted mm | range offset fitted / wanted mm "
-        "| ours uncalibrated MED mm | ours MED mm | baseline MED mm | ratio "
+        "| forward fitted / wanted mm | ours uncalibrated MED mm | ours MED mm "
+        "| baseline MED mm | ratio "
         f"| ours <= {MAX_MED_MM:g} mm | ratio <= {MAX_RATIO:g} | ours NEES mean, within 95 % "
         "| a perfect detector / calibrated |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|:-:|:-:|---:|---:|",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|:-:|:-:|---:|---:|",
     ]
     all_met = True
     for name, c in figures["common_self_calibrated"].items():
@@ -458,7 +473,8 @@ def self_calibrated_report(figures: dict[str, Any]) -> list[str]:
         before = figures["runs"][name][OURS].get("med_mm")
         if "ratio" not in c:
             lines.append(
-                f"| {name} | - | - | - | - | - | {before} | - | - | - | NOT met | NOT met | - | - |"
+                f"| {name} | - | - | - | - | - | - | {before} | - | - | - | NOT met | NOT met | - "
+                "| - |"
             )
             all_met = False
             continue
@@ -470,7 +486,7 @@ def self_calibrated_report(figures: dict[str, Any]) -> list[str]:
             f"| {cal['roll_deg']} / {cal['roll_wanted_deg']} "
             f"| {cal['y_mm']} / {cal['y_wanted_mm']} "
             f"| {cal.get('depth_offset_mm', '-')} / {cal.get('depth_offset_wanted_mm', '-')} "
-            f"| {cal.get('along_mm', '-')} / {cal.get('along_wanted_mm', '-')} "
+            f"| {fitted_wanted(cal, 'range_offset')} | {fitted_wanted(cal, 'forward')} "
             f"| {before} | {c['ours_med_mm']} {_ci(c['ours_med_ci_mm'])} "
             f"| {c['other_med_mm']} {_ci(c['other_med_ci_mm'])} "
             f"| {c['ratio']} {_ci(c['ratio_ci'])} | {verdicts} "

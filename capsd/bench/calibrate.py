@@ -13,13 +13,14 @@ import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import msgspec
 import numpy as np
 
 from capsd.calibrate import applied
 from capsd.depth_calibration import fit_depth_offset
+from capsd.errors import CapsdError
 from capsd.geometry import Transform, matrix_to_euler_zyx
 from capsd.mount_calibration import Observation, corrected, fit_mount
 from capsd.mounts import RovConfig, SonarMountConfig
@@ -139,10 +140,17 @@ def wanted_mounts(world: Simulation, observations: list[Observation]) -> list[Tr
     return out
 
 
-def wanted_correction(
-    config: SimConfig, observations: list[Observation]
-) -> tuple[float, float, float]:
-    """(yaw, roll in degrees; y shift in metres) that the run's hidden errors call for.
+class Wanted(NamedTuple):
+    """The corrections to the nominal mount that a run's hidden errors call for."""
+
+    yaw_deg: float
+    roll_deg: float
+    y_m: float  # the sonar's sideways position
+    x_m: float  # its forward position
+
+
+def wanted_correction(config: SimConfig, observations: list[Observation]) -> Wanted:
+    """The yaw, roll, sideways and forward corrections the run's hidden errors call for.
 
     The mount a fix needs is the one that, composed with the ASV pose the services estimate,
     puts the sonar where it truly is: H_W_B_est^-1 H_W_B_true H_B_S_true, averaged over the
@@ -156,9 +164,10 @@ def wanted_correction(
     for wanted in wanted_mounts(sim, observations):
         yaw, _, roll = matrix_to_euler_zyx(sonar_nominal.rotation.T @ wanted.rotation)
         angles.append((yaw, roll))
-        shifts.append(float(wanted.translation[1] - sonar_nominal.translation[1]))
+        shifts.append(wanted.translation[:2] - sonar_nominal.translation[:2])
     yaw, roll = np.mean(np.array(angles), axis=0)
-    return math.degrees(float(yaw)), math.degrees(float(roll)), float(np.mean(shifts))
+    x, y = np.mean(np.array(shifts), axis=0)
+    return Wanted(math.degrees(float(yaw)), math.degrees(float(roll)), float(y), float(x))
 
 
 @dataclass(frozen=True)
@@ -166,10 +175,11 @@ class RangeDive:
     """The range-offset manoeuvre's fit, and what it should find."""
 
     fit: RangeFit
-    # The fixes' mean offset from the truth along the line of sight, less the ASV pose
-    # estimate's own position error along it (range_offset_dive says why).
-    wanted_along_m: float
-    drawn_x_m: float  # the sonar's own forward error (only part of what the fit takes)
+    # What the orbit's fixes were truly off by (range_offset_dive says how it is found): along
+    # the sight in slant range, and along the ASV's axis.
+    wanted_range_offset_m: float
+    wanted_forward_m: float
+    drawn_x_m: float  # the sonar's own forward error alone (the LiDAR's is not in it)
 
 
 def range_offset_dive(
@@ -183,12 +193,12 @@ def range_offset_dive(
 ) -> RangeDive:
     """The ROV parked, the ASV swinging round it, the locator told the calibrated config.
 
-    What the fit should find is what the fixes truly are off along the line of sight (from the
-    simulator's truth), not the sonar's drawn forward error alone: the detector's range bias
-    and what the depth reading and the sonar's height do along the sight are in it too. Less
-    the ASV pose estimate's own position error along the sight: that error is the same
-    whichever way the sonar looks (the fit rightly takes it as the ROV's place), and moving
-    the sonar would not remove it.
+    What the fit should find is what the fixes truly are off (from the simulator's truth),
+    split as the fit splits it: the fixes less the true positions, least squares on a range
+    offset, an across offset and offsets along and across the ASV's axis. The range offset
+    holds the detector's range bias and what the depth reading and the sonar's height do along
+    the sight; the forward offset the sonar's drawn forward error and the LiDAR's (the ASV's
+    frame is the LiDAR's: wanted_mounts takes it in the same way for the sideways position).
     """
     orbit = msgspec.structs.replace(
         config,
@@ -211,19 +221,27 @@ def range_offset_dive(
     transform = mount.transform()
     fit = fit_range_offset(kept.fixes, lookup, mount=transform)
     world = Simulation(orbit, horizon_s=duration_s + 10.0)
-    along = []
+    rows, offsets = [], []
     for ping in scored.pings:
         asv = lookup.at(ping.stamp_ns)
         if ping.raw_m is None or asv is None:
             continue
-        sonar = asv.compose(transform).translation[:2]
-        raw = np.asarray(ping.raw_m)[:2]
-        sight = (raw - sonar) / np.linalg.norm(raw - sonar)
-        true_asv = world.asv_pose((ping.stamp_ns - OFFLINE_START_NS) / 1e9).translation[:2]
-        off = raw - np.asarray(ping.truth_m)[:2] - (asv.translation[:2] - true_asv)
-        along.append(float(off @ sight))
+        sonar = asv.compose(transform).translation
+        raw = np.asarray(ping.raw_m)
+        sight = raw[:2] - sonar[:2]
+        horizontal = float(np.linalg.norm(sight))
+        u = sight / horizontal
+        slant = math.hypot(horizontal, float(sonar[2] - raw[2])) / horizontal
+        forward, left = asv.rotation[:2, 0], asv.rotation[:2, 1]
+        rows.append(np.column_stack([u * slant, [-u[1], u[0]], forward, left]))
+        offsets.append(raw[:2] - np.asarray(ping.truth_m)[:2])
+    wanted = (
+        np.linalg.lstsq(np.vstack(rows), np.concatenate(offsets), rcond=None)[0]
+        if rows
+        else np.full(4, math.nan)
+    )
     drawn_x = float(world.mount.translation[0] - config.sonar.transform().translation[0])
-    return RangeDive(fit, float(np.mean(along)) if along else math.nan, drawn_x)
+    return RangeDive(fit, float(wanted[0]), float(wanted[2]), drawn_x)
 
 
 def profile_standoffs_m(config: SimConfig, mount: SonarMountConfig) -> tuple[float | None, ...]:
@@ -353,15 +371,21 @@ def pitch_dive(
     """
     if standoffs_m is None:
         standoffs_m = profile_standoffs_m(config, mount)
-    profiles = tuple(
-        _profile(config, mount=mount, rov=rov, duration_s=duration_s, standoff_m=standoff,
-                 progress=progress, progress_offset_s=progress_offset_s + i * duration_s)
-        for i, standoff in enumerate(standoffs_m)
-    )  # fmt: skip
+    profiles: list[Profile] = []
+    missed: list[str] = []
+    for i, standoff in enumerate(standoffs_m):
+        try:
+            profiles.append(
+                _profile(config, mount=mount, rov=rov, duration_s=duration_s, standoff_m=standoff,
+                         progress=progress, progress_offset_s=progress_offset_s + i * duration_s)
+            )  # fmt: skip
+        except CapsdError as exc:  # not tracked at this distance: the others may still tell
+            missed.append(f"{'the nearest' if standoff is None else f'{standoff:.1f} m'}: {exc}")
+    if not profiles:
+        raise CapsdError(f"no profile tracked ({'; '.join(missed)})")
     fit = fit_profiles([p.samples for p in profiles], height_coupling=height_coupling)
     wanted_pitch = wanted_height = math.nan
-    coupling = height_coupling or 0.0
-    gains = [f.height_gain_rad_per_m - coupling * f.forward_gain_rad_per_m for f in fit.fits]
+    gains = [f.height_gain_with(height_coupling) for f in fit.fits]
     if len(profiles) >= 2 and all(math.isfinite(g) for g in gains):
         design = np.array([[1.0, g] for g in gains])
         wanted = np.radians([p.wanted_offset_deg for p in profiles])
@@ -369,7 +393,12 @@ def pitch_dive(
         wanted_pitch, wanted_height = math.degrees(float(solution[0])), float(solution[1])
     world = Simulation(config, horizon_s=10.0)
     height_m = float(world.mount.translation[2] - mount.transform().translation[2])  # B's z up
-    return PitchDive(fit, profiles, wanted_pitch, wanted_height, height_m * 1000)
+    return PitchDive(fit, tuple(profiles), wanted_pitch, wanted_height, height_m * 1000)
+
+
+def _num(value: float | None) -> str:
+    """A table cell: the figure to 0.1, or '-' where not determined."""
+    return "-" if value is None else f"{value:.1f}"
 
 
 def _mm(metres: float) -> float | None:
@@ -399,7 +428,7 @@ def bench(
         loc = locator_config(Variant("ours"), config)
         assert loc.tank is not None  # locator_config always gives the tank
         fit = fit_mount(obs, mount=loc.sonar, tank=loc.tank)
-        want_yaw, want_roll, want_y = wanted_correction(config, obs)
+        want_yaw, want_roll, want_y, want_x = wanted_correction(config, obs)
         shift_error_m = abs(fit.shift_y_m - want_y)
         depth = fit_depth_offset(dive.depths, dive.attitudes, rov=loc.rov)
         want_depth = wanted_depth_offset(config, dive)
@@ -435,11 +464,19 @@ def bench(
                 "depth_offset_sigma_mm": round(depth.sigma_m * 1000, 1),
                 "depth_offset_error_mm": round((depth.offset_m - want_depth) * 1000, 1),
                 "depth_offset_determined": depth.determined,
-                "wanted_along_mm": round(ranged.wanted_along_m * 1000, 1),
-                "fitted_along_mm": round(ranged.fit.along_m * 1000, 1),
-                "along_sigma_mm": round(ranged.fit.along_sigma_m * 1000, 1),
-                "along_error_mm": round((ranged.fit.along_m - ranged.wanted_along_m) * 1000, 1),
-                "along_determined": ranged.fit.determined,
+                "wanted_range_offset_mm": _mm(ranged.wanted_range_offset_m),
+                "fitted_range_offset_mm": _mm(ranged.fit.range_offset_m),
+                "range_offset_sigma_mm": _mm(ranged.fit.range_offset_sigma_m),
+                "range_offset_error_mm": _mm(
+                    ranged.fit.range_offset_m - ranged.wanted_range_offset_m
+                ),
+                "range_offset_determined": ranged.fit.determined,
+                "wanted_forward_mm": _mm(ranged.wanted_forward_m),
+                "fitted_forward_mm": _mm(ranged.fit.forward_m),
+                "forward_sigma_mm": _mm(ranged.fit.forward_sigma_m),
+                "forward_fit_error_mm": _mm(ranged.fit.forward_m - ranged.wanted_forward_m),
+                "forward_determined": ranged.fit.forward_determined,
+                "look_spread_deg": round(ranged.fit.look_spread_deg, 1),
                 "drawn_x_mm": round(ranged.drawn_x_m * 1000, 1),
                 "orbit_spread_deg": round(ranged.fit.spread_deg, 1),
                 "orbit_fixes": ranged.fit.fixes,
@@ -476,10 +513,16 @@ def bench(
                 "pitch_error_vs_drawn_deg": round(-pf.offset_deg - pitched.drawn_pitch_deg, 3),
                 "drawn_height_mm": round(pitched.drawn_height_mm, 1),
                 "height_coupling": round(ranged.fit.height_coupling, 3),
-                "forward_m_from_height_mm": round(pf.forward_m * 1000, 1),
+                "range_give_back_mm": round(pf.range_give_back_m * 1000, 1),
+                "written_range_offset_mm": round(final.range_offset_m * 1000, 1),
                 # The written position against the sonar's true one (B's x forward, z up).
-                "forward_error_after_range_mm": _mm(cal.mount.position_m[0] - float(true_mount[0])),
                 "forward_error_mm": _mm(final.position_m[0] - float(true_mount[0])),
+                # And against where a fix needs it (as the sideways position: the LiDAR's
+                # forward error in it too).
+                "wanted_x_mm": _mm(want_x),
+                "forward_error_vs_wanted_mm": _mm(
+                    final.position_m[0] - (config.sonar.position_m[0] + want_x)
+                ),
                 "height_error_written_mm": _mm(final.position_m[2] - float(true_mount[2])),
                 "measurements": fit.measurements,
                 "yaw_determined": fit.yaw_determined,
@@ -497,7 +540,19 @@ def bench(
     roll_err = float(np.mean([abs(r["roll_error_deg"]) for r in rows]))
     shift_err = float(np.mean([r["shift_error_mm"] for r in rows]))
     depth_err = float(np.mean([abs(r["depth_offset_error_mm"]) for r in rows]))
-    along_err = float(np.mean([abs(r["along_error_mm"]) for r in rows]))
+    along_err = float(np.mean([abs(r["range_offset_error_mm"]) for r in rows]))
+    forwards = [r for r in rows if r["forward_determined"]]
+    forward_err = (
+        float(np.mean([abs(r["forward_error_vs_wanted_mm"]) for r in forwards]))
+        if forwards
+        else math.nan
+    )
+    forward_fit_err = (
+        float(np.mean([abs(r["forward_fit_error_mm"]) for r in forwards])) if forwards else math.nan
+    )
+    forward_vs_drawn = (
+        float(np.mean([abs(r["forward_error_mm"]) for r in forwards])) if forwards else math.nan
+    )
     pitch_err = float(np.mean([abs(r["elevation_offset_error_deg"]) for r in rows]))
     pitch_vs_drawn = float(np.mean([abs(r["pitch_error_vs_drawn_deg"]) for r in rows]))
     heights = [r for r in rows if r["height_determined"]]
@@ -516,7 +571,8 @@ def bench(
     print(f"{'seed':>5} {'yaw want':>9} {'fitted':>8} {'sigma':>6} {'roll want':>10} "
           f"{'fitted':>8} {'sigma':>6} {'y err mm':>9} {'scale':>7} {'edges':>6} "
           f"{'depth off want mm':>17} {'fitted':>7} {'sigma':>6} "
-          f"{'along want mm':>13} {'fitted':>7} {'sigma':>6} {'drawn x':>8} "
+          f"{'range want mm':>13} {'fitted':>7} {'sigma':>6} {'fwd want':>8} {'fitted':>7} "
+          f"{'sigma':>6} {'drawn x':>8} "
           f"{'elev off want':>13} {'fitted':>7} {'sigma':>6} {'pitch drawn':>11} "
           f"{'height drawn mm':>15}")  # fmt: skip
     for r in rows:
@@ -527,8 +583,10 @@ def bench(
             f"{r['shift_error_mm']:>9.1f} {r['range_scale']:>7.4f} "
             f"{r['measurements']:>6} {r['wanted_depth_offset_mm']:>17.1f} "
             f"{r['fitted_depth_offset_mm']:>7.1f} {r['depth_offset_sigma_mm']:>6.1f} "
-            f"{r['wanted_along_mm']:>13.1f} {r['fitted_along_mm']:>7.1f} "
-            f"{r['along_sigma_mm']:>6.1f} {r['drawn_x_mm']:>8.1f} "
+            f"{_num(r['wanted_range_offset_mm']):>13} {_num(r['fitted_range_offset_mm']):>7} "
+            f"{_num(r['range_offset_sigma_mm']):>6} {_num(r['wanted_forward_mm']):>8} "
+            f"{_num(r['fitted_forward_mm']):>7} {_num(r['forward_sigma_mm']):>6} "
+            f"{r['drawn_x_mm']:>8.1f} "
             f"{r['wanted_elevation_offset_deg']:>13.3f} {r['fitted_elevation_offset_deg']:>7.3f} "
             f"{r['elevation_offset_sigma_deg']:>6.3f} {r['drawn_pitch_correction_deg']:>11.3f} "
             f"{r['drawn_height_mm']:>15.1f}"
@@ -541,7 +599,13 @@ def bench(
         f"{shift_err:.1f} mm sideways (target <= {SHIFT_TARGET_MM:g}: "
         f"{'met' if shift_err <= SHIFT_TARGET_MM else 'NOT met'}); mean |depth offset error| "
         f"{depth_err:.1f} mm (the ROV floating at the surface); mean |range offset error| "
-        f"{along_err:.1f} mm (the ROV parked, the ASV swinging round it); mean |elevation "
+        f"{along_err:.1f} mm (the ROV parked, the ASV swinging round it); the forward position "
+        f"determined on {len(forwards)} of {len(rows)} runs, mean |error| {forward_err:.1f} mm "
+        f"against where a fix needs the sonar in the ASV's LiDAR-derived frame, as sideways "
+        f"(target <= {SHIFT_TARGET_MM:g}: "
+        f"{'met' if forward_err <= SHIFT_TARGET_MM else 'NOT met'}), {forward_vs_drawn:.1f} mm "
+        f"against the sonar's drawn position alone, the fit {forward_fit_err:.1f} mm off what "
+        f"the orbit's fixes were off along the ASV's axis; mean |elevation "
         f"offset error| {pitch_err:.3f} deg (the ROV going down and up: the pitch and the "
         f"sonar height's effect at its ranges; target <= {TILT_TARGET_DEG}: "
         f"{'met' if pitch_err <= TILT_TARGET_DEG else 'NOT met'}), against the drawn pitch "
@@ -560,7 +624,11 @@ def bench(
         "mean_abs_roll_error_deg": round(roll_err, 4),
         "mean_shift_error_mm": round(shift_err, 2),
         "mean_abs_depth_offset_error_mm": round(depth_err, 2),
-        "mean_abs_along_error_mm": round(along_err, 2),
+        "mean_abs_range_offset_error_mm": round(along_err, 2),
+        "forward_determined_runs": len(forwards),
+        "mean_abs_forward_error_vs_wanted_mm": round(forward_err, 2) if forwards else None,
+        "mean_abs_forward_error_vs_drawn_mm": round(forward_vs_drawn, 2) if forwards else None,
+        "mean_abs_forward_fit_error_mm": round(forward_fit_err, 2) if forwards else None,
         "mean_abs_elevation_offset_error_deg": round(pitch_err, 4),
         "mean_abs_pitch_error_vs_drawn_deg": round(pitch_vs_drawn, 4),
         "height_determined_runs": len(heights),

@@ -70,8 +70,10 @@ def register(sub: Subcommands) -> None:
         "estimate with its uncertainty and whether the data determined it; write a copy of "
         "the locator config with what was determined (docs/INSTALL-ERRORS.md). Then, with "
         "that config, `--what range` on a recording of the ROV parked while the ASV swings "
-        "round it facing it: the sonar's forward position from the fixes' offset along the "
-        "line of sight. And `--what pitch` on a recording (the same config) of the ASV still and "
+        "round it, facing it and looking up to 25 deg to either side of it: the range offset "
+        "added to every detection's range from the fixes' offset along the line of sight, "
+        "and the sonar's forward position from their offset along the ASV's axis. And "
+        "`--what pitch` on a recording (the same config) of the ASV still and "
         "the ROV in front of it going slowly down and up through the sonar's vertical aperture, "
         "beyond both its edges: the sonar's pitch from where the ROV's echo fades; flown from two "
         "distances (about 1.5 m and as far as the floor allows), with --orbit, its height too.",
@@ -89,8 +91,9 @@ def register(sub: Subcommands) -> None:
         choices=("all", "mount", "depth", "range", "pitch"),  # capsd.calibrate.What
         default="all",
         help="mount: the sonar mount only; depth: the depth offset only (no sonar frames "
-        "needed); all (default): both; range: the sonar's forward position from the fixes "
-        "of a parked ROV (a recording made with the calibrated config, the locator running); "
+        "needed); all (default): both; range: the range offset and the sonar's forward "
+        "position from the fixes of a parked ROV (a recording made with the calibrated "
+        "config, the locator running); "
         "pitch: the sonar's pitch from the ROV going down and up in front of the still ASV (the "
         "same)",
     )
@@ -100,6 +103,6 @@ def register(sub: Subcommands) -> None:
         default=None,
         help="with --what pitch: the range manoeuvre's recording (the parked ROV); from two "
         "profiles at different distances the sonar's height is then written too, and the "
-        "forward position gives back what the range offset took of it",
+        "range offset gives back what it took of it",
     )
     cal.set_defaults(func=_cmd_calibrate)

@@ -501,8 +501,11 @@ class Locator:
     def _locate(self, detections: SonarDetections, *, seq: int) -> RovFix:
         stamp = detections.stamp_ns
         out = RovFix(stamp_ns=stamp, seq=seq, method=self.label, quality="invalid")
+        offset = self.config.sonar.range_offset_m
         candidates = [
-            d for d in detections.detections if d.confidence >= self.config.min_confidence
+            d if offset == 0.0 else msgspec.structs.replace(d, range_m=d.range_m + offset)
+            for d in detections.detections
+            if d.confidence >= self.config.min_confidence and d.range_m + offset > 0.0
         ]
         pose = self._lookup(self.poses, stamp)
         depth = self._lookup(self.depths, stamp)

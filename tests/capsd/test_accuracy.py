@@ -228,7 +228,8 @@ def test_the_self_calibrated_report_states_its_targets() -> None:
                 "yaw_deg": 0.5, "yaw_wanted_deg": 0.48, "roll_deg": -0.6,
                 "roll_wanted_deg": -0.59, "y_mm": 10.0, "y_wanted_mm": 12.0,
                 "depth_offset_mm": -20.0, "depth_offset_wanted_mm": -25.0,
-                "along_mm": 4.0, "along_wanted_mm": 9.0,
+                "range_offset_mm": 4.0, "range_offset_wanted_mm": 9.0, "forward_mm": None,
+                "forward_wanted_mm": -12.0,
             }
         },
         "common_self_calibrated": {
@@ -248,7 +249,7 @@ def test_the_self_calibrated_report_states_its_targets() -> None:
     }  # fmt: skip
     text = "\n".join(self_calibrated_report(figures))
     assert "| nfp/square | 0.5 / 0.48 |" in text
-    assert "| -20.0 / -25.0 | 4.0 / 9.0 | 120.0 |" in text
+    assert "| -20.0 / -25.0 | 4.0 / 9.0 | - / -12.0 | 120.0 |" in text
     assert (
         "| 120.0 | 30.0 [28, 33] | 50.0 [47, 52] | 0.6 [0.55, 0.66] | met | NOT met | 2.9, 0.95 "
         "| 0.4 [0.37, 0.43] |" in text

@@ -36,26 +36,28 @@ def _configs(folder: Path, *, tank: TankName = "nfp", **options: Any) -> dict[st
 def test_a_calibration_dive_gives_the_services_the_calibrated_mount(tmp_path: Path) -> None:
     tape = _configs(tmp_path / "tape")
     # Half a minute of each manoeuvre (the demo: two minutes) determines the depth offset and
-    # the range offset along the sight; the yaw needs longer (capsd bench calibrate measures
+    # the range offset; the yaw needs longer (capsd bench calibrate measures
     # the fits; this is what the services are given).
     dived = _configs(tmp_path / "dived", calibration="dive", calibration_s=30.0)
     found = json.loads((tmp_path / "dived" / "calibration.json").read_text())
-    assert {"depth_offset", "along"} <= set(found["determined"])
+    assert {"depth_offset", "range_offset"} <= set(found["determined"])
     # The dive calibrated this run's installation (drawn from the run's seed), not another.
     live = Simulation(msgspec.convert(tape["sim"], SimConfig), horizon_s=10.0)
     assert found["drawn"] == json.loads(json.dumps(live.errors.summary()))
     before = msgspec.convert(tape["locator"].get("sonar", {}), SonarMountConfig)
     after = msgspec.convert(dived["locator"]["sonar"], SonarMountConfig)
-    # Fixes too far along the sight: the sonar sits that much further back than the tape said;
-    # where the two profiles determined its height, it moves by that, and forward by what the
-    # range offset took of it.
-    assert after.position_m[0] == pytest.approx(
-        before.position_m[0] - (found["along_mm"] - found["forward_from_height_mm"]) / 1000,
+    # Ranges too long: every range less that much, less what it took of the height where the
+    # two profiles determined it; fixes too far along the ASV's axis (when the ROV was seen
+    # across the fan): the sonar sits that much further back than the tape said.
+    assert after.range_offset_m == pytest.approx(
+        before.range_offset_m - (found["range_offset_mm"] - found["range_give_back_mm"]) / 1000,
         abs=1e-3,
     )
+    forward = found["forward_mm"] / 1000 if "forward" in found["determined"] else 0.0
+    assert after.position_m[0] == pytest.approx(before.position_m[0] - forward, abs=1e-3)
     height = found["height_mm"] / 1000 if "height" in found["determined"] else 0.0
     assert after.position_m[2] == pytest.approx(before.position_m[2] + height, abs=1e-3)
-    assert ("height" in found["determined"]) == (found["forward_from_height_mm"] != 0.0)
+    assert ("height" in found["determined"]) == (found["range_give_back_mm"] != 0.0)
     assert dived["locator"]["rov"]["depth_offset_m"] == pytest.approx(
         found["depth_offset_mm"] / 1000, abs=1e-3
     )

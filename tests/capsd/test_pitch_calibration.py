@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
 import pytest
 import yaml
@@ -35,6 +36,7 @@ from capsd.pitch_calibration import (
 from capsd.pose_lookup import PoseLookup
 from capsd.range_calibration import fit_range_offset
 from capsd.recording import McapRecorder, Sample
+from capsd.services.locator.fix import solve_fix
 from capsd.services.locator.service import InstallationConfig
 from capsd.sonar_geometry import to_polar
 from tests.capsd.test_range_calibration import _orbit
@@ -83,7 +85,7 @@ def _profile(
     *,
     pitch_error_deg: float,
     height_error_m: float = 0.0,
-    forward_error_m: float = 0.0,
+    configured: SonarMountConfig = NOMINAL,
     ahead_m: float = 3.0,
     bottom_z: float = -3.4,
     frames: int = 600,
@@ -92,15 +94,15 @@ def _profile(
 ) -> tuple[list[SonarFrame], list[RovFix], list[RovDepth]]:
     """The ROV `ahead_m` ahead going from 0.4 m deep to `bottom_z` and back.
 
-    Seen by a sonar pitched `pitch_error_deg` further down than configured, sitting
-    `height_error_m` higher and `forward_error_m` further back: its echo fades 10 deg either
-    side of the true boresight. Frames numbered from `first`.
+    Seen by a sonar pitched `pitch_error_deg` further down than `configured` says, sitting
+    `height_error_m` higher: its echo fades 10 deg either side of the true boresight. Fixed
+    as the locator fixes it with `configured` (its range offset too). Frames numbered from
+    `first`.
     """
     rng = np.random.default_rng(seed)
-    x, y, z0 = NOMINAL.position_m
+    x, y, z0 = configured.position_m
     true = SonarMountConfig(
-        pitch_deg=NOMINAL.pitch_deg + pitch_error_deg,
-        position_m=(x - forward_error_m, y, z0 + height_error_m),
+        pitch_deg=configured.pitch_deg + pitch_error_deg, position_m=(x, y, z0 + height_error_m)
     ).transform()
     out_frames, fixes, depths = [], [], []
     for k in range(first, first + frames):
@@ -114,7 +116,13 @@ def _profile(
         stamp = frame.stamp_ns
         depths.append(RovDepth(stamp_ns=stamp, seq=k, depth_m=float(-z)))
         if weight > 0.5:  # the locator fixes a ROV it sees
-            seen = rov + rng.normal(0.0, 0.01, 3)
+            seen = solve_fix(
+                asv_pose=ASV, sonar_mount=configured.transform(),
+                range_m=range_m + configured.range_offset_m + rng.normal(0.0, 0.01),
+                azimuth_rad=azimuth, rov_z_m=z, vertical_aperture_rad=math.radians(40.0),
+                beam_model="conical",
+            ).position_m  # fmt: skip
+            assert seen is not None
             fixes.append(
                 RovFix(stamp_ns=stamp, seq=k, method="capsd", quality="good",
                        position_m=(float(seen[0]), float(seen[1]), float(z)))
@@ -199,14 +207,14 @@ def test_the_plateau_centre_is_recovered_within_its_sigma(
 
 
 def _two_profiles(
-    *, pitch_error_deg: float, height_error_m: float, forward_error_m: float = 0.0
+    *, pitch_error_deg: float, height_error_m: float, configured: SonarMountConfig = NOMINAL
 ) -> tuple[list[SonarFrame], list[RovFix], list[RovDepth]]:
     """Profiles 1.5 m and 4.2 m from the sonar, 2 minutes each, with a transit between them."""
     errors = functools.partial(
         _profile,
         pitch_error_deg=pitch_error_deg,
         height_error_m=height_error_m,
-        forward_error_m=forward_error_m,
+        configured=configured,
     )
     near = errors(ahead_m=1.8, bottom_z=-2.6, seed=1)
     far = errors(ahead_m=4.5, bottom_z=-4.8, first=800, seed=2)
@@ -233,7 +241,7 @@ def test_two_distances_tell_the_height_from_the_pitch() -> None:
     assert [round(float(np.median(p.distance_m)), 1) for p in profiles] == [1.5, 4.2]
     # The transit's frames are in neither profile.
     assert sum(len(p.stamps_ns) for p in profiles) < len(frames) - 100
-    # The forward position known (no range offset fitted): no coupling.
+    # No range offset fitted: the fixes carry what the depth constraint makes of the height.
     fit = fit_profiles(profiles, height_coupling=0.0)
     # Each distance alone takes the height (up: the ROV computed higher than it is) for pitch,
     # the near one more than the far one.
@@ -249,7 +257,12 @@ def test_two_distances_tell_the_height_from_the_pitch() -> None:
     assert cal.mount.position_m[2] == pytest.approx(-0.2 + fit.height_m, abs=1e-4)
     assert cal.mount.pitch_deg == pytest.approx(30.0 - fit.pitch_offset_deg, abs=1e-3)
     assert cal.installation.sonar_position_m[2] == pytest.approx(fit.height_sigma_m, abs=1e-4)
-    # Told the corrected mount, neither distance shows an offset beyond the fit's own error.
+    # Told the corrected mount (recorded again with it), neither distance shows an offset
+    # beyond the fit's own error.
+    frames, fixes, depths = _two_profiles(
+        pitch_error_deg=0.6 + fit.pitch_offset_deg, height_error_m=0.04 - fit.height_m,
+        configured=cal.mount,
+    )  # fmt: skip
     again = fit_profiles(
         split_profiles(_samples(frames, fixes, depths, cal.mount)), height_coupling=0.0
     )
@@ -303,11 +316,14 @@ def _record(
     recorder.close()
 
 
-def _calibrate_pitch(tmp_path: Path, recording: Path, *extra: str) -> tuple[str, dict[str, Any]]:
+def _calibrate_pitch(
+    tmp_path: Path, recording: Path, *extra: str, range_offset_m: float = 0.0
+) -> tuple[str, dict[str, Any]]:
     """`capsd calibrate REC --what pitch` on a tape-measured config: its output, what it wrote."""
     locator = tmp_path / "locator.yaml"
     locator.write_text(
-        "site: tank\nsonar: {position_m: [0.3, 0.0, -0.2], pitch_deg: 30.0}\n"
+        "site: tank\nsonar: {position_m: [0.3, 0.0, -0.2], pitch_deg: 30.0, "
+        f"range_offset_m: {range_offset_m}}}\n"
         "installation: {sonar_angles_deg: [1.0, 1.0, 1.0], sonar_position_m: [0.02, 0.02, 0.02]}\n"
     )
     out = tmp_path / "calibrated.yaml"
@@ -345,9 +361,9 @@ def test_capsd_calibrate_pitch_needs_the_orbit_to_write_the_height(tmp_path: Pat
 
 
 def test_capsd_calibrate_pitch_writes_the_height_from_two_distances(tmp_path: Path) -> None:
-    # The range manoeuvre first: its fixes put right along the sight by moving the sonar's
-    # forward position, which took the height error in by the sight's dip (the coupling).
-    poses, fixes = _orbit(swing_deg=120.0, along_m=0.0, across_m=0.0, noise_m=0.01)
+    # The range manoeuvre first: its fixes put right along the sight by the range offset,
+    # which took the height error in by the sight's dip (the coupling).
+    poses, fixes = _orbit(swing_deg=120.0, range_offset_m=0.0, across_m=0.0, noise_m=0.01)
     orbit = tmp_path / "orbit.mcap"
     recorder = McapRecorder(orbit)
     for payload, key in [
@@ -358,22 +374,28 @@ def test_capsd_calibrate_pitch_writes_the_height_from_two_distances(tmp_path: Pa
         recorder.write(Sample(key, codec.encoding, codec.encode(payload), payload.stamp_ns))
     recorder.close()
     coupling = fit_range_offset(fixes, PoseLookup(poses), mount=NOMINAL.transform())
-    assert coupling.height_coupling == pytest.approx(1.8 / 4.7, abs=0.02)  # the orbit's dip
-    # So the configured forward position is off by minus the coupling times the height.
+    # sin(dip) of the orbit's sight: 1.8 m down over 4.7 m.
+    assert coupling.height_coupling == pytest.approx(1.8 / math.hypot(4.7, 1.8), abs=0.02)
+    # So the configured range offset is off by the coupling times the height (the sonar
+    # truly lower: the fixes too near, the ranges made longer).
     height = -0.05
-    forward = -coupling.height_coupling * height
+    offset = -coupling.height_coupling * height
+    configured = msgspec.structs.replace(NOMINAL, range_offset_m=round(offset, 4))
     recording = tmp_path / "profiles.mcap"
     _record(recording, *_two_profiles(pitch_error_deg=-0.4, height_error_m=height,
-                                      forward_error_m=forward))  # fmt: skip
-    stdout, written = _calibrate_pitch(tmp_path, recording, "--orbit", str(orbit))
+                                      configured=configured))  # fmt: skip
+    stdout, written = _calibrate_pitch(
+        tmp_path, recording, "--orbit", str(orbit), range_offset_m=configured.range_offset_m
+    )
     assert "determined: the sonar sits -" in stdout
     x, y, z = written["sonar"]["position_m"]
-    assert y == 0.0
+    assert (x, y) == (0.3, 0.0)
     height_sigma = written["installation"]["sonar_position_m"][2]
     assert height_sigma < 0.015  # the fit's 1-sigma in place of the tape's 2 cm
     assert z == pytest.approx(-0.2 + height, abs=2.5 * height_sigma)
-    # The forward position given back: where the sonar truly is.
-    assert x == pytest.approx(0.3 - forward, abs=2.5 * coupling.height_coupling * height_sigma)
-    assert x < 0.3
+    # The range offset given back: the ranges as they truly are.
+    assert written["sonar"]["range_offset_m"] == pytest.approx(
+        0.0, abs=2.5 * coupling.height_coupling * height_sigma
+    )
     pitch_sigma = written["installation"]["sonar_angles_deg"][1]
     assert written["sonar"]["pitch_deg"] == pytest.approx(29.6, abs=2.5 * pitch_sigma)

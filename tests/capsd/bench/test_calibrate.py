@@ -24,10 +24,13 @@ def test_bench_calibrate_writes_its_figures(tmp_path: Path) -> None:
     # A third of a turn already pins the heading to a few tenths of a degree.
     assert abs(run["yaw_error_deg"]) < 0.3
     assert run["measurements"] > 1000
-    # Then the parked ROV seen from the swinging ASV: a range offset fitted, against the truth.
+    # Then the parked ROV seen from the swinging ASV: a range offset fitted, against the truth,
+    # and the forward position said determined or not.
     assert "mean |range offset error|" in proc.stdout
+    assert "the forward position determined on" in proc.stdout
     assert run["orbit_fixes"] > 50
-    assert abs(run["along_error_mm"]) < 30.0
+    assert abs(run["range_offset_error_mm"]) < 30.0
+    assert run["look_spread_deg"] > 20.0  # the ASV looked to either side of the ROV
     # Then the ROV going down and up through the aperture, near and far (the pond is deep
     # enough for both): the elevation offset against the truth at the edges (half a minute
     # each: both edges crossed, not yet known to 0.15 deg).

@@ -9,6 +9,7 @@ import msgspec
 import numpy as np
 
 from capsd.geometry import Transform
+from capsd.mounts import SonarMountConfig
 from capsd.payloads import AsvPose, Detection, RovAttitude, RovDepth, RovFix, SonarDetections
 from capsd.services.locator.service import (
     ClutterConfig,
@@ -184,6 +185,20 @@ def test_ranges_are_rescaled_to_the_water_the_rov_s_thermometer_reads() -> None:
     assert unknown.counters()["sonar_speed_pings"] == 1
     assert unknown.counters()["water_speed_pings"] == 0
     assert corrected.counters()["sonar_speed_pings"] == 0
+
+
+def test_the_calibrated_range_offset_is_added_to_every_detection_s_range() -> None:
+    # The detector's ranges 25 mm long (its echo's range bias): calibrated, the fix is the ROV.
+    def miss_m(locator: Locator) -> float:
+        _feed_inputs(locator, until_s=1.0)
+        true = _detection_of(locator, ROV)
+        long = msgspec.structs.replace(true, range_m=true.range_m + 0.025)
+        fix = locator.locate(_ping(SECOND // 2, long), seq=0)
+        assert fix.raw_position_m is not None
+        return float(np.linalg.norm(np.subtract(fix.raw_position_m, ROV)))
+
+    assert miss_m(_locator()) > 0.02
+    assert miss_m(_locator(sonar=SonarMountConfig(range_offset_m=-0.025))) < 1e-6
 
 
 def test_the_thermometer_s_sigma_goes_into_the_covariance_in_place_of_the_range_scale() -> None:
