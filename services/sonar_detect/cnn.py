@@ -1,7 +1,9 @@
 """The CNN ROV detector: polar frame in, ROV candidates with sub-bin centres out.
 
 1. The coarse grid of the frame (polar_input) goes through the proposal network; local maxima
-   of its heatmap above `proposal_threshold` are candidates (at most `max_candidates`).
+   of its heatmap above `proposal_threshold` are candidates (at most `max_candidates`); inside
+   the depth gate's range window, where the ROV must be, above `gated_proposal_threshold` if
+   set lower.
 2. A metric crop around each candidate goes through the refiner: ROV or not (the confidence),
    the centre's offset in range and cross-range, its Laplace scale (reported as sigma) and the
    echo's extent. The crop is taken again around the refined centre `refine_passes - 1` times:
@@ -58,6 +60,14 @@ LAPLACE_SIGMA = math.sqrt(2.0)  # standard deviation of a Laplace law per unit s
 class CnnSettings:
     weights: Path = DEFAULT_WEIGHTS
     proposal_threshold: float = 0.1
+    # Inside the depth gate's range window (where the ROV's depth plane crosses the fan: it can
+    # be nowhere else), a lower bar if set (None: proposal_threshold); the refiner still
+    # decides. A ROV 1.6-1.8 m off in the aperture's upper two thirds was its frame's strongest
+    # heat but under 0.1 (0.06-0.09: the pond, by hand, session 28), and never proposed; the
+    # refiner called it ROV (0.82-0.93). Not set by default: at 0.03 the mockup's MED in
+    # `capsd bench accuracy` rose 20.8 -> 26.2 mm as its availability rose 53.5 -> 63.7 %
+    # (README, the detector section).
+    gated_proposal_threshold: float | None = None
     max_candidates: int = 3
     refine_passes: int = 2
     merge_distance_m: float = 0.3
@@ -229,7 +239,11 @@ class CnnDetector:
             frame,
             image,
             table,
-            threshold=s.proposal_threshold,
+            threshold=(
+                s.proposal_threshold
+                if range_window is None or s.gated_proposal_threshold is None
+                else min(s.proposal_threshold, s.gated_proposal_threshold)
+            ),
             max_candidates=s.max_candidates,
             range_window=range_window,
             inputs=self.net.inputs,

@@ -53,6 +53,9 @@ class CnnConfig(ConfigSection, frozen=True, kw_only=True):
     # None: the weights shipped with the package (services/sonar_detect/weights/polar_net.pt).
     weights: str | None = None
     proposal_threshold: Annotated[float, msgspec.Meta(gt=0.0, lt=1.0)] = 0.1
+    # The same inside the depth gate's range window if lower (capsd.services.sonar_detect.cnn;
+    # null: proposal_threshold there too).
+    gated_proposal_threshold: Annotated[float, msgspec.Meta(gt=0.0, lt=1.0)] | None = None
     max_candidates: Annotated[int, msgspec.Meta(ge=1, le=20)] = 3
     refine_passes: Annotated[int, msgspec.Meta(ge=1, le=5)] = 2
     # Ping time between whole-frame searches; between them only the last ping's confident
@@ -186,6 +189,7 @@ def make_detector(config: Config) -> Detector:
     settings = CnnSettings(
         weights=weights,
         proposal_threshold=c.proposal_threshold,
+        gated_proposal_threshold=c.gated_proposal_threshold,
         max_candidates=c.max_candidates,
         refine_passes=c.refine_passes,
         threads=c.threads,

@@ -70,6 +70,36 @@ def test_finds_the_rov_centre(detector: CnnDetector, range_m: float, azimuth_deg
     assert abs(float(np.median(errors_a))) < 0.4
 
 
+def test_a_near_rov_is_proposed_inside_the_depth_gate_s_window() -> None:
+    # 1.6-1.8 m off the proposal heat of a ROV is its frame's strongest but under 0.1: inside
+    # the range window where the ROV must be, a lower bar (when set) lets the refiner see it.
+    tank = make_tank("nfp")
+    renderer = SonarRenderer(SonarModel(range_max_m=20.0, n_ranges=1000), tank)
+    sonar = Transform(euler_zyx_to_matrix(0.0, math.radians(30.0), 0.0), np.array([6.0, 8.0, -0.2]))
+    found: dict[str, int] = {"gated": 0, "old bar": 0, "no window": 0}
+    for range_m, elevation_deg in ((1.8, -3.0), (1.6, 8.0)):
+        e = math.radians(-elevation_deg)
+        rov = Ellipsoid(
+            sonar.apply(range_m * np.array([math.cos(e), 0.0, math.sin(e)])),
+            euler_zyx_to_matrix(0.4, 0.0, 0.0),
+            BLUEROV2_SEMI_AXES,
+        )
+        for seed in range(5):
+            frame = _frame(renderer, sonar, rov, seed)
+            for name, settings, window in (
+                ("gated", CnnSettings(gated_proposal_threshold=0.03), (1.0, 2.5)),
+                ("old bar", CnnSettings(), (1.0, 2.5)),  # the default: none set
+                ("no window", CnnSettings(gated_proposal_threshold=0.03), None),
+            ):
+                detections = CnnDetector(settings).detect(frame, range_window=window)
+                found[name] += any(
+                    d.confidence > 0.5 and abs(d.range_m - range_m) < 0.15 for d in detections
+                )
+    assert found["gated"] >= 8
+    assert found["old bar"] <= 2
+    assert found["no window"] <= 2  # outside a gate the proposal threshold stands
+
+
 def test_quiet_on_an_empty_fan(detector: CnnDetector) -> None:
     tank = make_tank("nfp")
     renderer = SonarRenderer(SonarModel(range_max_m=20.0, n_ranges=1000), tank)
