@@ -42,13 +42,17 @@ MIN_LOOK_SPREAD_DEG = 25.0
 MAX_SIGMA_M = 0.01  # written only when known this well
 INDEPENDENT_EVERY_S = 1.0  # fixes closer than this share their errors (the uncertainty's count)
 # What the fit misses by beyond its own statistics, added to its 1-sigma: `capsd bench
-# calibrate` (pond, 5 seeds) finds it 0.4-13.4 mm (RMS 7.2 mm) off what the fixes truly were
-# off along the sight (less the ASV pose estimate's own error): the ROV's place and the offset
-# are only partly apart on a 150 deg arc, and the echo's range bias changes with range as the
-# ASV goes in and out.
+# calibrate` (pond, 5 seeds) found the along offset 0.4-13.4 mm (RMS 7.2 mm) off what the fixes
+# truly were off along the sight (session 20), and the range offset with the forward term
+# 2.0-5.4 mm (RMS 3.6 mm, session 28; always short): the ROV's place and the offset are only
+# partly apart on a 150 deg arc, and the echo's range bias changes with range as the ASV goes
+# in and out. Kept at the larger.
 MODEL_SIGMA_M = 0.007
-# The same for the forward position: a first estimate (two seeds, by hand, the fit 1.5 mm off
-# what the fixes truly needed), until `capsd bench calibrate` measures it.
+# The same for the forward position: `capsd bench calibrate` (pond, 5 seeds, session 28) found
+# the fit 1.3-1.7 mm off what the orbit's fixes were off along the ASV's axis, and the position
+# written 0.9-40.3 mm off where a fix needs the sonar (RMS 20.4 mm): what the detector gets
+# wrong that grows with the azimuth (on our renderer its bearings 0.3-0.4 % wide) looks like a
+# forward offset. This term covers the first; the second is the renderer's (docs/INSTALL-ERRORS).
 FORWARD_MODEL_SIGMA_M = 0.005
 
 
