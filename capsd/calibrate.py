@@ -18,8 +18,8 @@ position (when the ROV was seen across enough of the fan).
 holding its place in front of it and going slowly down and up through the sonar's vertical
 aperture; where its echo fades above and below (capsd.pitch_calibration) gives the pitch. Two
 such profiles at different distances (about 1.5 m and as far as the floor allows) give the
-sonar's height too (`--orbit`: the range manoeuvre's recording, whose forward position took
-part of the height in); from one, the offset is written as the pitch.
+sonar's height too (`--orbit`: the range manoeuvre's recording, whose range offset took part
+of the height in); from one, the offset is written as the pitch.
 """
 
 from __future__ import annotations
