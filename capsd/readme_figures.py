@@ -326,8 +326,9 @@ def _written_position(runs: list[dict[str, Any]]) -> str:
     determined = sum(1 for r in runs if r.get("forward_determined"))
     return (
         f" The sonar's forward position determined on {determined} of {len(runs)}, written "
-        f"mean |error| {mean_abs('forward_error_vs_wanted_mm')} mm against where the fixes "
-        f"need it (the LiDAR's drawn forward error in it, as in the sideways figure), "
+        f"mean |error| {mean_abs('forward_error_vs_wanted_mm')} mm against where a fix needs "
+        f"the sonar in the ASV's LiDAR-derived frame (the LiDAR's drawn forward error in it, as "
+        f"in the sideways figure), "
         f"{mean_abs('forward_error_mm')} mm against the sonar's drawn position alone."
     )
 
@@ -356,11 +357,13 @@ def calibrate_table(figures: dict[str, Any]) -> list[str]:
         "",
         "| seed | yaw wanted / fitted (sigma) deg | roll wanted / fitted (sigma) deg "
         "| sideways error mm | depth offset wanted / fitted (sigma) mm "
-        "| range offset wanted / fitted (sigma) mm | forward wanted / fitted (sigma) mm "
+        "| range offset wanted / fitted (sigma) mm "
+        "| forward: the orbit's fixes off / fitted (sigma) mm "
         "| sonar's drawn forward error mm "
         "| elevation offset wanted / fitted (sigma) deg | drawn pitch correction deg, height mm "
         "| height wanted / fitted (sigma) mm "
-        "| written position error: forward against wanted (against drawn), height mm "
+        "| written position error: forward against where a fix needs it (against drawn), "
+        "height mm "
         "| determined |",
         "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|",
     ]
