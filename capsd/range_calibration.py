@@ -73,8 +73,6 @@ class RangeFit:
     forward_m: float = math.nan
     forward_sigma_m: float = math.nan
     look_spread_deg: float = 0.0
-    # Whether the fit held the forward offset apart (else the range offset took it in).
-    forward_apart: bool = False
     # How much the range offset grows per metre the sonar truly sits higher than configured:
     # the depth constraint turns a height error into horizontal range by tan(dip), which is
     # sin(dip) of slant range (the mean over the fixes). The pitch manoeuvre's height fit
@@ -89,6 +87,11 @@ class RangeFit:
             and self.spread_deg >= MIN_SPREAD_DEG
             and self.range_offset_sigma_m <= MAX_SIGMA_M
         )
+
+    @property
+    def forward_apart(self) -> bool:
+        """Whether the fit held the forward offset apart (else the range offset took it in)."""
+        return self.forward_sigma_m <= MAX_SIGMA_M  # NaN (not fitted) compares False
 
     @property
     def forward_determined(self) -> bool:
@@ -190,7 +193,6 @@ def fit_range_offset(fixes: Sequence[RovFix], poses: PoseLookup, *, mount: Trans
         forward_m=forward_m,
         forward_sigma_m=forward_sigma_m,
         look_spread_deg=look_spread,
-        forward_apart=apart,
         height_coupling=float(np.mean(data[:, 5])),
     )
 
