@@ -218,6 +218,8 @@ def _err(g: dict[str, Any], key: str, unit: str, digits: int) -> str:
 
 
 _BANDS = ("0.5-1.5 m", "1.5-4 m", "4-8 m", "8-14 m", "14-20 m")
+# The ROV's place in the vertical aperture (capsd.bench.detect.APERTURE_PLACES), under 4 m.
+_PLACES = ("lower third", "middle third", "upper third", "beyond an edge")
 
 
 def detect_table(figures: dict[str, Any]) -> list[str]:
@@ -242,6 +244,18 @@ def detect_table(figures: dict[str, Any]) -> list[str]:
         alarms = " / ".join(f"{g.get('false_alarms_per_frame', 0):.3f}" for g in found)
         return f"| {label} | {rates} % | {alarms} | | |"
 
+    def by_place(names: list[str]) -> str:
+        found = [groups[n] for n in names]
+        rates = " / ".join(_pct(g.get("detection_rate")).removesuffix(" %") for g in found)
+        biases = " / ".join(
+            "-" if g.get("range_bias_cm_median") is None else f"{g['range_bias_cm_median']:+.1f}"
+            for g in found
+        )
+        return (
+            f"| ... under 4 m: the aperture's {' / '.join(_PLACES)} | {rates} % | "
+            f"| signed {biases} cm | |"
+        )
+
     for look, label in (("off", "fixed look"), ("heldout", "held-out look")):
         lines.append(whole(f"{label}, all", f"cnn / {look} / all"))
         if look == "heldout":
@@ -249,6 +263,9 @@ def detect_table(figures: dict[str, Any]) -> list[str]:
                                [f"cnn / {look} / clear", f"cnn / {look} / overlap"]))  # fmt: skip
         lines.append(split("... " + " / ".join(b.removesuffix(" m") for b in _BANDS) + " m",
                            [f"cnn / {look} / {b}" for b in _BANDS]))  # fmt: skip
+        places = [f"cnn / {look} / under 4 m, {p}" for p in _PLACES]
+        if all(name in groups for name in places):
+            lines.append(by_place(places))
     lines.append(whole("classical (CFAR) fallback, held-out look", "classical / heldout / all"))
     return lines
 

@@ -131,6 +131,10 @@ class Tally:
             "false_alarms_per_frame": round(self.false_alarms / max(self.frames, 1), 4),
             "ghost_alarms_per_frame": round(self.ghost_alarms / max(self.frames, 1), 4),
             "range_err_cm_median": pct(self.range_err, 50, 100),
+            # Signed: positive, the detector's range is longer than the ROV centre's.
+            "range_bias_cm_median": (
+                round(float(np.median(self.range_err)) * 100, 4) if self.range_err else None
+            ),
             "range_err_cm_p90": pct(self.range_err, 90, 100),
             "range_err_cm_p95": pct(self.range_err, 95, 100),
             "azimuth_err_deg_median": pct(self.azimuth_err, 50, 1),
@@ -170,6 +174,21 @@ BANDS: tuple[tuple[float, float], ...] = (
 )
 # The looks a bench run renders: the simulator's fixed look, and settings kept out of training.
 LOOKS: tuple[Variety, ...] = ("off", "heldout")
+
+
+# Where in the vertical aperture the ROV's centre is, for ROVs nearer than PLACE_WITHIN_M (there
+# a BlueROV2 spans a third of a 20 deg aperture or more, and the beam's vertical pattern lights
+# its parts unevenly): thirds of the aperture, or beyond its edges (in the beam's skirts).
+PLACE_WITHIN_M = 4.0
+APERTURE_PLACES = ("lower third", "middle third", "upper third", "beyond an edge")
+
+
+def aperture_place(elevation_rad: float, half_aperture_rad: float) -> str:
+    """Which third of the vertical aperture an elevation is in (or beyond an edge)."""
+    share = elevation_rad / half_aperture_rad
+    if abs(share) > 1.0:
+        return APERTURE_PLACES[3]
+    return APERTURE_PLACES[0 if share < -1.0 / 3.0 else 1 if share <= 1.0 / 3.0 else 2]
 
 
 def band_of(range_m: float) -> str | None:
@@ -235,6 +254,7 @@ def evaluate(
     for look in looks:
         for tank, trajectory, asv_mode, seed in runs:
             config = sonar_only(tank, trajectory, asv_mode, seed, variety=look, look_seed=look_seed)
+            half_aperture = math.radians(config.sonar.vertical_aperture_deg) / 2.0
             for start_s in starts_s:
                 # A fresh simulation per stretch: each is the same run from its own start
                 # (the paths are functions of time); the detectors see a jump in the stamps,
@@ -248,8 +268,10 @@ def evaluate(
                         found, _ = detect_gated(
                             _Bound(detect), frame, gate, min_confidence=MIN_CONFIDENCE
                         )
-                        score(tallies, f"{name} / {look}", label, found)
-                    score(tallies, f"paper: box centre / {look}", label, box_centre(label))
+                        score(tallies, f"{name} / {look}", label, found,
+                              half_aperture_rad=half_aperture)  # fmt: skip
+                    score(tallies, f"paper: box centre / {look}", label, box_centre(label),
+                          half_aperture_rad=half_aperture)  # fmt: skip
                     bar.update(done + t_s - start_s)
                 done += duration_s
     bar.close()
@@ -257,13 +279,25 @@ def evaluate(
 
 
 def score(
-    tallies: dict[str, Tally], detector: str, label: SonarLabel, found: list[Detection]
+    tallies: dict[str, Tally],
+    detector: str,
+    label: SonarLabel,
+    found: list[Detection],
+    *,
+    half_aperture_rad: float | None = None,
 ) -> None:
-    """Match one ping's candidates to its label and count (clear/overlap, all, range band)."""
+    """Match one ping's candidates to its label and count.
+
+    Groups: clear/overlap, all, the range band, and (given the half aperture) the ROV's place
+    in the vertical aperture when it is nearer than PLACE_WITHIN_M.
+    """
     groups = [f"{detector} / {'overlap' if label.overlap else 'clear'}", f"{detector} / all"]
     band = band_of(label.range_m) if label.visible else None
     if band is not None:
         groups.append(f"{detector} / {band}")
+    if half_aperture_rad is not None and label.visible and label.range_m < PLACE_WITHIN_M:
+        place = aperture_place(label.elevation_rad, half_aperture_rad)
+        groups.append(f"{detector} / under {PLACE_WITHIN_M:g} m, {place}")
     for group in groups:
         _score(tallies[group], label, found)
 

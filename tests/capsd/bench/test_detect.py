@@ -2,15 +2,62 @@
 
 from __future__ import annotations
 
+import math
+from collections import defaultdict
 from pathlib import Path
 
 import pytest
 
-from capsd.bench.detect import RUNS, band_of, evaluate, sonar_only, truth_gate
+from capsd.bench.detect import (
+    RUNS,
+    Tally,
+    aperture_place,
+    band_of,
+    evaluate,
+    score,
+    sonar_only,
+    truth_gate,
+)
 from capsd.cli import main
-from capsd.payloads import Detection, SonarFrame
+from capsd.payloads import Detection, SonarFrame, SonarLabel
 from capsd.simulator.config import OFFLINE_START_NS
 from capsd.simulator.sim import Simulation
+
+
+def _label(range_m: float, elevation_deg: float) -> SonarLabel:
+    return SonarLabel(
+        stamp_ns=1, seq=0, ping_id=0, visible=True, range_m=range_m, azimuth_rad=0.1,
+        elevation_rad=math.radians(elevation_deg), rov_position_m=(1.0, 2.0, -1.0),
+    )  # fmt: skip
+
+
+def _at(range_m: float) -> list[Detection]:
+    return [Detection(range_m=range_m, azimuth_rad=0.1, range_sigma_m=0.01,
+                      azimuth_sigma_rad=0.01, confidence=0.9)]  # fmt: skip
+
+
+def test_a_near_rov_is_scored_by_its_place_in_the_aperture_with_a_signed_range_bias() -> None:
+    half = math.radians(10.0)
+    assert [aperture_place(math.radians(e), half) for e in (-9.0, -2.0, 4.0, 10.5, -11.0)] == [
+        "lower third", "middle third", "upper third", "beyond an edge", "beyond an edge",
+    ]  # fmt: skip
+    tallies: dict[str, Tally] = defaultdict(Tally)
+    score(tallies, "d", _label(2.0, -8.0), _at(2.03), half_aperture_rad=half)
+    score(tallies, "d", _label(2.0, -7.0), _at(2.05), half_aperture_rad=half)
+    score(tallies, "d", _label(3.0, 6.0), _at(2.98), half_aperture_rad=half)
+    score(tallies, "d", _label(6.0, -8.0), _at(6.1), half_aperture_rad=half)  # too far off
+    lower = tallies["d / under 4 m, lower third"].summary()
+    assert lower["visible"] == 2
+    assert lower["range_bias_cm_median"] == pytest.approx(4.0)
+    assert tallies["d / under 4 m, upper third"].summary()["range_bias_cm_median"] == (
+        pytest.approx(-2.0)
+    )
+    assert tallies["d / all"].summary()["range_err_cm_median"] == pytest.approx(4.0)  # unsigned
+    assert not any("middle" in name or "beyond" in name for name in tallies)
+    # Without the aperture, no place groups.
+    bare: dict[str, Tally] = defaultdict(Tally)
+    score(bare, "d", _label(2.0, -8.0), _at(2.03))
+    assert sorted(bare) == ["d / 1.5-4 m", "d / all", "d / clear"]
 
 
 class _Stamps:
