@@ -45,7 +45,13 @@ from capsd.services.asv_pose.tilt import TiltSettings
 from capsd.services.locator.service import Config as LocatorConfig
 from capsd.services.locator.service import InstallationConfig, Locator, MethodConfig
 from capsd.services.sonar_detect.paper_box import box_centre
-from capsd.services.sonar_detect.service import DepthGateConfig, Detector, GateInputs, detect_gated
+from capsd.services.sonar_detect.service import (
+    CnnConfig,
+    DepthGateConfig,
+    Detector,
+    GateInputs,
+    detect_gated,
+)
 from capsd.simulator.config import OFFLINE_START_NS
 from capsd.simulator.config import Config as SimConfig
 from capsd.simulator.sim import Simulation
@@ -175,6 +181,8 @@ def run(
     tilts = {v.tilt for v in variants}
     estimators = {k: _estimator(k, config, start_yaw + HEADING_PRIOR_ERROR_RAD) for k in tilts}
     detect = _detectors({v.detector for v in variants})
+    # The CNN's range corrected by elevation as the service's default configures it.
+    range_bias = CnnConfig().range_bias_correction() if "cnn" in detect else None
     gating = GateInputs(DepthGateConfig(mode=depth_gate, sonar=config.sonar))
     gate_tilt: TiltKind = "ours" if "ours" in tilts else variants[0].tilt
     locators = {v.name: Locator(locator_config(v, config)) for v in variants}
@@ -227,7 +235,14 @@ def run(
             frame = p
             gate = gating.gate(p.stamp_ns)
             found = {
-                kind: detect_gated(d, p, gate, min_confidence=0.5)[0] for kind, d in detect.items()
+                kind: detect_gated(
+                    d,
+                    p,
+                    gate,
+                    min_confidence=0.5,
+                    range_bias=range_bias if kind == "cnn" else None,
+                )[0]
+                for kind, d in detect.items()
             }
             if sink is not None:
                 sink(p)

@@ -1,4 +1,4 @@
-"""`capsd train detector|calibrate` and `capsd label`: the detector's training tools."""
+"""`capsd train detector|calibrate|range-bias` and `capsd label`: the detector's training tools."""
 
 from __future__ import annotations
 
@@ -23,6 +23,16 @@ def _cmd_train_calibrate(args: argparse.Namespace) -> int:
         recalibrate(args.weights, duration_s=args.duration)
     except CapsdError as exc:
         return fail(f"calibrate: {exc}", EXIT_CONFIG)
+    return EXIT_OK
+
+
+def _cmd_train_range_bias(args: argparse.Namespace) -> int:
+    from capsd.train.range_bias import run
+
+    try:
+        run(runs=args.runs, duration_s=args.duration, out=args.out)
+    except CapsdError as exc:
+        return fail(f"range-bias: {exc}", EXIT_CONFIG)
     return EXIT_OK
 
 
@@ -214,3 +224,19 @@ def register(sub: Subcommands) -> None:
         "--duration", type=positive_float, default=10.0, help="seconds per validation run"
     )
     tcal.set_defaults(func=_cmd_train_calibrate)
+    from capsd.services.sonar_detect.range_bias import DEFAULT_TABLE
+
+    tbias = train.add_parser(
+        "range-bias",
+        help="the CNN's range error by where a near ROV lies in the vertical aperture",
+        description="On runs drawn as training runs are (tuning tanks, training looks, seeds "
+        "of their own), the configured CNN through the depth-aware search; its median signed "
+        "range error by the elevation the depth gate puts a near ROV at: the table "
+        "`cnn.range_bias: by_elevation` takes off.",
+    )
+    tbias.add_argument("--runs", type=positive_int, default=24, help="simulated runs")
+    tbias.add_argument(
+        "--duration", type=positive_float, default=15.0, help="seconds per run (10 Hz pings)"
+    )
+    tbias.add_argument("--out", type=Path, default=DEFAULT_TABLE, help="the table (JSON)")
+    tbias.set_defaults(func=_cmd_train_range_bias)

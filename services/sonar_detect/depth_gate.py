@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from capsd.geometry import Array, Transform
+from capsd.geometry import Array, Transform, wrap_angle
 from capsd.sonar_geometry import BeamModel
 
 ELEVATION_SAMPLES = 15
@@ -51,6 +51,30 @@ class DepthGate:
             np.array([azimuth_rad])
         )
         return bool(z.min() - self.tolerance_m <= self.rov_z_m <= z.max() + self.tolerance_m)
+
+    def elevation_at(self, range_m: float, azimuth_rad: float) -> float | None:
+        """The elevation at which a point at (range, azimuth) lies on the ROV's plane.
+
+        The root nearer the boresight (the other lies far outside any aperture); None where
+        the plane is out of reach at that range and bearing.
+        """
+        if range_m <= 0.0:
+            return None
+        a, b, c = (float(v) for v in self.sonar_in_world.rotation[2])
+        ct, st = math.cos(azimuth_rad), math.sin(azimuth_rad)
+        k = (self.rov_z_m - float(self.sonar_in_world.translation[2])) / range_m
+        # World z of a unit beam direction: A cos(e) + C sin(e) + B, by the beam model.
+        if self.beam_model == "planar":
+            cos_part, sin_part, rest = a * ct + b * st, c, 0.0
+        else:
+            cos_part, sin_part, rest = a * ct, c * ct, b * st
+        norm = math.hypot(cos_part, sin_part)
+        if norm < 1e-12 or abs(k - rest) > norm:
+            return None
+        phase = math.atan2(sin_part, cos_part)
+        spread = math.acos((k - rest) / norm)
+        roots = [wrap_angle(phase + spread), wrap_angle(phase - spread)]
+        return min(roots, key=abs)
 
     def range_window(self, half_fov_rad: float) -> tuple[float, float] | None:
         """The slant ranges at which the ROV's plane crosses the fan (None: nowhere)."""

@@ -30,6 +30,9 @@ from capsd.payloads import AsvPose, Detection, RovDepth, SonarDetections, SonarF
 from capsd.runner import Publisher, ServiceRunner
 from capsd.services.sonar_detect.classical import ClassicalDetector, ClassicalSettings
 from capsd.services.sonar_detect.depth_gate import DepthGate
+from capsd.services.sonar_detect.range_bias import DEFAULT_TABLE as DEFAULT_RANGE_BIAS
+from capsd.services.sonar_detect.range_bias import RangeBias
+from capsd.services.sonar_detect.range_bias import load as load_range_bias
 
 logger = logging.getLogger(__name__)
 
@@ -71,6 +74,22 @@ class CnnConfig(ConfigSection, frozen=True, kw_only=True):
     # (without the prior); 0: forget it at the first miss.
     track_hold_s: Annotated[float, msgspec.Meta(ge=0.0, le=10.0)] = 0.0
     threads: Annotated[int, msgspec.Meta(ge=1, le=64)] = 1
+    # by_elevation: with the depth gate, a near ROV's range corrected for where it lies in the
+    # vertical aperture (capsd.services.sonar_detect.range_bias; the table measured on training
+    # runs by `capsd train range-bias`); off: as the network says.
+    range_bias: Literal["by_elevation", "off"] = "by_elevation"
+    # None: the table shipped beside the weights (services/sonar_detect/weights/range_bias.json).
+    range_bias_table: str | None = None
+
+    def range_bias_correction(self) -> RangeBias | None:
+        """The table to correct ranges with (None: off); a bad file is a config error."""
+        if self.range_bias == "off":
+            return None
+        path = Path(self.range_bias_table) if self.range_bias_table else DEFAULT_RANGE_BIAS
+        try:
+            return load_range_bias(path)
+        except CapsdError as exc:
+            raise ConfigError("config", "cnn.range_bias_table", str(exc)) from None
 
 
 class Detector(Protocol):
@@ -80,12 +99,19 @@ class Detector(Protocol):
 
 
 def detect_gated(
-    detector: Detector, frame: SonarFrame, gate: DepthGate | None, *, min_confidence: float
+    detector: Detector,
+    frame: SonarFrame,
+    gate: DepthGate | None,
+    *,
+    min_confidence: float,
+    range_bias: RangeBias | None = None,
 ) -> tuple[list[Detection], int]:
     """(kept, rejected by depth): the frame's confident candidates as the service finds them.
 
     With a gate, proposals only at the ranges where the ROV's depth plane crosses the fan, and
-    candidates that cannot lie on that plane inside the aperture rejected (depth-aware search).
+    candidates that cannot lie on that plane inside the aperture rejected (depth-aware search);
+    with a `range_bias` table too, each kept candidate's range corrected for where the gate
+    places it in the aperture.
     """
     window = None
     if gate is not None:
@@ -97,7 +123,10 @@ def detect_gated(
     if gate is None:
         return found, 0
     kept = [d for d in found if gate.plausible(d.range_m, d.azimuth_rad)]
-    return kept, len(found) - len(kept)
+    rejected = len(found) - len(kept)
+    if range_bias is not None:
+        kept = [range_bias.corrected(d, gate) for d in kept]
+    return kept, rejected
 
 
 class DepthGateConfig(ConfigSection, frozen=True, kw_only=True):
@@ -230,6 +259,7 @@ class GateInputs:
 def main(config: Config) -> int:
     """Run the detector until stopped."""
     detector = make_detector(config)
+    range_bias = config.cnn.range_bias_correction() if config.detector == "cnn" else None
     mailbox: Mailbox[tuple[SonarFrame, int]] = Mailbox()
     counts = {
         "frames": 0,
@@ -286,8 +316,9 @@ def main(config: Config) -> int:
                     gate = inputs.gate(frame.stamp_ns)
                     started_ns = time.time_ns()
                     found, rejected = detect_gated(
-                        detector, frame, gate, min_confidence=config.min_confidence
-                    )
+                        detector, frame, gate, min_confidence=config.min_confidence,
+                        range_bias=range_bias,
+                    )  # fmt: skip
                     inference.record_ns(time.time_ns() - started_ns)
                     if gate is not None:
                         counts["depth_gated_frames"] += 1

@@ -3,6 +3,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -38,7 +39,7 @@ def _sonar(pitch_deg: float, yaw_deg: float, roll_deg: float) -> Transform:
     elevation_deg=st.floats(-9.5, 9.5),
     model=st.sampled_from(["planar", "conical"]),
 )
-def test_the_rov_where_it_is_passes_and_off_its_plane_does_not(
+def test_the_rov_where_it_is_passes_off_its_plane_does_not_and_its_elevation_is_found(
     pitch: float,
     yaw: float,
     roll: float,
@@ -52,8 +53,12 @@ def test_the_rov_where_it_is_passes_and_off_its_plane_does_not(
     p_s = range_m * beam_direction(model, azimuth, math.radians(elevation_deg))
     rov = sonar.apply(p_s)
     gate = DepthGate(sonar, float(rov[2]), 0.3, HALF_APERTURE, model)
-    r, theta, _ = to_polar(model, p_s)
+    r, theta, elevation = to_polar(model, p_s)
     assert gate.plausible(r, theta)
+    # The gate puts the point on the ROV's plane at its own elevation.
+    found = gate.elevation_at(r, theta)
+    assert found is not None
+    assert math.degrees(found) == pytest.approx(math.degrees(elevation), abs=1e-6)
     window = gate.range_window(math.radians(65.0))
     assert window is not None
     assert window[0] - 1e-6 <= r <= window[1] + 1e-6
@@ -64,6 +69,11 @@ def test_the_rov_where_it_is_passes_and_off_its_plane_does_not(
             sonar, float(rov[2]) + shift * (vertical_reach + 0.1), 0.3, HALF_APERTURE, model
         )
         assert not other.plausible(r, theta)
+    # A plane deeper than the range reaches: at no elevation.
+    assert (
+        DepthGate(sonar, -0.2 - 2.0 * range_m, 0.3, HALF_APERTURE, model).elevation_at(r, theta)
+        is None
+    )
 
 
 def test_a_plane_the_fan_never_reaches_has_no_window() -> None:
