@@ -82,8 +82,12 @@ class CnnConfig(ConfigSection, frozen=True, kw_only=True):
     range_bias_table: str | None = None
 
     def range_bias_correction(self) -> RangeBias | None:
-        """The table to correct ranges with (None: off); a bad file is a config error."""
-        if self.range_bias == "off":
+        """The table to correct ranges with (None: off); a bad file is a config error.
+
+        The shipped table was measured for the shipped weights: with other weights and no
+        table of their own, none (the service says so when it starts).
+        """
+        if self.range_bias == "off" or (self.weights and not self.range_bias_table):
             return None
         path = Path(self.range_bias_table) if self.range_bias_table else DEFAULT_RANGE_BIAS
         try:
@@ -260,6 +264,11 @@ def main(config: Config) -> int:
     """Run the detector until stopped."""
     detector = make_detector(config)
     range_bias = config.cnn.range_bias_correction() if config.detector == "cnn" else None
+    if config.detector == "cnn" and config.cnn.range_bias != "off" and range_bias is None:
+        logger.warning(
+            "cnn.range_bias: off, the shipped table is for the shipped weights "
+            "(measure one for cnn.weights with capsd train range-bias, set cnn.range_bias_table)"
+        )
     mailbox: Mailbox[tuple[SonarFrame, int]] = Mailbox()
     counts = {
         "frames": 0,

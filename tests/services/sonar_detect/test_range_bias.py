@@ -84,6 +84,16 @@ def test_a_table_round_trips_and_a_bad_one_is_refused(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match=r"cnn\.range_bias_table"):
         config.range_bias_correction()
     assert CnnConfig(range_bias="off").range_bias_correction() is None
+    # The shipped table is for the shipped weights: other weights need their own.
+    assert CnnConfig(weights=str(tmp_path / "mine.pt")).range_bias_correction() is None
+    save(TABLE, tmp_path / "mine.json")
+    assert (
+        CnnConfig(
+            weights="mine.pt", range_bias_table=str(tmp_path / "mine.json")
+        ).range_bias_correction()
+        == TABLE
+    )
+    assert CnnConfig().range_bias_correction() == load(DEFAULT_TABLE)
 
 
 def test_the_shipped_table_loads_and_says_how_it_was_measured() -> None:
