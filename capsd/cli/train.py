@@ -27,10 +27,11 @@ def _cmd_train_calibrate(args: argparse.Namespace) -> int:
 
 
 def _cmd_train_range_bias(args: argparse.Namespace) -> int:
+    from capsd.services.sonar_detect.range_bias import DEFAULT_TABLE
     from capsd.train.range_bias import run
 
     try:
-        run(runs=args.runs, duration_s=args.duration, out=args.out)
+        run(runs=args.runs, duration_s=args.duration, out=args.out or DEFAULT_TABLE)
     except CapsdError as exc:
         return fail(f"range-bias: {exc}", EXIT_CONFIG)
     return EXIT_OK
@@ -224,8 +225,6 @@ def register(sub: Subcommands) -> None:
         "--duration", type=positive_float, default=10.0, help="seconds per validation run"
     )
     tcal.set_defaults(func=_cmd_train_calibrate)
-    from capsd.services.sonar_detect.range_bias import DEFAULT_TABLE
-
     tbias = train.add_parser(
         "range-bias",
         help="the CNN's range error by where a near ROV lies in the vertical aperture",
@@ -238,5 +237,7 @@ def register(sub: Subcommands) -> None:
     tbias.add_argument(
         "--duration", type=positive_float, default=15.0, help="seconds per run (10 Hz pings)"
     )
-    tbias.add_argument("--out", type=Path, default=DEFAULT_TABLE, help="the table (JSON)")
+    tbias.add_argument(
+        "--out", type=Path, default=None, help="the table (JSON; default: the shipped one)"
+    )
     tbias.set_defaults(func=_cmd_train_range_bias)
