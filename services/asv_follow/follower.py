@@ -509,3 +509,29 @@ class Follower:
             self._carrot_v = np.zeros(2)
         else:
             self._carrot = self._carrot + step
+        if fresh:
+            self._keep_off()
+
+    def _keep_off(self) -> None:
+        """The carrot no nearer the ROV than where it would sink out of the aperture's bottom.
+
+        A station keeps the ROV inside the aperture, but the way to it and a ROV flying at the
+        sonar (a survey leg towards a station ahead of it) do not: the ROV, nearer than
+        `StationPlanner.nearest_distance`, is below the lower edge and lost (session 30's nfp
+        lawnmower: 320 of its 541 lost pings so, on one lane). So the carrot is pushed out to
+        that distance from the ROV's fix (the sonar's from the ROV, the hull facing it), where
+        the hull's clearance allows: a way that would pass nearer slides round instead.
+        """
+        assert self._carrot is not None
+        assert self.rov_m is not None
+        centre = self.rov_m[:2]
+        offset = self._carrot - centre
+        r = float(np.linalg.norm(offset))
+        nearest = self.planner.nearest_distance(self.rov_m) + float(self.planner.mount_xy[0])
+        if r >= nearest or r < 1e-6:
+            return
+        radial = offset / r
+        pushed = centre + radial * nearest
+        if not self.planner.clear(pushed):
+            return
+        self._carrot = pushed

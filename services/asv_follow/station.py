@@ -261,6 +261,18 @@ class StationPlanner:
                     best = (cost, Station(origin, heading, view))
         return None if best is None else best[1]
 
+    def nearest_distance(self, rov_m: Array) -> float:
+        """The horizontal sonar-to-ROV distance at the aperture's lower edge, less the margin.
+
+        Nearer, a level sonar facing the ROV sees it less than `elevation_margin` inside the
+        lower edge, or below it.
+        """
+        drop = max(self.sonar_z - float(rov_m[2]), 0.0)
+        steepest = self.pitch + self.half_aperture - self.settings.elevation_margin_rad
+        if steepest >= math.pi / 2:
+            return 0.0
+        return drop / math.tan(steepest)
+
     def ideal_distance(self, rov_m: Array) -> float:
         """The horizontal sonar-to-ROV distance that puts the ROV at the target elevation."""
         drop = max(self.sonar_z - float(rov_m[2]), 0.0)

@@ -315,6 +315,7 @@ def test_the_way_to_a_station_beyond_the_rov_goes_round_it(
 
     assert nearest_on_the_way() > 0.8 * 6.0 - 0.2
     monkeypatch.setattr(follower_module, "AROUND_WITHIN", 0.0)  # straight through
+    monkeypatch.setattr(Follower, "_keep_off", lambda self: None)  # (its own test below)
     assert nearest_on_the_way() < 1.0
 
 
@@ -400,3 +401,41 @@ def test_the_rov_is_not_led_past_the_waypoint_its_mission_sent_it_to() -> None:
     follower.on_fix(6.0, rov, velocity)
     assert follower.leg_end is None
     assert np.allclose(follower._ahead(), [16.75, 8.0, -3.5])
+
+
+def test_the_carrot_keeps_off_a_rov_flying_at_the_sonar(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A ROV flying at a station ahead of it: the ASV backs off as it comes.
+
+    Never nearer than where the ROV sinks below the aperture (the station kept, as in a dead
+    band or a wait); without the rule the ROV comes to 0.8 of that distance or nearer.
+    """
+
+    def nearest_seen() -> float:
+        planner = StationPlanner(SonarMountConfig(), TankBounds(), StationSettings())
+        rov = np.array([8.0, 8.0, -3.5])
+        follower = Follower(planner, FollowSettings())
+        follower.on_pose(START, 0.0)
+        follower.on_mode("GUIDED")
+        follower.on_fix(0.0, rov)
+        assert follower.step(0.0) is not None
+        station_xy = rov[:2] + np.array([6.5, 0.0])
+        view = planner.view(station_xy, math.pi, rov)
+        follower.station = Station(position_xy=station_xy, heading_rad=math.pi, view=view)
+        follower._last_plan_s = math.inf  # keep this station
+        xy, hull = START.copy(), math.pi
+        least = math.inf
+        for k in range(1, 600):  # 60 s: 40 s to reach the station, then the ROV comes 2 m
+            now = k * 0.1
+            at = rov + np.array([0.1 * max(0.0, now - 40.0), 0.0, 0.0])
+            follower.on_fix(now, at, np.array([0.1 if now > 40.0 else 0.0, 0.0, 0.0]))
+            follower.on_pose(xy, hull)
+            target = follower.step(now)
+            assert target is not None
+            xy, hull = target.position_xy, target.heading_rad
+            sonar = planner.sonar_xy(xy, hull)
+            least = min(least, float(np.linalg.norm(sonar - at[:2])) / planner.nearest_distance(at))
+        return least
+
+    assert nearest_seen() > 0.98
+    monkeypatch.setattr(Follower, "_keep_off", lambda self: None)
+    assert nearest_seen() < 0.8
