@@ -23,9 +23,10 @@ the looks go round. A look is held until its station has been reached and watche
 The target sent to the autopilot is a carrot that walks from where the ASV was told to be
 towards the station, speed and acceleration limited, turning at a bounded rate; it starts where
 the ASV is when the pilot hands over (GUIDED) and nothing is sent in any other mode. On the
-way the hull is to face the ROV (or where it is looked for), at the station the station's
-heading; ArduRover turns a hull only at its target, so while the hull faces more than
-`turn_first_rad` off that heading the carrot turns where the hull is, and only then walks;
+way the hull is to face the ROV (or where it is looked for), at the station the ROV itself
+(without a fresh fix, the station's heading); ArduRover turns a hull only at its target, so
+while the hull faces more than `turn_first_rad` off that heading the carrot turns where the
+hull is, and only then walks;
 a way that would pass over the ROV (to a station on its other side) goes round it, no nearer
 than where the ROV sits at the target elevation.
 """
@@ -42,7 +43,9 @@ from capsd.geometry import Array, wrap_angle
 from capsd.services.asv_follow.station import Station, StationPlanner
 
 FollowState = Literal["standby", "holding", "following", "no_station"]
-ARRIVED_M = 1.0  # this near its station the hull takes the station's heading
+ARRIVED_M = 1.0  # this near its station the hull faces the ROV itself, not where it will be
+# At its station the hull turns to face the ROV once it is this far off the boresight.
+FACE_WITHIN_RAD = math.radians(3.0)
 # A way that passes nearer the ROV than this share of the carrot's or the station's distance
 # from it goes round instead, heading at most this much bearing ahead round the ROV.
 AROUND_WITHIN = 0.8
@@ -282,13 +285,28 @@ class Follower:
         return np.asarray(point) if self.planner.clear(point) else station_xy
 
     def _wanted_heading(self, *, fresh: bool) -> float:
-        """The hull's heading now: the sonar on the ROV on the way, the station's at it."""
+        """The hull's heading now: the sonar on the ROV on the way and at the station.
+
+        On the way it faces where the ROV will be (or is looked for); at the station, with a
+        fresh fix, the ROV itself, within FACE_WITHIN_RAD (else the station's heading). A
+        conical beam's elevation drops off its boresight: a ROV 25 deg off it sits 4 deg lower
+        than one faced, at 6 m and 30 deg down (session 30's nfp runs: of the pings refused as
+        just below the aperture, two thirds had the ROV more than 15 deg off the boresight).
+        """
         assert self.station is not None
         look = self._look_point(fresh=fresh)
         if self.asv_xy is None or look is None:
             return self.station.heading_rad
         if float(np.linalg.norm(self.station.position_xy - self.asv_xy)) <= ARRIVED_M:
-            return self.station.heading_rad
+            if not fresh or self.rov_m is None:
+                return self.station.heading_rad
+            offset = self.rov_m[:2] - self.asv_xy
+            if float(np.linalg.norm(offset)) < ARRIVED_M:
+                return self.station.heading_rad
+            facing = wrap_angle(math.atan2(offset[1], offset[0]) - self.planner.mount_yaw)
+            if abs(wrap_angle(facing - self._carrot_heading)) < FACE_WITHIN_RAD:
+                return self._carrot_heading  # no chasing of the fixes' jitter
+            return facing
         offset = look[:2] - self.asv_xy
         if float(np.linalg.norm(offset)) < ARRIVED_M:  # (under the hull: no bearing to face)
             return self.station.heading_rad

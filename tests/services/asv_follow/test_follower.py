@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from capsd.bench import search
+from capsd.geometry import wrap_angle
 from capsd.mounts import SonarMountConfig
 from capsd.services.asv_follow import follower as follower_module
 from capsd.services.asv_follow.follower import Follower, FollowSettings
@@ -439,3 +440,40 @@ def test_the_carrot_keeps_off_a_rov_flying_at_the_sonar(monkeypatch: pytest.Monk
     assert nearest_seen() > 0.98
     monkeypatch.setattr(Follower, "_keep_off", lambda self: None)
     assert nearest_seen() < 0.8
+
+
+def test_at_its_station_the_hull_keeps_facing_the_rov() -> None:
+    """A ROV moving across the boresight inside the dead band: the hull turns after it.
+
+    (A conical beam sees a ROV off its boresight lower.) It does not chase the fixes' jitter.
+    """
+    planner = StationPlanner(SonarMountConfig(), TankBounds(), StationSettings())
+    rov = np.array([16.0, 8.0, -3.5])
+    station_xy = np.array([10.0, 8.0])
+    follower = Follower(planner, FollowSettings())
+    follower.on_pose(station_xy, 0.0)
+    follower.on_mode("GUIDED")
+    follower.on_fix(0.0, rov)
+    assert follower.step(0.0) is not None
+    view = planner.view(station_xy, 0.0, rov)
+    follower.station = Station(position_xy=station_xy, heading_rad=0.0, view=view)
+    follower._last_plan_s = math.inf  # keep this station
+    xy, hull = station_xy.copy(), 0.0
+    rng = np.random.default_rng(3)
+    headings = []
+    for k in range(1, 300):  # 30 s: the ROV 1.5 m across, then still, fixes jittering 2 cm
+        now = k * 0.1
+        at = rov + np.array([0.0, 1.5 * min(now, 15.0) / 15.0, 0.0]) + rng.normal(0, 0.02, 3)
+        follower.on_fix(now, at)
+        follower.on_pose(xy, hull)
+        target = follower.step(now)
+        assert target is not None
+        xy, hull = target.position_xy, target.heading_rad
+        headings.append(hull)
+    sonar = planner.sonar_xy(xy, hull)
+    bearing = math.atan2(rov[1] + 1.5 - sonar[1], rov[0] - sonar[0])
+    assert abs(wrap_angle(hull - bearing)) < math.radians(3.5)
+    assert hull > math.radians(10.0)  # not the station's heading (0)
+    assert float(np.linalg.norm(xy - station_xy)) < 0.05  # turned where it stands
+    # Still, the hull does not follow the jitter (0.2 deg at 6 m).
+    assert len({round(h, 9) for h in headings[-100:]}) == 1
