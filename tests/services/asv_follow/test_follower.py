@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -266,6 +267,46 @@ def test_the_hull_turns_to_face_the_rov_before_the_asv_goes() -> None:
     assert abs(heading) < math.radians(5.0)
 
 
+Fix = Callable[[float], tuple[np.ndarray, np.ndarray | None]]
+
+
+def _drive(
+    planner: StationPlanner,
+    start: np.ndarray,
+    hull_rad: float,
+    station_xy: np.ndarray,
+    heading_rad: float,
+    *,
+    steps: int,
+    fix: Fix,
+) -> list[tuple[np.ndarray, float, np.ndarray]]:
+    """A follower handed a station (never replanned), the hull obeying its targets at 10 Hz.
+
+    `fix(now)`: the ROV's fix and tracked velocity. Each step's target and heading, and the ROV.
+    """
+    follower = Follower(planner, FollowSettings())
+    follower.on_pose(start, hull_rad)
+    follower.on_mode("GUIDED")
+    rov, velocity = fix(0.0)
+    follower.on_fix(0.0, rov, velocity)
+    assert follower.step(0.0) is not None
+    view = planner.view(station_xy, heading_rad, rov)
+    follower.station = Station(position_xy=station_xy, heading_rad=heading_rad, view=view)
+    follower._last_plan_s = math.inf  # keep this station
+    xy, hull = start.copy(), hull_rad
+    out = []
+    for k in range(1, steps):
+        now = k * 0.1
+        rov, velocity = fix(now)
+        follower.on_fix(now, rov, velocity)
+        follower.on_pose(xy, hull)
+        target = follower.step(now)
+        assert target is not None
+        xy, hull = target.position_xy, target.heading_rad
+        out.append((xy, hull, rov))
+    return out
+
+
 def _fly_to_station(
     planner: StationPlanner,
     start: np.ndarray,
@@ -275,26 +316,11 @@ def _fly_to_station(
     *,
     steps: int,
 ) -> list[np.ndarray]:
-    """The carrot's 10 Hz positions to a station handed over (never replanned), hull obeying."""
-    follower = Follower(planner, FollowSettings())
-    follower.on_pose(start, 0.0)
-    follower.on_mode("GUIDED")
-    follower.on_fix(0.0, rov)
-    assert follower.step(0.0) is not None
-    view = planner.view(station_xy, heading_rad, rov)
-    follower.station = Station(position_xy=station_xy, heading_rad=heading_rad, view=view)
-    follower._last_plan_s = math.inf  # keep this station
-    xy, hull = start.copy(), 0.0
-    way = []
-    for k in range(1, steps):
-        now = k * 0.1
-        follower.on_fix(now, rov)
-        follower.on_pose(xy, hull)
-        target = follower.step(now)
-        assert target is not None
-        xy, hull = target.position_xy, target.heading_rad
-        way.append(xy)
-    return way
+    """The carrot's 10 Hz positions to a station handed over, the ROV still."""
+    steps_ = _drive(
+        planner, start, 0.0, station_xy, heading_rad, steps=steps, fix=lambda now: (rov, None)
+    )
+    return [xy for xy, _, _ in steps_]
 
 
 def test_the_way_to_a_station_beyond_the_rov_goes_round_it(
@@ -414,28 +440,20 @@ def test_the_carrot_keeps_off_a_rov_flying_at_the_sonar(monkeypatch: pytest.Monk
     def nearest_seen() -> float:
         planner = StationPlanner(SonarMountConfig(), TankBounds(), StationSettings())
         rov = np.array([8.0, 8.0, -3.5])
-        follower = Follower(planner, FollowSettings())
-        follower.on_pose(START, 0.0)
-        follower.on_mode("GUIDED")
-        follower.on_fix(0.0, rov)
-        assert follower.step(0.0) is not None
-        station_xy = rov[:2] + np.array([6.5, 0.0])
-        view = planner.view(station_xy, math.pi, rov)
-        follower.station = Station(position_xy=station_xy, heading_rad=math.pi, view=view)
-        follower._last_plan_s = math.inf  # keep this station
-        xy, hull = START.copy(), math.pi
-        least = math.inf
-        for k in range(1, 600):  # 60 s: 40 s to reach the station, then the ROV comes 2 m
-            now = k * 0.1
+
+        def fix(now: float) -> tuple[np.ndarray, np.ndarray | None]:
+            # 40 s to reach the station, then the ROV comes 2 m at 0.1 m/s.
+            coming = now > 40.0
             at = rov + np.array([0.1 * max(0.0, now - 40.0), 0.0, 0.0])
-            follower.on_fix(now, at, np.array([0.1 if now > 40.0 else 0.0, 0.0, 0.0]))
-            follower.on_pose(xy, hull)
-            target = follower.step(now)
-            assert target is not None
-            xy, hull = target.position_xy, target.heading_rad
-            sonar = planner.sonar_xy(xy, hull)
-            least = min(least, float(np.linalg.norm(sonar - at[:2])) / planner.nearest_distance(at))
-        return least
+            return at, np.array([0.1 if coming else 0.0, 0.0, 0.0])
+
+        station_xy = rov[:2] + np.array([6.5, 0.0])
+        way = _drive(planner, START, math.pi, station_xy, math.pi, steps=600, fix=fix)
+        return min(
+            float(np.linalg.norm(planner.sonar_xy(xy, hull) - at[:2]))
+            / planner.nearest_distance(at)
+            for xy, hull, at in way
+        )
 
     assert nearest_seen() > 0.98
     monkeypatch.setattr(Follower, "_keep_off", lambda self: None)
@@ -450,26 +468,16 @@ def test_at_its_station_the_hull_keeps_facing_the_rov() -> None:
     planner = StationPlanner(SonarMountConfig(), TankBounds(), StationSettings())
     rov = np.array([16.0, 8.0, -3.5])
     station_xy = np.array([10.0, 8.0])
-    follower = Follower(planner, FollowSettings())
-    follower.on_pose(station_xy, 0.0)
-    follower.on_mode("GUIDED")
-    follower.on_fix(0.0, rov)
-    assert follower.step(0.0) is not None
-    view = planner.view(station_xy, 0.0, rov)
-    follower.station = Station(position_xy=station_xy, heading_rad=0.0, view=view)
-    follower._last_plan_s = math.inf  # keep this station
-    xy, hull = station_xy.copy(), 0.0
     rng = np.random.default_rng(3)
-    headings = []
-    for k in range(1, 300):  # 30 s: the ROV 1.5 m across, then still, fixes jittering 2 cm
-        now = k * 0.1
-        at = rov + np.array([0.0, 1.5 * min(now, 15.0) / 15.0, 0.0]) + rng.normal(0, 0.02, 3)
-        follower.on_fix(now, at)
-        follower.on_pose(xy, hull)
-        target = follower.step(now)
-        assert target is not None
-        xy, hull = target.position_xy, target.heading_rad
-        headings.append(hull)
+
+    def fix(now: float) -> tuple[np.ndarray, np.ndarray | None]:
+        # 30 s: the ROV 1.5 m across, then still, its fixes jittering 2 cm.
+        across = np.array([0.0, 1.5 * min(now, 15.0) / 15.0, 0.0])
+        return rov + across + rng.normal(0, 0.02, 3), None
+
+    way = _drive(planner, station_xy, 0.0, station_xy, 0.0, steps=300, fix=fix)
+    xy, hull, _ = way[-1]
+    headings = [h for _, h, _ in way]
     sonar = planner.sonar_xy(xy, hull)
     bearing = math.atan2(rov[1] + 1.5 - sonar[1], rov[0] - sonar[0])
     assert abs(wrap_angle(hull - bearing)) < math.radians(3.5)
