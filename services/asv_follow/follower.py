@@ -297,20 +297,18 @@ class Follower:
         look = self._look_point(fresh=fresh)
         if self.asv_xy is None or look is None:
             return self.station.heading_rad
-        if float(np.linalg.norm(self.station.position_xy - self.asv_xy)) <= ARRIVED_M:
+        arrived = float(np.linalg.norm(self.station.position_xy - self.asv_xy)) <= ARRIVED_M
+        if arrived:
             if not fresh or self.rov_m is None:
                 return self.station.heading_rad
-            offset = self.rov_m[:2] - self.asv_xy
-            if float(np.linalg.norm(offset)) < ARRIVED_M:
-                return self.station.heading_rad
-            facing = wrap_angle(math.atan2(offset[1], offset[0]) - self.planner.mount_yaw)
-            if abs(wrap_angle(facing - self._carrot_heading)) < FACE_WITHIN_RAD:
-                return self._carrot_heading  # no chasing of the fixes' jitter
-            return facing
+            look = self.rov_m
         offset = look[:2] - self.asv_xy
         if float(np.linalg.norm(offset)) < ARRIVED_M:  # (under the hull: no bearing to face)
             return self.station.heading_rad
-        return wrap_angle(math.atan2(offset[1], offset[0]) - self.planner.mount_yaw)
+        facing = wrap_angle(math.atan2(offset[1], offset[0]) - self.planner.mount_yaw)
+        if arrived and abs(wrap_angle(facing - self._carrot_heading)) < FACE_WITHIN_RAD:
+            return self._carrot_heading  # no chasing of the fixes' jitter
+        return facing
 
     def _horizontal_velocity(self) -> Array | None:
         """The ROV's tracked horizontal velocity; None while it hovers (or it is noise)."""
