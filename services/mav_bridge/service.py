@@ -203,7 +203,9 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     # Targets closer than this to a wall, the floor or the surface are refused (the geofence).
     geofence_clearance_m: Annotated[float, msgspec.Meta(ge=0.0, le=100.0)] = 0.5
     # Role asv: within this of a goto's position (by the last pose sent) the heading goes
-    # alone, as ArduRover's GUIDED ignores the yaw of a position target.
+    # alone, as ArduRover's GUIDED ignores the yaw of a position target; but only once that
+    # position went out as the autopilot's target (within a third of this): a station moved
+    # a little is driven to, not turned at where the old one was.
     heading_only_within_m: Annotated[float, msgspec.Meta(ge=0.0, le=10.0)] = 0.3
     # A command older than this on arrival is refused (a stalled link replays nothing).
     max_command_age_s: Annotated[float, msgspec.Meta(gt=0.0, le=10.0)] = 1.0
@@ -285,6 +287,9 @@ class Bridge:
         self.uptake = EstimateUptake()
         self._ignored_told = False
         self._asv_at: Array | None = None  # role asv: where the last pose sent put the ASV (W)
+        # Role asv: the last position target sent (W), None once the autopilot left GUIDED or
+        # the link was lost (its target is gone with it).
+        self._asv_target_xy: Array | None = None
         self._outage_reasons: Counter[str] = Counter()
         self._announced: str | None = None
         self._last_statustext: dict[str, float] = {}
@@ -469,6 +474,7 @@ class Bridge:
         # density may change with a reboot: read again.
         self.attitude = None
         self.mode = None  # a mission's hold must never act on a mode from before the loss
+        self._asv_target_xy = None
         self.ekf_flags = 0
         self.uptake.reset()
         self.surface_pressure_pa = self.config.depth.surface_pressure_pa
@@ -560,6 +566,8 @@ class Bridge:
                 )
             )
             self.mode = mode_name(message.custom_mode, self.autopilot)
+            if self.mode != "GUIDED":
+                self._asv_target_xy = None
         elif isinstance(message, CommandAck) and message.command == MAV_CMD_DO_SET_MODE:
             self._on_mode_answer(message.result)
         elif isinstance(message, Attitude):
@@ -744,10 +752,13 @@ class Bridge:
         if command.heading_rad is not None:
             heading = euler_zyx_to_matrix(command.heading_rad, 0.0, 0.0)
             yaw_ned = self.ned.attitude_to_ned(heading)[2]
+        goal_xy = np.array(command.position_m[:2])
+        radius = self.config.heading_only_within_m
         arrived = (
             self._asv_at is not None
-            and float(np.linalg.norm(self._asv_at[:2] - np.array(command.position_m[:2])))
-            <= self.config.heading_only_within_m
+            and float(np.linalg.norm(self._asv_at[:2] - goal_xy)) <= radius
+            and self._asv_target_xy is not None
+            and float(np.linalg.norm(self._asv_target_xy - goal_xy)) <= radius / 3.0
         )
         if self.config.role == "asv" and yaw_ned is not None and arrived:
             # ArduRover's GUIDED ignores a position target's yaw: at the station, turn to it.
@@ -763,6 +774,7 @@ class Bridge:
                 yaw_rad=yaw_ned,
             )
             self.counts["commands_sent_target"] += 1
+            self._asv_target_xy = goal_xy
         # Every command is logged; the mission's twice-a-second repeats at debug level.
         logger.log(
             logging.DEBUG if command.reason == "repeat" else logging.INFO,

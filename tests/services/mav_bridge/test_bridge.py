@@ -852,6 +852,22 @@ def test_the_asv_role_feeds_its_pose_and_passes_follow_targets_only_in_guided(
         wait_for(heading_arrived, timeout_s=10, what="a heading-only target at the station")
         turn = next(t for _, t in rover.recorded.position_targets[before:] if t.position_ignored)
         assert turn.yaw_rad == pytest.approx(ned.attitude_to_ned(r_w_b)[2], abs=1e-5)
+        # The station moves 0.15 m (still 0.25 m from the ASV): ArduRover's target is where
+        # the old one was, so the new one is driven to first, not turned at.
+        before = len(rover.recorded.position_targets)
+
+        def moved_station_sent() -> bool:
+            put_pose()
+            put_command("goto", (9.25, 8.0, 0.0))
+            time.sleep(0.1)
+            return len(rover.recorded.position_targets) > before
+
+        wait_for(moved_station_sent, timeout_s=10, what="a target for the moved station")
+        moved = rover.recorded.position_targets[before][1]
+        assert not moved.position_ignored
+        assert (moved.north_m, moved.east_m) == pytest.approx(
+            tuple(ned.position(np.array([9.25, 8.0, 0.0]))[:2]), abs=1e-4
+        )
         # Fenced out (0.5 m from a wall, the fence is 1 m): refused.
         before = len(rover.recorded.position_targets)
         for _ in range(5):
