@@ -303,7 +303,10 @@ class Follower:
                 return self.station.heading_rad
             look = self.rov_m
         offset = look[:2] - self.asv_xy
-        if float(np.linalg.norm(offset)) < ARRIVED_M:  # (under the hull: no bearing to face)
+        # Under the hull there is no bearing to face. (Not "nearer than ARRIVED_M": in a small
+        # tank the ROV is always that near, and the hull turned to a station's heading on the
+        # ROV's far side while still on this one, the sonar facing away: a mockup run, 20 s.)
+        if float(np.linalg.norm(offset)) < self.planner.settings.hull_radius_m:
             return self.station.heading_rad
         facing = wrap_angle(math.atan2(offset[1], offset[0]) - self.planner.mount_yaw)
         if arrived and abs(wrap_angle(facing - self._carrot_heading)) < FACE_WITHIN_RAD:

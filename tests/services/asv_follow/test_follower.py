@@ -485,3 +485,24 @@ def test_at_its_station_the_hull_keeps_facing_the_rov() -> None:
     assert float(np.linalg.norm(xy - station_xy)) < 0.05  # turned where it stands
     # Still, the hull does not follow the jitter (0.2 deg at 6 m).
     assert len({round(h, 9) for h in headings[-100:]}) == 1
+
+
+def test_on_the_way_to_the_far_side_of_a_near_rov_the_hull_keeps_facing_it() -> None:
+    """A small tank: the ROV 0.9 m ahead of the ASV, its station on the far side, facing back.
+
+    The hull faces the ROV on the way (before, within 1 m of it, it turned to the station's
+    heading where it stood, the sonar facing away from the ROV).
+    """
+    planner = StationPlanner(
+        SonarMountConfig(pitch_deg=45.0),
+        TankBounds(),
+        StationSettings(min_range_m=1.0, hull_radius_m=0.3, tracking_margin_m=0.2),
+    )
+    rov = np.array([16.0, 8.0, -1.0])
+    start = np.array([15.1, 8.0])  # the sonar 0.3 m ahead of the origin
+    station_xy = np.array([16.9, 8.0])
+    way = _drive(planner, start, 0.0, station_xy, math.pi, steps=50, fix=lambda now: (rov, None))
+    for xy, hull, _ in way:
+        sonar = planner.sonar_xy(xy, hull)
+        bearing = math.atan2(rov[1] - sonar[1], rov[0] - sonar[0])
+        assert abs(wrap_angle(hull - bearing)) < math.radians(30.0)
