@@ -395,6 +395,9 @@ class VehicleCommand(Payload, frozen=True, kw_only=True):
     position_m: Vec3 | None = None
     heading_rad: Annotated[float, msgspec.Meta(ge=-7.0, le=7.0)] | None = None
     reason: Annotated[str, msgspec.Meta(max_length=200)] = ""
+    # A ROV mission's engage and goto: the waypoint the leg ends at, also while the ROV waits
+    # for the ASV at `position_m` (the follower re-stations for the leg, not for the wait).
+    leg_end_m: Vec3 | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -201,6 +201,12 @@ class MissionController:
 
     # -------------------------------------------------------------------- helpers
 
+    def leg_end(self, command: Command) -> tuple[float, float, float] | None:
+        """The waypoint `command`'s leg ends at (a wait's is not where it waits); None: a hold."""
+        if command.kind == "hold" or not 0 <= command.waypoint < len(self.points):
+            return None
+        return self.points[command.waypoint].position_m
+
     def _target(self) -> tuple[float, float, float]:
         return self.points[self.progress.waypoint].position_m
 

@@ -177,6 +177,7 @@ class MissionNode:
                 waypoint=command.waypoint,
                 position_m=command.position_m,
                 reason=command.reason,
+                leg_end_m=self.controller.leg_end(command),
             )
         )
         self.sent[command.kind] += 1

@@ -6,7 +6,8 @@ boresight and the range band, and no mapped fixture shares its range cell (capsd
 also just beyond the aperture's edge); only then (and at most every `replan_after_s`) is a new
 one chosen, from good fixes only, for where the ROV will be `lead_s` later at its tracked
 velocity (a ROV flying a survey leg would otherwise leave every station as soon as it is
-reached), but not past the waypoint its mission sent it to.
+reached), but not past the waypoint its mission sent it to; of the stations, those that also see the
+next `path_ahead_m` of the ROV's leg are preferred (the planner's path cost).
 Without a good fix for `fix_timeout_s` the ROV is looked for where it will hold: a ROV on a
 mission stops within a second of losing its fix, so the last good fix carried on at the
 tracked velocity for up to `stop_within_s`. If that point lies outside the station's view (the
@@ -71,6 +72,7 @@ SEARCH_STUCK_S = 30.0
 # A mission repeats its waypoint twice a second: one not heard for this long is forgotten
 # (the mission ended, or a pilot flies by hand).
 LEG_END_VALID_S = 5.0
+PATH_STEP_M = 0.25  # the spacing of the points of the ROV's leg a station is to see
 
 
 @dataclass(frozen=True)
@@ -84,6 +86,9 @@ class FollowSettings:
     lead_s: float = 3.0
     reacquire_after_s: float = 6.0
     min_lead_speed_m_s: float = 0.05  # slower than this is hovering (or noise): no lead
+    # Stations are chosen to see the ROV's mission leg this far ahead of it, too (the
+    # planner's path cost): at the plan's 0.25 m/s, the next 6 s.
+    path_ahead_m: float = 1.5
     # A ROV that lost its fix holds within this: its mission pauses 0.5 s after the last good
     # fix (the plan's fix_timeout_s) and ArduSub brakes in about 0.5 s more (0.25 m/s at
     # 0.25 m/s^2). Longer, the look for it aims past where it stopped and can turn the sonar
@@ -188,6 +193,7 @@ class Follower:
                 current_bearing_rad=(
                     None if self.station is None else self.planner.bearing(self.station)
                 ),
+                path_m=self._leg_path(),
             )
             if chosen is not None:
                 self.station = chosen
@@ -312,6 +318,21 @@ class Follower:
         if arrived and abs(wrap_angle(facing - self._carrot_heading)) < FACE_WITHIN_RAD:
             return self._carrot_heading  # no chasing of the fixes' jitter
         return facing
+
+    def _leg_path(self) -> Array | None:
+        """Points (every PATH_STEP_M) along the ROV's mission leg, up to `path_ahead_m` on.
+
+        None without a leg (no mission, or it holds) or at its end.
+        """
+        if self.leg_end is None or self.rov_m is None:
+            return None
+        way = self.leg_end - self.rov_m
+        left = float(np.linalg.norm(way[:2]))
+        reach = min(left, self.settings.path_ahead_m)
+        if reach < PATH_STEP_M:
+            return None
+        steps = np.arange(1, int(reach / PATH_STEP_M) + 1) * PATH_STEP_M
+        return self.rov_m + np.outer(steps / left, way)
 
     def _horizontal_velocity(self) -> Array | None:
         """The ROV's tracked horizontal velocity; None while it hovers (or it is noise)."""

@@ -158,7 +158,8 @@ class FollowNode:
     def on_mission(self, command: VehicleCommand) -> None:
         """A ROV mission's command: where it sends the ROV (engage, goto) or that it holds."""
         if command.kind in ("engage", "goto") and command.position_m is not None:
-            position = np.array(command.position_m)
+            # Where the leg ends, not where the ROV waits for the ASV meanwhile.
+            position = np.array(command.leg_end_m or command.position_m)
         elif command.kind == "hold":
             position = None
         else:

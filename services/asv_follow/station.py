@@ -15,7 +15,12 @@ tracked velocity, would leave the view's elevation (a ROV flying towards or away
 changes its depression; one flying across it hardly does), so a ROV on a survey leg is watched
 from abeam and its station lasts. Switching: a station looking from another bearing than the
 current one costs by the degree, so two near-equal stations on either side of the ROV do not
-take turns. Masking: a 2D sonar image cannot tell echoes apart
+take turns. Path: where the ROV's mission leg is known, the points it flies through next
+(`path_m`) are looked at from each station too, and each degree one of them would sit beyond
+the aperture's margin costs `path_cost_per_deg`: a ROV waiting at a lane's start has no
+velocity to tell the drift cost which way it goes, and a station on the lane ahead sees it fly
+under the sonar within seconds (near, in a small tank, its elevation changes by degrees a
+second). Masking: a 2D sonar image cannot tell echoes apart
 that share a range and bearing at any elevation, so a ROV whose range cell (at its bearing,
 over the whole vertical aperture) also holds a mapped fixture, the floor or a wall is hidden
 in that echo (a ROV passing over a rack, seen along it), also where the fixture lies just
@@ -67,6 +72,8 @@ class StationSettings:
     # degree of bearing away from the current station's.
     drift_cost_per_deg_s: float = 4.0
     switch_cost_per_deg: float = 0.03
+    # Per degree a point of the ROV's path would sit beyond the aperture's margin.
+    path_cost_per_deg: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -202,13 +209,15 @@ class StationPlanner:
         avoid_within_rad: float = math.radians(40.0),
         rov_velocity_m_s: Array | None = None,
         current_bearing_rad: float | None = None,
+        path_m: Array | None = None,
     ) -> Station | None:
         """The cheapest feasible station for the ROV at `rov_m`, the ASV now at `asv_xy`.
 
         `avoid_bearing_rad`: no station looking along a bearing within `avoid_within_rad` of
         it (another look at a ROV the sonar lost from there). `rov_velocity_m_s`: the ROV's
         tracked velocity (drift cost); `current_bearing_rad`: the bearing the current station
-        looks along (switching cost).
+        looks along (switching cost); `path_m`: points (N x 3, W) the ROV flies through next
+        (path cost).
         """
         s = self.settings
         drop = self.sonar_z - float(rov_m[2])
@@ -253,6 +262,8 @@ class StationPlanner:
                 if current_bearing_rad is not None:
                     turned = abs(wrap_angle(float(bearing) - current_bearing_rad))
                     cost += s.switch_cost_per_deg * math.degrees(turned)
+                if path_m is not None:
+                    cost += s.path_cost_per_deg * self._beyond_margin_deg(origin, heading, path_m)
                 if best is not None and cost >= best[0]:
                     continue  # masking only adds: no need to look
                 if self.masked(origin, heading, rov_m):
@@ -260,6 +271,15 @@ class StationPlanner:
                 if best is None or cost < best[0]:
                     best = (cost, Station(origin, heading, view))
         return None if best is None else best[1]
+
+    def _beyond_margin_deg(self, asv_xy: Array, heading_rad: float, points_m: Array) -> float:
+        """Degrees the points' elevations sit beyond the aperture's margin, summed."""
+        limit = self.half_aperture - self.settings.elevation_margin_rad
+        total = 0.0
+        for point in points_m:
+            elevation = self.view(asv_xy, heading_rad, point).elevation_rad
+            total += max(0.0, abs(elevation) - limit)
+        return math.degrees(total)
 
     def nearest_distance(self, rov_m: Array) -> float:
         """The horizontal sonar-to-ROV distance at the aperture's lower edge, less the margin.

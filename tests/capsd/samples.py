@@ -79,5 +79,6 @@ SAMPLES: tuple[Payload, ...] = (
     SimControl(stamp_ns=STAMP, seq=1, mute=("asv/scan@asv",), for_s=5.0),
     ReferencePose(stamp_ns=STAMP, seq=3, position_m=(0.5, -0.1, -1.1), frame_id="mocap"),
     VehicleCommand(stamp_ns=STAMP, seq=2, mission="nfp-lawnmower", kind="goto", waypoint=3,
-                   position_m=(12.0, 6.0, -3.5), heading_rad=0.5, reason="repeat"),
+                   position_m=(12.0, 6.0, -3.5), heading_rad=0.5, reason="repeat",
+                   leg_end_m=(16.0, 6.0, -3.5)),
 )  # fmt: skip

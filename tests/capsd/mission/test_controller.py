@@ -200,6 +200,23 @@ def test_the_rov_waits_where_it_is_near_the_views_edge_until_the_asv_has_it_agai
     assert abs(ctl.progress.waited_s - 1.9) < 1e-9
 
 
+def test_every_command_of_a_leg_names_its_end_even_while_the_rov_waits_at_its_place() -> None:
+    """The follower re-stations for where the leg goes, not for where the ROV waits."""
+    ctl = _guarded()
+    here = (4.0, 4.0, -3.0)
+    ctl.on_fix(good=True, position_m=here, now=0.0)
+    ctl.on_view(math.radians(8.0), now=0.0)
+    ctl.on_mode(GUIDED, now=0.0)
+    (engage,) = ctl.step(0.0)
+    assert ctl.leg_end(engage) == POINTS[0].position_m
+    ctl.on_fix(good=True, position_m=here, now=0.1)
+    ctl.on_view(math.radians(2.0), now=0.1)
+    (wait,) = ctl.step(0.1)
+    assert wait.position_m == here
+    assert ctl.leg_end(wait) == POINTS[0].position_m
+    assert ctl.leg_end(ctl.stop(0.2)[0]) is None  # a hold ends no leg
+
+
 def test_a_wait_ends_after_max_wait_s_and_is_not_repeated_until_the_view_was_good() -> None:
     ctl = _guarded(max_wait_s=1.0)
     here = (4.0, 4.0, -3.0)

@@ -506,3 +506,21 @@ def test_on_the_way_to_the_far_side_of_a_near_rov_the_hull_keeps_facing_it() -> 
         sonar = planner.sonar_xy(xy, hull)
         bearing = math.atan2(rov[1] - sonar[1], rov[0] - sonar[0])
         assert abs(wrap_angle(hull - bearing)) < math.radians(30.0)
+
+
+def test_stations_are_chosen_for_the_next_metre_and_a_half_of_the_rovs_leg() -> None:
+    follower = _follower()
+    rov = np.array([16.0, 8.0, -3.5])
+    follower.on_fix(0.0, rov)
+    assert follower._leg_path() is None  # no mission
+    follower.on_leg_end(0.0, rov + np.array([0.0, 4.0, 1.0]))
+    path = follower._leg_path()
+    assert path is not None
+    assert len(path) == 6
+    assert np.allclose(path[0][:2], [16.0, 8.25])
+    assert np.allclose(path[-1][:2], [16.0, 9.5])
+    assert path[-1][2] == pytest.approx(-3.5 + 1.5 / 4.0)  # climbing along the leg
+    follower.on_leg_end(0.1, rov + np.array([0.0, 0.2, 0.0]))
+    assert follower._leg_path() is None  # at its end
+    follower.on_leg_end(0.2, None)
+    assert follower._leg_path() is None  # it holds

@@ -216,3 +216,29 @@ def test_within_walls_moves_a_point_the_least_into_the_clearance_box() -> None:
     assert np.allclose(planner.within_walls(np.array([-3.0, 5.0])), [c, 5.0])
     assert np.allclose(planner.within_walls(np.array([25.0, 12.0])), [20.0 - c, 10.0 - c])
     assert planner.clear(planner.within_walls(np.array([19.9, 0.1])))
+
+
+def test_a_station_sees_the_rovs_leg_ahead_not_only_where_it_waits() -> None:
+    """Near (a small tank's scale), the ROV waits at its leg's start, the ASV on the leg ahead.
+
+    Without its path the planner keeps the ASV there (the ROV still: no drift cost), and the
+    ROV would fly under the sonar; with it, the next 1.5 m stays in view but for a few degrees
+    (the ROV itself must be in view now: no station sees the whole of it with the margin).
+    """
+    planner = StationPlanner(
+        SonarMountConfig(pitch_deg=45.0),
+        TANK,
+        StationSettings(min_range_m=1.0, hull_radius_m=0.3, tracking_margin_m=0.2),
+    )
+    rov = np.array([14.0, 8.0, -1.0])
+    path = rov + np.outer(np.arange(1, 7) * 0.25, [0.0, 1.0, 0.0])  # north, 1.5 m
+    asv = np.array([14.0, 9.1])  # north of it, facing it: the ROV mid-aperture now
+    here = planner.choose(rov, asv, -math.pi / 2)
+    assert here is not None
+    beyond = planner._beyond_margin_deg(here.position_xy, here.heading_rad, path)
+    chosen = planner.choose(rov, asv, -math.pi / 2, path_m=path)
+    assert chosen is not None
+    seen = planner._beyond_margin_deg(chosen.position_xy, chosen.heading_rad, path)
+    assert beyond > 50.0
+    assert seen < 5.0
+    assert planner.view_is_good(chosen.view)
