@@ -16,11 +16,12 @@ changes its depression; one flying across it hardly does), so a ROV on a survey 
 from abeam and its station lasts. Switching: a station looking from another bearing than the
 current one costs by the degree, so two near-equal stations on either side of the ROV do not
 take turns. Path: where the ROV's mission leg is known, the points it flies through next
-(`path_m`) are looked at from each station too, and each degree one of them would sit beyond
-the aperture's margin costs `path_cost_per_deg`: a ROV waiting at a lane's start has no
-velocity to tell the drift cost which way it goes, and a station on the lane ahead sees it fly
-under the sonar within seconds (near, in a small tank, its elevation changes by degrees a
-second). Masking: a 2D sonar image cannot tell echoes apart
+(`path_m`) are looked at from each station moved as far the same way (the ASV keeps pace
+with the ROV, but not nearer the walls than a station may be), and each degree one of them
+would sit beyond the aperture's margin costs `path_cost_per_deg`: a ROV waiting at a lane's
+start has no velocity to tell the drift cost which way it goes, and where the walls stop the
+ASV from backing off (a small tank), a station on the lane ahead sees it fly under the sonar
+within seconds. Masking: a 2D sonar image cannot tell echoes apart
 that share a range and bearing at any elevation, so a ROV whose range cell (at its bearing,
 over the whole vertical aperture) also holds a mapped fixture, the floor or a wall is hidden
 in that echo (a ROV passing over a rack, seen along it), also where the fixture lies just
@@ -263,7 +264,8 @@ class StationPlanner:
                     turned = abs(wrap_angle(float(bearing) - current_bearing_rad))
                     cost += s.switch_cost_per_deg * math.degrees(turned)
                 if path_m is not None:
-                    cost += s.path_cost_per_deg * self._beyond_margin_deg(origin, heading, path_m)
+                    beyond = self._beyond_margin_deg(origin, heading, rov_m, path_m)
+                    cost += s.path_cost_per_deg * beyond
                 if best is not None and cost >= best[0]:
                     continue  # masking only adds: no need to look
                 if self.masked(origin, heading, rov_m):
@@ -272,12 +274,19 @@ class StationPlanner:
                     best = (cost, Station(origin, heading, view))
         return None if best is None else best[1]
 
-    def _beyond_margin_deg(self, asv_xy: Array, heading_rad: float, points_m: Array) -> float:
-        """Degrees the points' elevations sit beyond the aperture's margin, summed."""
+    def _beyond_margin_deg(
+        self, asv_xy: Array, heading_rad: float, rov_m: Array, path_m: Array
+    ) -> float:
+        """Degrees the path's elevations sit beyond the aperture's margin, summed.
+
+        Each point is seen from the station moved as the ROV moved from `rov_m` to it, then
+        into the walls' clearance box (the hull's own; keep-out boxes are not looked at).
+        """
         limit = self.half_aperture - self.settings.elevation_margin_rad
         total = 0.0
-        for point in points_m:
-            elevation = self.view(asv_xy, heading_rad, point).elevation_rad
+        for point in path_m:
+            moved = self.within_walls(asv_xy[:2] + point[:2] - rov_m[:2])
+            elevation = self.view(moved, heading_rad, point).elevation_rad
             total += max(0.0, abs(elevation) - limit)
         return math.degrees(total)
 

@@ -218,27 +218,34 @@ def test_within_walls_moves_a_point_the_least_into_the_clearance_box() -> None:
     assert planner.clear(planner.within_walls(np.array([19.9, 0.1])))
 
 
-def test_a_station_sees_the_rovs_leg_ahead_not_only_where_it_waits() -> None:
-    """Near (a small tank's scale), the ROV waits at its leg's start, the ASV on the leg ahead.
+def test_a_station_sees_the_rovs_leg_ahead_where_the_walls_stop_the_asv_backing_off() -> None:
+    """The mockup's scale: the ROV waits at its lane's start, the ASV on the lane ahead.
 
-    Without its path the planner keeps the ASV there (the ROV still: no drift cost), and the
-    ROV would fly under the sonar; with it, the next 1.5 m stays in view but for a few degrees
-    (the ROV itself must be in view now: no station sees the whole of it with the margin).
+    Without its path the planner keeps the ASV there (the ROV still: no drift cost), where
+    the walls stop it backing off and the ROV would fly under the sonar; with it, the next
+    1.5 m stays in view but for a few degrees (the ROV itself must be in view now). In a large
+    tank the ASV backs off as the ROV comes: the same station costs nothing more.
     """
-    planner = StationPlanner(
-        SonarMountConfig(pitch_deg=45.0),
-        TANK,
-        StationSettings(min_range_m=1.0, hull_radius_m=0.3, tracking_margin_m=0.2),
-    )
-    rov = np.array([14.0, 8.0, -1.0])
+    mount = SonarMountConfig(pitch_deg=45.0)
+    near = StationSettings(min_range_m=1.0, hull_radius_m=0.3, tracking_margin_m=0.2)
+    mockup = StationPlanner(mount, TankBounds(length_m=4.8, width_m=3.6, depth_m=2.0), near)
+    rov = np.array([3.0, 1.0, -1.0])
     path = rov + np.outer(np.arange(1, 7) * 0.25, [0.0, 1.0, 0.0])  # north, 1.5 m
-    asv = np.array([14.0, 9.1])  # north of it, facing it: the ROV mid-aperture now
-    here = planner.choose(rov, asv, -math.pi / 2)
+    asv = np.array([3.0, 2.1])  # north of it, facing it: the ROV mid-aperture now
+    here = mockup.choose(rov, asv, -math.pi / 2)
     assert here is not None
-    beyond = planner._beyond_margin_deg(here.position_xy, here.heading_rad, path)
-    chosen = planner.choose(rov, asv, -math.pi / 2, path_m=path)
+    beyond = mockup._beyond_margin_deg(here.position_xy, here.heading_rad, rov, path)
+    chosen = mockup.choose(rov, asv, -math.pi / 2, path_m=path)
     assert chosen is not None
-    seen = planner._beyond_margin_deg(chosen.position_xy, chosen.heading_rad, path)
+    seen = mockup._beyond_margin_deg(chosen.position_xy, chosen.heading_rad, rov, path)
     assert beyond > 50.0
     assert seen < 5.0
-    assert planner.view_is_good(chosen.view)
+    assert mockup.view_is_good(chosen.view)
+    large = StationPlanner(mount, TANK, near)
+    offset = np.array([0.0, 10.0, 0.0])
+    assert (
+        large._beyond_margin_deg(
+            here.position_xy + offset[:2], here.heading_rad, rov + offset, path + offset
+        )
+        == 0.0
+    )
