@@ -72,6 +72,8 @@ SEARCH_STUCK_S = 30.0
 # A mission repeats its waypoint twice a second: one not heard for this long is forgotten
 # (the mission ended, or a pilot flies by hand).
 LEG_END_VALID_S = 5.0
+# The lead is at most this share of the ideal horizontal distance to the ROV.
+LEAD_SHARE = 0.25
 PATH_STEP_M = 0.25  # the spacing of the points of the ROV's leg a station is to see
 
 
@@ -468,14 +470,23 @@ class Follower:
     def _ahead(self) -> Array:
         """Where the ROV will be `lead_s` from now, at its horizontal tracked velocity.
 
-        Not past the waypoint its mission sent it to: there it stops (a short survey leg
-        would otherwise be watched from a station for a point beyond its end).
+        No further than LEAD_SHARE of the distance it is watched from, and not past the
+        waypoint its mission sent it to: there it stops (a short survey leg would otherwise be
+        watched from a station for a point beyond its end).
         """
         assert self.rov_m is not None
         v = self._horizontal_velocity()
         if v is None:
             return self.rov_m
         lead = v * self.settings.lead_s
+        # Near (a small tank), `lead_s` at survey speed is as far as the ROV is watched from,
+        # and no station sees both the ROV now and where it will be: the station chosen for
+        # the one has the other out of its dead band at once, and is chosen again every
+        # `replan_after_s` (a mockup run: 142 stations in 240 s).
+        reach = LEAD_SHARE * self.planner.ideal_distance(self.rov_m)
+        length = float(np.linalg.norm(lead))
+        if length > reach:
+            lead = lead * (reach / length)
         if self.leg_end is not None:
             speed = float(np.linalg.norm(v))
             left = float((self.leg_end[:2] - self.rov_m[:2]) @ v[:2]) / speed  # along its way

@@ -524,3 +524,18 @@ def test_stations_are_chosen_for_the_next_metre_and_a_half_of_the_rovs_leg() -> 
     assert follower._leg_path() is None  # at its end
     follower.on_leg_end(0.2, None)
     assert follower._leg_path() is None  # it holds
+
+
+def test_near_the_lead_is_a_quarter_of_the_distance_the_rov_is_watched_from() -> None:
+    """The mockup's scale: 3 s at 0.25 m/s would lead 0.75 m, as far as the ROV is watched."""
+    planner = StationPlanner(
+        SonarMountConfig(pitch_deg=45.0),
+        TankBounds(),
+        StationSettings(min_range_m=1.0, hull_radius_m=0.3, tracking_margin_m=0.2),
+    )
+    follower = Follower(planner, FollowSettings(lead_s=3.0))
+    rov = np.array([16.0, 8.0, -1.0])
+    follower.on_fix(0.0, rov, np.array([0.0, 0.25, 0.0]))
+    ideal = planner.ideal_distance(rov)
+    assert ideal == pytest.approx(0.8)
+    assert np.allclose(follower._ahead(), rov + np.array([0.0, 0.25 * ideal, 0.0]))
