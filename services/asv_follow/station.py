@@ -121,17 +121,31 @@ class StationPlanner:
         return np.array([asv_xy[0] + c * mx - s * my, asv_xy[1] + s * mx + c * my])
 
     def view(self, asv_xy: Array, heading_rad: float, rov_m: Array) -> View:
-        """Range, azimuth and elevation of the ROV from the ASV pose (level ASV)."""
+        """Range, azimuth and elevation of the ROV from the ASV pose (level ASV).
+
+        The azimuth is the horizontal bearing off the boresight; the elevation is the beam
+        model's: in a conical beam a ROV off the boresight sits lower than one faced (25 deg
+        off, 45 deg down: 2.8 deg lower).
+        """
         sonar = self.sonar_xy(asv_xy, heading_rad)
         dx, dy = float(rov_m[0] - sonar[0]), float(rov_m[1] - sonar[1])
         horizontal = math.hypot(dx, dy)
         drop = self.sonar_z - float(rov_m[2])
         depression = math.atan2(drop, horizontal)
         azimuth = wrap_angle(math.atan2(dy, dx) - heading_rad - self.mount_yaw)
+        slant = math.hypot(horizontal, drop)
+        # The ROV in the sonar's frame, less its lateral part: x along the boresight, z down.
+        forward = horizontal * math.cos(azimuth)
+        x = forward * math.cos(self.pitch) + drop * math.sin(self.pitch)
+        z = drop * math.cos(self.pitch) - forward * math.sin(self.pitch)
+        if self.beam_model == "conical":
+            elevation = -math.atan2(z, x)
+        else:
+            elevation = -math.asin(max(-1.0, min(1.0, z / slant))) if slant > 0.0 else 0.0
         return View(
-            range_m=math.hypot(horizontal, drop),
+            range_m=slant,
             azimuth_rad=azimuth,
-            elevation_rad=self.pitch - depression,
+            elevation_rad=elevation,
             conditioning=math.tan(depression) if depression < math.pi / 2 else math.inf,
         )
 

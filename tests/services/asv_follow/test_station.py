@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Literal
 
 import numpy as np
 from hypothesis import given, settings
@@ -151,6 +152,49 @@ def test_on_the_boresight_the_elevation_is_the_beam_models(
     )
     assert abs(view.azimuth_rad) < 1e-9
     assert abs(azimuth) < 1e-6
+    assert math.isclose(view.range_m, r, rel_tol=1e-9)
+    assert math.isclose(view.elevation_rad, elevation, abs_tol=1e-6)
+
+
+@given(
+    asv=st.tuples(st.floats(2.0, 26.0), st.floats(2.0, 14.0)),
+    heading=st.floats(-math.pi, math.pi),
+    off=st.floats(-1.2, 1.2),
+    distance=st.floats(0.5, 20.0),
+    depth=st.floats(0.5, 8.0),
+    model=st.sampled_from(["conical", "planar"]),
+    pitch_deg=st.floats(0.0, 60.0),
+)
+def test_off_the_boresight_the_elevation_is_the_beam_models(
+    asv: tuple[float, float],
+    heading: float,
+    off: float,
+    distance: float,
+    depth: float,
+    model: Literal["conical", "planar"],
+    pitch_deg: float,
+) -> None:
+    """A ROV up to 69 deg off the boresight (the hull not facing it): the beam model's elevation.
+
+    (A conical beam puts such a ROV lower than the planar one: the follower's dead band and
+    the path cost see it where the sonar does.)
+    """
+    mount = SonarMountConfig(pitch_deg=pitch_deg, beam_model=model)
+    planner = StationPlanner(mount, TANK, StationSettings())
+    sonar_xy = planner.sonar_xy(np.array(asv), heading)
+    rov = np.array(
+        [
+            sonar_xy[0] + distance * math.cos(heading + off),
+            sonar_xy[1] + distance * math.sin(heading + off),
+            -depth,
+        ]
+    )
+    view = planner.view(np.array(asv), heading, rov)
+    body = Transform.from_euler_zyx(
+        (asv[0], asv[1], 0.0), yaw_rad=heading, pitch_rad=0.0, roll_rad=0.0
+    )
+    r, _, elevation = to_polar(model, body.compose(mount.transform()).inverse().apply(rov))
+    assert math.isclose(view.azimuth_rad, off, abs_tol=1e-9)
     assert math.isclose(view.range_m, r, rel_tol=1e-9)
     assert math.isclose(view.elevation_rad, elevation, abs_tol=1e-6)
 
