@@ -51,6 +51,9 @@ class StationConfig(ConfigSection, frozen=True, kw_only=True):
     max_conditioning: Positive = 2.0
     # How far beyond the aperture's nominal edge a fixture still masks the ROV (beam skirts).
     mask_skirt_deg: Annotated[float, msgspec.Meta(ge=0.0, le=30.0)] = 3.0
+    # Per degree a point of the ROV's mission leg ahead would sit beyond the aperture's margin
+    # (0: stations for where the ROV is alone).
+    path_cost_per_deg: Annotated[float, msgspec.Meta(ge=0.0, le=100.0)] = 0.5
     # Where the ASV must not go, besides fixtures of the tank that reach the surface.
     keep_out: Annotated[tuple[TankFixture, ...], msgspec.Meta(max_length=100)] = ()
 
@@ -70,6 +73,7 @@ class StationConfig(ConfigSection, frozen=True, kw_only=True):
             tracking_margin_m=self.tracking_margin_m,
             max_conditioning=self.max_conditioning,
             mask_skirt_rad=math.radians(self.mask_skirt_deg),
+            path_cost_per_deg=self.path_cost_per_deg,
             keep_out=self.keep_out,
         )
 
@@ -82,6 +86,8 @@ class MotionConfig(ConfigSection, frozen=True, kw_only=True):
     replan_after_s: Positive = 1.0
     fix_timeout_s: Positive = 1.0
     lead_s: Annotated[float, msgspec.Meta(ge=0.0, le=30.0)] = 3.0
+    # Stations are to see this much of the ROV's mission leg ahead of it too.
+    path_ahead_m: Annotated[float, msgspec.Meta(ge=0.0, le=50.0)] = 1.5
     reacquire_after_s: Positive = 6.0
     max_speed_m_s: Annotated[float, msgspec.Meta(gt=0.0, le=2.0)] = 0.5
     max_accel_m_s2: Annotated[float, msgspec.Meta(gt=0.0, le=2.0)] = 0.25
@@ -101,6 +107,7 @@ class MotionConfig(ConfigSection, frozen=True, kw_only=True):
             replan_after_s=self.replan_after_s,
             fix_timeout_s=self.fix_timeout_s,
             lead_s=self.lead_s,
+            path_ahead_m=self.path_ahead_m,
             reacquire_after_s=self.reacquire_after_s,
             max_speed_m_s=self.max_speed_m_s,
             max_accel_m_s2=self.max_accel_m_s2,
