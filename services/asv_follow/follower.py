@@ -146,8 +146,15 @@ class Follower:
         self._leg_end_s = -math.inf
 
     def on_leg_end(self, now_s: float, position_m: Array | None) -> None:
-        """The waypoint the ROV's mission sent it to (None: it holds where it is)."""
-        self.leg_end = None if position_m is None else np.asarray(position_m, dtype=np.float64)
+        """The waypoint the ROV's mission sent it to (None: it holds, the leg kept).
+
+        A hold pauses the leg, it does not end it: the mission resumes the same waypoint. (The
+        leg dropped at each hold made the stations alternate between one chosen for the leg
+        and one for a ROV going nowhere, 7 m apart: an nfp run, 60 s.) A mission that stopped
+        sends nothing more, and its leg is forgotten after LEG_END_VALID_S.
+        """
+        if position_m is not None:
+            self.leg_end = np.asarray(position_m, dtype=np.float64)
         self._leg_end_s = now_s
 
     def on_pose(self, xy: Array, heading_rad: float) -> None:

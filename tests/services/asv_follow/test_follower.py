@@ -420,8 +420,8 @@ def test_the_rov_is_not_led_past_the_waypoint_its_mission_sent_it_to() -> None:
     assert np.allclose(follower._ahead(), [16.75, 8.0, -3.5])
     follower.on_leg_end(0.0, np.array([15.0, 8.0, -3.5]))  # behind it (turning back): no lead
     assert np.allclose(follower._ahead(), rov)
-    follower.on_leg_end(0.0, None)  # the mission holds it: as without a mission
-    assert np.allclose(follower._ahead(), [16.75, 8.0, -3.5])
+    follower.on_leg_end(0.0, None)  # the mission holds it: the leg is paused, not ended
+    assert np.allclose(follower._ahead(), rov)
     # A waypoint not repeated for 5 s (the mission ended) is forgotten.
     follower.on_leg_end(0.0, np.array([16.5, 8.0, -3.5]))
     follower.step(6.0)
@@ -522,8 +522,13 @@ def test_stations_are_chosen_for_the_next_metre_and_a_half_of_the_rovs_leg() -> 
     assert path[-1][2] == pytest.approx(-3.5 + 1.5 / 4.0)  # climbing along the leg
     follower.on_leg_end(0.1, rov + np.array([0.0, 0.2, 0.0]))
     assert follower._leg_path() is None  # at its end
-    follower.on_leg_end(0.2, None)
-    assert follower._leg_path() is None  # it holds
+    follower.on_leg_end(0.1, rov + np.array([0.0, 4.0, 1.0]))
+    follower.on_leg_end(0.2, None)  # it holds: the leg is paused, not ended
+    held = follower._leg_path()
+    assert held is not None
+    assert np.allclose(held, path)
+    follower.step(5.3)  # nothing from the mission for 5 s: it ended
+    assert follower._leg_path() is None
 
 
 def test_near_the_lead_is_a_quarter_of_the_distance_the_rov_is_watched_from() -> None:
