@@ -331,7 +331,7 @@ class Follower:
     def _leg_path(self) -> Array | None:
         """Points (every PATH_STEP_M) along the ROV's mission leg, up to `path_ahead_m` on.
 
-        None without a leg (no mission, or it holds) or at its end.
+        None without a leg (no mission, or it ended) or at its end; a hold keeps the leg.
         """
         if self.leg_end is None or self.rov_m is None:
             return None

@@ -277,11 +277,13 @@ class StationPlanner:
                 if current_bearing_rad is not None:
                     turned = abs(wrap_angle(float(bearing) - current_bearing_rad))
                     cost += s.switch_cost_per_deg * math.degrees(turned)
+                if best is not None and cost >= best[0]:
+                    continue  # the path and masking only add: no need to look
                 if path_m is not None:
                     beyond = self._beyond_margin_deg(origin, heading, rov_m, path_m)
                     cost += s.path_cost_per_deg * beyond
                 if best is not None and cost >= best[0]:
-                    continue  # masking only adds: no need to look
+                    continue
                 if self.masked(origin, heading, rov_m):
                     cost += s.mask_cost_per_deg
                 if best is None or cost < best[0]:
