@@ -39,6 +39,7 @@ from capsd.harness import (
 )
 from capsd.mission.plan import Waypoint
 from capsd.payloads import Health
+from capsd.simulator.guided import AsvDrive
 from capsd.simulator.world import TankName, TrajectoryName
 
 # How long the recorder may take to write its backlog and finish the file once stopped.
@@ -83,6 +84,7 @@ def main(
     record_view: Literal["on", "off"] = "on",
     mission: Path | None = None,
     asv: AsvMode = "station",
+    asv_drive: AsvDrive = "steered",
     install_errors: Literal["realistic", "off"] = "realistic",
     calibration: Literal["off", "dive"] = "off",
     stream: TextIO = sys.stdout,
@@ -93,7 +95,8 @@ def main(
     waypoint and is flown by the ArduSub stand-in the simulator hosts, `capsd mission run`
     commands it through the bridge, and the demo ends when the mission does. With `asv`
     "follow" the ASV is driven too: the follower's targets through the ASV's bridge to the
-    ArduRover stand-in the simulator hosts; "station" keeps it where it starts. With
+    ArduRover stand-in the simulator hosts (`asv_drive`: how it moves, AsvDrive); "station"
+    keeps it where it starts. With
     `install_errors` "realistic" (the default) the simulated installation is what a tape
     measured (docs/INSTALL-ERRORS.md), uncalibrated unless `calibration` is "dive" (first a
     simulated calibration dive fitted by capsd calibrate's code, as a field team starts);
@@ -130,6 +133,7 @@ def main(
         asv_station_heading_deg=heading,
         asv=asv,
         asv_mav_port=free_port() if asv == "follow" else None,
+        asv_drive=asv_drive,
         install_errors=install_errors,
         calibration=calibration,
     )

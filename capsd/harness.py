@@ -29,6 +29,7 @@ from capsd.errors import PayloadError
 from capsd.health import query_health
 from capsd.keys import is_concrete
 from capsd.payloads import GroundTruth, Health, RovFix, SonarLabel
+from capsd.simulator.guided import AsvDrive
 from capsd.simulator.world import TankName, TrajectoryName
 
 SERVICES = (
@@ -196,6 +197,7 @@ def write_configs(
     asv_station_heading_deg: float | None = None,
     asv: AsvMode = "station",
     asv_mav_port: int | None = None,
+    asv_drive: AsvDrive = "steered",
     install_errors: Literal["realistic", "off"] = "realistic",
     calibration: Literal["off", "dive"] = "off",
     calibration_s: float = 120.0,
@@ -211,7 +213,7 @@ def write_configs(
     hosts on `mav_port` (missions); the ASV then starts where the sonar sees that point best,
     and the bridge accepts mission commands. With `asv` "follow" the ASV is driven live by the
     ArduRover stand-in the simulator hosts on `asv_mav_port` (left in GUIDED by its pilot),
-    through the ASV's bridge, on the follower's targets.
+    through the ASV's bridge, on the follower's targets; `asv_drive` says how it moves.
     """
     import msgspec
     import yaml
@@ -260,6 +262,7 @@ def write_configs(
             "mode": "GUIDED",
             "max_speed_m_s": 0.5,
             "start_heading_deg": asv_station_heading_deg,
+            "drive": asv_drive,
         }
     run = msgspec.convert({k: v for k, v in sim.items() if k != "bus"}, SimConfig)
     if calibration == "dive" and install_errors != "realistic":
@@ -334,6 +337,8 @@ def write_configs(
             "tank": msgspec.to_builtins(tank_bounds(t)),
             "fix_key": str(fix_key),
             "station": FOLLOW_STATION.get(tank, {}),
+            # The follower is told how the simulated autopilot moves the hull, as a site is.
+            "motion": {"drive": asv_drive},
             **told,
         }
     paths = {}

@@ -1,6 +1,6 @@
 """The vehicles under their autopilots: hold, or go to a GUIDED target, on their own estimate.
 
-The ROV (GuidedRov, ArduSub) and the ASV (GuidedAsv, ArduRover on an omni frame).
+The ROV (GuidedRov, ArduSub) and the ASV (GuidedAsv, ArduRover on a boat or an omni frame).
 
 What ArduSub does with a position target, reduced to what the closed loop needs: in GUIDED
 with a target the vehicle flies a straight line to it (speed and acceleration limited, slowing
@@ -20,6 +20,7 @@ import math
 import threading
 from collections import deque
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -30,6 +31,12 @@ Array = np.ndarray
 DT_S = 0.02
 POSITION_MODES = ("GUIDED", "POSHOLD")
 HISTORY_S = 120.0
+# How the ASV's hull moves to a position target. steered: as ArduRover's GUIDED drives every
+# frame (Rover's position controller turns the target velocity into a forward speed, never
+# below zero unless reversed, and a turn rate; an omni frame's lateral thrust is not used), so
+# the hull turns towards its target and drives along its way; lateral: an omni frame whose
+# controller uses its lateral thrust (not ArduRover's GUIDED), moving any way, heading kept.
+AsvDrive = Literal["steered", "lateral"]
 
 
 @dataclass(frozen=True)
@@ -149,14 +156,23 @@ class AsvLimits:
     yaw_gain_1_s: float = 1.0
     dead_reckoning_s: float = 1.0
     drift_m_s: float = 0.01
+    drive: AsvDrive = "steered"
+    # Steered: this near its position target it stops steering for it (ArduRover's arrival;
+    # a tank's WP_RADIUS), else it would spin round a target it sits on.
+    arrive_radius_m: float = 0.05
+    # Steered: further than this off its way it turns on the spot first (WP_PIVOT_ANGLE).
+    pivot_angle_rad: float = math.radians(60.0)
 
 
 class GuidedAsv:
     """The ASV under ArduRover: drive with `set_mode`, `set_target`, `on_estimate`.
 
-    In GUIDED with a position target it translates straight to it (omni frame: any direction,
-    speed and acceleration limited) keeping its heading, as ArduRover ignores a position
-    target's yaw; a heading-only target stops it and turns it (rate limited); in GUIDED
+    In GUIDED with a position target it goes straight to it (speed and acceleration limited),
+    ignoring the target's yaw as ArduRover does: `steered` (the default, AsvDrive) turns the
+    hull towards the way and drives forward at the target velocity's forward part (more than
+    `pivot_angle_rad` off the way it turns on the spot first; at its target it holds fore and
+    aft only), `lateral` moves any way keeping its heading; a heading-only target stops it and
+    turns it (rate limited); in GUIDED
     without a target, LOITER and HOLD it keeps where it believed it was when the mode began;
     otherwise (no pilot in the simulation) it drifts to a stop. Like the ROV it steers on what
     its EKF believes: the truth plus the error of the newest estimate (our pose of it). Waves
@@ -182,6 +198,7 @@ class GuidedAsv:
         self._a = np.zeros(2)
         self._yaw = float(start_yaw_rad)
         self._hold = (self._p.copy(), self._yaw)
+        self._arrived = False  # steered: reached its position target (it steers no more)
         self._error = np.zeros(2)
         self._last_estimate_t = -math.inf
         self._t = 0.0
@@ -211,7 +228,10 @@ class GuidedAsv:
         """
         with self._lock:
             if self._mode == "GUIDED":
-                self._target = (np.array(target_xy[:2], dtype=np.float64), None)
+                xy = np.array(target_xy[:2], dtype=np.float64)
+                if self._target is None or float(np.linalg.norm(xy - self._target[0])) > 1e-3:
+                    self._arrived = False  # a new target: steer for it again
+                self._target = (xy, None)
 
     def set_heading(self, heading_rad: float) -> None:
         """A GUIDED heading alone: stop where it believes it is and turn in place to it."""
@@ -268,6 +288,24 @@ class GuidedAsv:
             goal, yaw_goal = self._target if self._target is not None else self._hold
             to_go = goal - (self._p + self._error)
             wanted = _clip(lim.approach_gain_1_s * to_go, lim.max_speed_m_s)
+            if lim.drive == "steered":
+                # As ArduRover: once at its target it stops steering for it (a small overshoot
+                # would otherwise turn the hull round), until a new target comes.
+                self._arrived = self._arrived or (
+                    float(np.linalg.norm(to_go)) <= lim.arrive_radius_m
+                )
+                if yaw_goal is None and not self._arrived:
+                    yaw_goal = math.atan2(float(to_go[1]), float(to_go[0]))
+                hull = np.array([math.cos(self._yaw), math.sin(self._yaw)])
+                pivot = yaw_goal is not None and (
+                    abs(wrap_angle(yaw_goal - self._yaw)) > lim.pivot_angle_rad
+                )
+                forward = float(wanted @ hull)
+                if pivot:
+                    forward = 0.0
+                elif not self._arrived:
+                    forward = max(0.0, forward)  # on its way: forwards only
+                wanted = forward * hull  # no lateral thrust; at its target it holds fore-aft
         else:
             wanted = np.zeros(2)
         accel = _clip((wanted - self._v) / lim.velocity_tau_s, lim.max_accel_m_s2)

@@ -204,7 +204,7 @@ class Simulation:
                 yaw,
                 waves=config.waves.waves(),
                 mode=g.mode,
-                limits=AsvLimits(max_speed_m_s=g.max_speed_m_s),
+                limits=AsvLimits(max_speed_m_s=g.max_speed_m_s, drive=g.drive),
             )
         else:
             self.asv = asv_motion(

@@ -26,6 +26,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         record_view=args.record_view,
         mission=args.mission,
         asv=args.asv,
+        asv_drive=args.asv_drive,
         install_errors=args.install_errors,
         calibration=args.calibration,
     )
@@ -78,6 +79,15 @@ def register(sub: Subcommands) -> None:
         choices=["station", "follow"],
         help="with --mission: the ASV keeps its station, or follows (asv_follow and the "
         "ASV's bridge drive the ArduRover stand-in the simulator hosts)",
+    )
+    dem.add_argument(
+        "--asv-drive",
+        default="steered",
+        choices=["steered", "lateral"],
+        help="with --asv follow, how the simulated ASV moves to a position target: steered "
+        "(default), as ArduRover's GUIDED drives a boat or an omni frame, the hull turned "
+        "towards its way; lateral: an omni frame moving any way with its heading kept (a "
+        "controller that uses its lateral thrust, not ArduRover's GUIDED)",
     )
     dem.add_argument(
         "--install-errors",

@@ -30,6 +30,16 @@ while the hull faces more than `turn_first_rad` off that heading the carrot turn
 hull is, and only then walks;
 a way that would pass over the ROV (to a station on its other side) goes round it, no nearer
 than where the ROV sits at the target elevation.
+
+That is the lateral drive (the planner's `drive`: an omni frame that moves any way with its
+heading kept). ArduRover's GUIDED drives a boat and an omni frame alike: a forward speed and a
+turn rate, the hull turned to its way, the target's yaw ignored (the steered drive). There the
+sonar looks along the way whenever the ASV moves, so the ASV watches the ROV by turning where
+it is: the dead band has no azimuth (the station is seen facing the ROV), the planner prefers
+staying, or a way at the ROV, and charges each second a move would turn the sonar off it; on
+the way the hull is asked for the way's heading (turning first is turning to the way) and,
+once the carrot is at the station, to face the ROV; the carrot is not pushed off a near ROV
+(backing off would turn the hull's back on it: it re-stations instead).
 """
 
 from __future__ import annotations
@@ -41,7 +51,7 @@ from typing import Literal
 import numpy as np
 
 from capsd.geometry import Array, wrap_angle
-from capsd.services.asv_follow.station import Station, StationPlanner
+from capsd.services.asv_follow.station import STAY_M, Station, StationPlanner, View
 
 FollowState = Literal["standby", "holding", "following", "no_station"]
 ARRIVED_M = 1.0  # this near its station the hull faces the ROV itself, not where it will be
@@ -503,10 +513,19 @@ class Follower:
         out: Array = self.rov_m + lead
         return out
 
-    def _in_view_of_station(self, rov_m: Array) -> bool:
+    def _station_view(self, rov_m: Array) -> View:
+        """The ROV seen from the station: with its heading, or (steered) the hull facing it."""
         assert self.station is not None
-        view = self.planner.view(self.station.position_xy, self.station.heading_rad, rov_m)
-        return self.planner.view_is_good(view)
+        xy = self.station.position_xy
+        heading = (
+            self.planner.facing(xy, rov_m)
+            if self.planner.settings.drive == "steered"
+            else self.station.heading_rad
+        )
+        return self.planner.view(xy, heading, rov_m)
+
+    def _in_view_of_station(self, rov_m: Array) -> bool:
+        return self.planner.view_is_good(self._station_view(rov_m))
 
     def _needs_station(self) -> bool:
         """No station yet, or the ROV seen from it is outside the dead band."""
@@ -514,7 +533,7 @@ class Follower:
             return True
         assert self.rov_m is not None
         s = self.settings
-        view = self.planner.view(self.station.position_xy, self.station.heading_rad, self.rov_m)
+        view = self._station_view(self.rov_m)
         # The dead band is round the elevation the station was chosen for, not the target: a
         # station chosen steeper than the target (the target's view masked by a rack) would
         # otherwise be re-chosen every `replan_after_s`, and a ROV drifting back to the target
@@ -524,7 +543,13 @@ class Follower:
             or abs(view.azimuth_rad) > s.azimuth_tolerance_rad
             or not self.planner.view_is_good(view)
             # The ROV moved into a cell a fixture shares: look from elsewhere if one is free.
-            or self.planner.masked(self.station.position_xy, self.station.heading_rad, self.rov_m)
+            or self.planner.masked(
+                self.station.position_xy,
+                self.station.heading_rad
+                if self.planner.settings.drive == "lateral"
+                else self.planner.facing(self.station.position_xy, self.rov_m),
+                self.rov_m,
+            )
         )
 
     def _walk(self, dt: float, *, fresh: bool) -> None:
@@ -537,19 +562,32 @@ class Follower:
         if self.station is None or dt <= 0.0:
             return
         s = self.settings
-        heading = self._wanted_heading(fresh=fresh)
+        goal = self._around(self._look_point(fresh=fresh), self.station.position_xy)
+        way = goal - self._carrot
+        walking = float(np.linalg.norm(way)) > STAY_M
+        if self.planner.settings.drive == "steered" and walking:
+            # The autopilot turns the hull to its way whatever it is told (ArduRover's GUIDED):
+            # ask for that, so that turning first is turning to the way.
+            heading = math.atan2(float(way[1]), float(way[0]))
+        else:
+            heading = self._wanted_heading(fresh=fresh)
         turn = wrap_angle(heading - self._carrot_heading)
         max_turn = s.max_yaw_rate_rad_s * dt
-        self._carrot_heading += max(-max_turn, min(max_turn, turn))
+        # Wrapped: turn after turn it would wind up past what a command may carry (+-7 rad;
+        # a mockup run's bridge refused every command after 108 s).
+        self._carrot_heading = wrap_angle(
+            self._carrot_heading + max(-max_turn, min(max_turn, turn))
+        )
         if (
             self.asv_xy is not None
             and abs(wrap_angle(heading - self.asv_heading)) > s.turn_first_rad
+            # Steered, at the station: the autopilot turns the hull where it stopped.
+            and (self.planner.settings.drive == "lateral" or walking)
         ):
             # Turn first: the carrot waits where the hull is, so the target is a heading.
             self._carrot = self.asv_xy.copy()
             self._carrot_v = np.zeros(2)
             return
-        goal = self._around(self._look_point(fresh=fresh), self.station.position_xy)
         to_go = goal - self._carrot
         distance = float(np.linalg.norm(to_go))
         # Slow down to stop at the station: v^2 = 2 a d.
@@ -567,7 +605,8 @@ class Follower:
             self._carrot_v = np.zeros(2)
         else:
             self._carrot = self._carrot + step
-        if fresh:
+        if fresh and self.planner.settings.drive == "lateral":
+            # (A steered hull would turn its back on the ROV to back off: it re-stations.)
             self._keep_off()
 
     def _keep_off(self) -> None:

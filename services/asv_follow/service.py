@@ -11,6 +11,7 @@ heard, and says when no station can see the ROV.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import threading
@@ -28,7 +29,7 @@ from capsd.mounts import SonarMountConfig
 from capsd.payloads import AsvPose, AutopilotStatus, RovFix, VehicleCommand
 from capsd.runner import Publisher, ServiceRunner
 from capsd.services.asv_follow.follower import Follower, FollowSettings, Target
-from capsd.services.asv_follow.station import StationPlanner, StationSettings
+from capsd.services.asv_follow.station import AsvDrive, StationPlanner, StationSettings
 from capsd.signing import site_key
 from capsd.tank import TankBounds, TankFixture
 
@@ -99,6 +100,14 @@ class MotionConfig(ConfigSection, frozen=True, kw_only=True):
     stop_within_s: Annotated[float, msgspec.Meta(ge=0.0, le=30.0)] = 1.0
     # How fast a ROV holding without positions may wander: looks search a growing circle.
     lost_drift_m_s: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.02
+    # How the ASV's autopilot moves it to a position target. steered: ArduRover's GUIDED, a
+    # boat or an omni frame alike (a forward speed and a turn rate: the hull turns to its
+    # way); the ASV then watches by turning where it is and moves as little as it can.
+    # lateral: any way with the heading kept (an omni frame on a controller of its own).
+    drive: AsvDrive = "steered"
+    # Steered: what a second of the sonar turned off the ROV on the way to a station costs
+    # (in degrees of elevation off the target, the planner's unit).
+    blind_cost_per_s: Annotated[float, msgspec.Meta(ge=0.0, le=100.0)] = 2.0
 
     def settings(self) -> FollowSettings:
         return FollowSettings(
@@ -115,6 +124,16 @@ class MotionConfig(ConfigSection, frozen=True, kw_only=True):
             turn_first_rad=math.radians(self.turn_first_deg),
             stop_within_s=self.stop_within_s,
             lost_drift_m_s=self.lost_drift_m_s,
+        )
+
+    def drive_settings(self, station: StationSettings) -> StationSettings:
+        """The planner's settings with this vehicle's drive, speed and turn rate."""
+        return dataclasses.replace(
+            station,
+            drive=self.drive,
+            blind_cost_per_s=self.blind_cost_per_s,
+            transit_speed_m_s=self.max_speed_m_s,
+            turn_rate_rad_s=math.radians(self.max_yaw_rate_deg_s),
         )
 
 
@@ -154,7 +173,9 @@ class FollowNode:
     """Bus in, follower, bus out; thread-safe (Zenoh calls back on its own threads)."""
 
     def __init__(self, config: Config, commands: Publisher[VehicleCommand]):
-        planner = StationPlanner(config.sonar, config.tank, config.station.settings())
+        planner = StationPlanner(
+            config.sonar, config.tank, config.motion.drive_settings(config.station.settings())
+        )
         self.follower = Follower(planner, config.motion.settings())
         self.commands = commands
         self.lock = threading.Lock()

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -42,6 +43,16 @@ from capsd.geometry import Array, Transform, wrap_angle
 from capsd.mounts import SonarMountConfig
 from capsd.sonar_geometry import to_polar
 from capsd.tank import TankBounds, TankFixture
+
+# How the ASV's autopilot moves it to a position target. steered: as ArduRover's GUIDED drives
+# a boat or an omni frame (a forward speed and a turn rate: the hull turns to its way, and the
+# sonar with it); lateral: any way with the heading kept (an omni frame on a controller that
+# uses its lateral thrust).
+AsvDrive = Literal["steered", "lateral"]
+# Steered: a move whose way is further than this off the ROV's bearing turns the sonar off it.
+BLIND_OFF_RAD = math.radians(20.0)
+# Steered: nearer than this is no move (the autopilot's arrival).
+STAY_M = 0.05
 
 
 @dataclass(frozen=True)
@@ -75,6 +86,12 @@ class StationSettings:
     switch_cost_per_deg: float = 0.03
     # Per degree a point of the ROV's path would sit beyond the aperture's margin.
     path_cost_per_deg: float = 0.5
+    # How the ASV's autopilot moves it (AsvDrive) and, for a steered hull, what a second with
+    # the sonar turned off the ROV costs, and how fast it drives and turns.
+    drive: AsvDrive = "lateral"
+    blind_cost_per_s: float = 2.0
+    transit_speed_m_s: float = 0.3
+    turn_rate_rad_s: float = math.radians(15.0)
 
 
 @dataclass(frozen=True)
@@ -239,13 +256,113 @@ class StationPlanner:
         if drop <= 0.0:
             return None  # the ROV at or above the sonar: no station sees it from above
         best: tuple[float, Station] | None = None
+        for origin, heading, bearing in self._candidates(rov_m, asv_xy, drop):
+            if (
+                avoid_bearing_rad is not None
+                and abs(wrap_angle(float(bearing) - avoid_bearing_rad)) < avoid_within_rad
+            ):
+                continue
+            if not self.clear(origin):
+                continue
+            view = self.view(origin, heading, rov_m)
+            if not self.view_is_good(view):
+                continue
+            cost = (
+                s.elevation_cost_per_deg
+                * math.degrees(abs(view.elevation_rad - s.target_elevation_rad))
+                + s.move_cost_per_m * float(np.linalg.norm(origin - asv_xy[:2]))
+                + s.turn_cost_per_deg * math.degrees(abs(wrap_angle(heading - heading_rad)))
+            )
+            if s.drive == "steered":
+                cost += s.blind_cost_per_s * self.blind_s(
+                    asv_xy, heading_rad, origin, heading, rov_m
+                )
+            if rov_velocity_m_s is not None:
+                # d(elevation)/dt = drop / range^2 * (the ROV's speed away from the sonar)
+                away = float(
+                    rov_velocity_m_s[0] * math.cos(bearing)
+                    + rov_velocity_m_s[1] * math.sin(bearing)
+                )
+                rate = drop / view.range_m**2 * away
+                cost += s.drift_cost_per_deg_s * math.degrees(abs(rate))
+            if current_bearing_rad is not None:
+                turned = abs(wrap_angle(float(bearing) - current_bearing_rad))
+                cost += s.switch_cost_per_deg * math.degrees(turned)
+            if best is not None and cost >= best[0]:
+                continue  # the path and masking only add: no need to look
+            if path_m is not None:
+                beyond = self._beyond_margin_deg(origin, heading, rov_m, path_m)
+                cost += s.path_cost_per_deg * beyond
+            if best is not None and cost >= best[0]:
+                continue
+            if self.masked(origin, heading, rov_m):
+                cost += s.mask_cost_per_deg
+            if best is None or cost < best[0]:
+                best = (cost, Station(origin, heading, view))
+        return None if best is None else best[1]
+
+    def _beyond_margin_deg(
+        self, asv_xy: Array, heading_rad: float, rov_m: Array, path_m: Array
+    ) -> float:
+        """Degrees the path's elevations sit beyond the aperture's margin, summed.
+
+        Lateral drive: each point is seen from the station moved as the ROV moved from
+        `rov_m` to it, then into the walls' clearance box (the hull's own; keep-out boxes are
+        not looked at). Steered: from the station itself, the hull turned to face the point (a
+        steered hull that moves turns the sonar to its way: it watches by turning in place).
+        """
+        limit = self.half_aperture - self.settings.elevation_margin_rad
+        total = 0.0
+        for point in path_m:
+            if self.settings.drive == "steered":
+                view = self.view(asv_xy[:2], self.facing(asv_xy, point), point)
+            else:
+                moved = self.within_walls(asv_xy[:2] + point[:2] - rov_m[:2])
+                view = self.view(moved, heading_rad, point)
+            total += max(0.0, abs(view.elevation_rad) - limit)
+        return math.degrees(total)
+
+    def facing(self, asv_xy: Array, rov_m: Array) -> float:
+        """The hull's heading at `asv_xy` that points the sonar's boresight at the ROV."""
+        return wrap_angle(
+            math.atan2(float(rov_m[1] - asv_xy[1]), float(rov_m[0] - asv_xy[0])) - self.mount_yaw
+        )
+
+    def blind_s(
+        self, asv_xy: Array, heading_rad: float, origin: Array, heading: float, rov_m: Array
+    ) -> float:
+        """Seconds a steered hull's sonar is off the ROV on its way from `asv_xy` to `origin`.
+
+        Its autopilot turns the hull to the way, drives, and turns it to the station's heading;
+        a way more than BLIND_OFF_RAD off the ROV's bearing takes the sonar off it for all that
+        (one nearer STAY_M is no move: the hull turns where it is, facing the ROV).
+        """
+        way = np.asarray(origin[:2], dtype=np.float64) - np.asarray(asv_xy[:2], dtype=np.float64)
+        length = float(np.linalg.norm(way))
+        if length < STAY_M:
+            return 0.0
+        way_heading = math.atan2(float(way[1]), float(way[0]))
+        # The hull along its way: the sonar on the ROV if that is about the facing heading.
+        if abs(wrap_angle(way_heading - self.facing(asv_xy, rov_m))) <= BLIND_OFF_RAD:
+            return 0.0  # driving at the ROV: still in view
+        s = self.settings
+        turns = abs(wrap_angle(way_heading - heading_rad)) + abs(wrap_angle(heading - way_heading))
+        return turns / s.turn_rate_rad_s + length / s.transit_speed_m_s
+
+    def _candidates(
+        self, rov_m: Array, asv_xy: Array, drop: float
+    ) -> list[tuple[Array, float, float]]:
+        """(origin, heading, bearing) of the stations to try: rings round the ROV, facing it.
+
+        A steered hull also tries staying where it is, turned to face the ROV.
+        """
+        out: list[tuple[Array, float, float]] = []
+        if self.settings.drive == "steered":
+            here = np.asarray(asv_xy[:2], dtype=np.float64).copy()
+            heading = self.facing(here, rov_m)
+            out.append((here, heading, wrap_angle(heading + self.mount_yaw)))
         for distance in self._distances(drop):
             for bearing in np.linspace(-math.pi, math.pi, 72, endpoint=False):
-                if (
-                    avoid_bearing_rad is not None
-                    and abs(wrap_angle(float(bearing) - avoid_bearing_rad)) < avoid_within_rad
-                ):
-                    continue
                 heading = wrap_angle(float(bearing) - self.mount_yaw)
                 # The sonar on the ring at `distance` from the ROV, looking along `bearing`.
                 sonar = np.array(
@@ -254,57 +371,8 @@ class StationPlanner:
                         rov_m[1] - distance * math.sin(bearing),
                     ]
                 )
-                origin = sonar - (self.sonar_xy(np.zeros(2), heading))
-                if not self.clear(origin):
-                    continue
-                view = self.view(origin, heading, rov_m)
-                if not self.view_is_good(view):
-                    continue
-                cost = (
-                    s.elevation_cost_per_deg
-                    * math.degrees(abs(view.elevation_rad - s.target_elevation_rad))
-                    + s.move_cost_per_m * float(np.linalg.norm(origin - asv_xy[:2]))
-                    + s.turn_cost_per_deg * math.degrees(abs(wrap_angle(heading - heading_rad)))
-                )
-                if rov_velocity_m_s is not None:
-                    # d(elevation)/dt = drop / range^2 * (the ROV's speed away from the sonar)
-                    away = float(
-                        rov_velocity_m_s[0] * math.cos(bearing)
-                        + rov_velocity_m_s[1] * math.sin(bearing)
-                    )
-                    rate = drop / view.range_m**2 * away
-                    cost += s.drift_cost_per_deg_s * math.degrees(abs(rate))
-                if current_bearing_rad is not None:
-                    turned = abs(wrap_angle(float(bearing) - current_bearing_rad))
-                    cost += s.switch_cost_per_deg * math.degrees(turned)
-                if best is not None and cost >= best[0]:
-                    continue  # the path and masking only add: no need to look
-                if path_m is not None:
-                    beyond = self._beyond_margin_deg(origin, heading, rov_m, path_m)
-                    cost += s.path_cost_per_deg * beyond
-                if best is not None and cost >= best[0]:
-                    continue
-                if self.masked(origin, heading, rov_m):
-                    cost += s.mask_cost_per_deg
-                if best is None or cost < best[0]:
-                    best = (cost, Station(origin, heading, view))
-        return None if best is None else best[1]
-
-    def _beyond_margin_deg(
-        self, asv_xy: Array, heading_rad: float, rov_m: Array, path_m: Array
-    ) -> float:
-        """Degrees the path's elevations sit beyond the aperture's margin, summed.
-
-        Each point is seen from the station moved as the ROV moved from `rov_m` to it, then
-        into the walls' clearance box (the hull's own; keep-out boxes are not looked at).
-        """
-        limit = self.half_aperture - self.settings.elevation_margin_rad
-        total = 0.0
-        for point in path_m:
-            moved = self.within_walls(asv_xy[:2] + point[:2] - rov_m[:2])
-            elevation = self.view(moved, heading_rad, point).elevation_rad
-            total += max(0.0, abs(elevation) - limit)
-        return math.degrees(total)
+                out.append((sonar - self.sonar_xy(np.zeros(2), heading), heading, float(bearing)))
+        return out
 
     def nearest_distance(self, rov_m: Array) -> float:
         """The horizontal sonar-to-ROV distance at the aperture's lower edge, less the margin.

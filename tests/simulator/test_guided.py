@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -70,14 +72,15 @@ def test_without_estimates_its_belief_drifts_and_so_does_the_vehicle() -> None:
     assert abs(moved[1]) < 1e-6
 
 
-def test_the_asv_keeps_its_heading_on_a_position_target_and_turns_on_a_heading_alone() -> None:
-    """As ArduRover's GUIDED: a position target's yaw is ignored; a heading-only one turns it."""
-    from capsd.geometry import matrix_to_euler_zyx
-    from capsd.simulator.guided import GuidedAsv
+def _asv_flight(drive: str):  # type: ignore[no-untyped-def]
+    """A calm-water ASV in GUIDED at (5, 5) facing +x, and a way to fly it with exact estimates."""
+    from capsd.simulator.guided import AsvLimits, GuidedAsv
     from capsd.simulator.world import Waves
 
     calm = Waves(heave_m=0.0, roll_deg=0.0, pitch_deg=0.0)
-    asv = GuidedAsv((5.0, 5.0), 0.0, waves=calm, mode="GUIDED")
+    asv = GuidedAsv(
+        (5.0, 5.0), 0.0, waves=calm, mode="GUIDED", limits=AsvLimits(drive=drive)  # type: ignore[arg-type]
+    )
 
     def fly(t0: float, t1: float) -> tuple[np.ndarray, np.ndarray]:
         """Exact position estimates every 0.2 s (no dead reckoning) until `t1`."""
@@ -86,11 +89,44 @@ def test_the_asv_keeps_its_heading_on_a_position_target_and_turns_on_a_heading_a
             asv.on_estimate(float(t), xyz[:2])
         return asv.pose(t1)
 
-    asv.set_target(np.array([7.0, 5.0]))  # a position target: no yaw reaches the ASV
+    return asv, fly
+
+
+def test_a_lateral_asv_keeps_its_heading_to_a_position_and_turns_on_a_heading_alone() -> None:
+    """An omni frame on its own controller: any way, heading kept; a heading alone turns it."""
+    from capsd.geometry import matrix_to_euler_zyx
+
+    asv, fly = _asv_flight("lateral")
+    asv.set_target(np.array([5.0, 7.0]))  # abeam: it crabs there
     rotation, position = fly(0.0, 20.0)
-    assert position[:2] == pytest.approx([7.0, 5.0], abs=0.05)
+    assert position[:2] == pytest.approx([5.0, 7.0], abs=0.05)
     assert matrix_to_euler_zyx(rotation)[0] == pytest.approx(0.0, abs=1e-6)
     asv.set_heading(1.0)
     rotation, position = fly(20.0, 40.0)
     assert matrix_to_euler_zyx(rotation)[0] == pytest.approx(1.0, abs=0.02)
-    assert position[:2] == pytest.approx([7.0, 5.0], abs=0.05)  # turned in place
+    assert position[:2] == pytest.approx([5.0, 7.0], abs=0.05)  # turned in place
+
+
+def test_a_steered_asv_turns_to_its_way_before_it_drives_as_ardurover_guided() -> None:
+    """ArduRover's GUIDED: forward speed and turn rate only, so the hull faces the way.
+
+    A target abeam: it first turns on the spot (no lateral thrust), then drives there facing
+    it, the target's yaw ignored; a heading-only target then turns it where it is.
+    """
+    from capsd.geometry import matrix_to_euler_zyx
+
+    asv, fly = _asv_flight("steered")
+    asv.set_target(np.array([5.0, 7.0]))  # 90 deg to the left of the hull
+    rotation, position = fly(0.0, 1.2)
+    yaw = matrix_to_euler_zyx(rotation)[0]
+    assert 0.3 < yaw < math.radians(30.0)  # turning left (20 deg/s) ...
+    assert float(np.linalg.norm(position[:2] - [5.0, 5.0])) < 0.01  # ... on the spot (pivot)
+    rotation, position = fly(1.2, 30.0)
+    assert position[:2] == pytest.approx([5.0, 7.0], abs=0.06)
+    # It faces about the way it came (it steers while it drives: where it ends depends on the
+    # arc), not the heading it started with.
+    assert matrix_to_euler_zyx(rotation)[0] == pytest.approx(math.pi / 2, abs=0.6)
+    asv.set_heading(0.0)
+    rotation, position = fly(30.0, 50.0)
+    assert matrix_to_euler_zyx(rotation)[0] == pytest.approx(0.0, abs=0.02)
+    assert position[:2] == pytest.approx([5.0, 7.0], abs=0.06)  # turned in place

@@ -12,7 +12,7 @@ from capsd.bench import search
 from capsd.geometry import wrap_angle
 from capsd.mounts import SonarMountConfig
 from capsd.services.asv_follow import follower as follower_module
-from capsd.services.asv_follow.follower import Follower, FollowSettings
+from capsd.services.asv_follow.follower import Follower, FollowSettings, Target
 from capsd.services.asv_follow.station import Station, StationPlanner, StationSettings
 from capsd.tank import TankBounds
 
@@ -544,3 +544,81 @@ def test_near_the_lead_is_a_quarter_of_the_distance_the_rov_is_watched_from() ->
     ideal = planner.ideal_distance(rov)
     assert ideal == pytest.approx(0.8)
     assert np.allclose(follower._ahead(), rov + np.array([0.0, 0.25 * ideal, 0.0]))
+
+
+def _watch_a_passing_rov(drive: str) -> list[Target]:
+    """A ROV passing 6 m ahead of its station, 3.5 m across in 30 s; the hull obeys its targets."""
+    planner = StationPlanner(SonarMountConfig(), TankBounds(), StationSettings(drive=drive))  # type: ignore[arg-type]
+    follower = Follower(planner, FollowSettings())
+    rov = np.array([16.0, 5.5, -3.5])
+    velocity = np.array([0.0, 3.5 / 30.0, 0.0])
+    first = planner.choose(rov, np.array([10.0, 5.5]), 0.0)
+    assert first is not None
+    xy, hull = first.position_xy, first.heading_rad
+    follower.on_pose(xy, hull)
+    follower.on_mode("GUIDED")
+    targets = []
+    for k in range(300):
+        now = k * 0.1
+        follower.on_fix(now, rov + velocity * now, velocity)
+        follower.on_pose(xy, hull)
+        target = follower.step(now)
+        assert target is not None
+        targets.append(target)
+        xy, hull = target.position_xy, target.heading_rad
+    return targets
+
+
+def test_a_steered_follower_watches_a_passing_rov_by_turning_where_it_is() -> None:
+    """ArduRover's GUIDED turns the hull to its way: the ASV turns where it is instead.
+
+    The lateral follower moves along with the ROV once it is 15 deg off the boresight; the
+    steered one stays (within the autopilot's arrival), its hull turned to face the ROV (30
+    deg off the first boresight at the end; further, the ROV's elevation drops with its
+    distance, and the steered follower moves too, driving at the ROV).
+    """
+    steered = _watch_a_passing_rov("steered")
+    start = steered[0].position_xy
+    assert max(float(np.linalg.norm(t.position_xy - start)) for t in steered) < 0.06
+    planner = StationPlanner(SonarMountConfig(), TankBounds(), StationSettings())
+    end = np.array([16.0, 5.5 + 29.9 * 3.5 / 30.0, -3.5])
+    last = steered[-1]
+    assert abs(planner.view(last.position_xy, last.heading_rad, end).azimuth_rad) < math.radians(4)
+    lateral = _watch_a_passing_rov("lateral")
+    assert max(float(np.linalg.norm(t.position_xy - start)) for t in lateral) > 1.0
+
+
+def test_on_its_way_a_steered_follower_asks_for_the_ways_heading_then_faces_the_rov() -> None:
+    """What ArduRover does on its way anyway (so that turning first is turning to the way)."""
+    planner = StationPlanner(SonarMountConfig(), TankBounds(), StationSettings(drive="steered"))
+    rov = np.array([16.0, 8.0, -3.5])
+    start = np.array([10.0, 8.0])
+    station_xy = np.array([10.0, 10.0])  # 2 m to the left: the way is abeam of the ROV
+    way = _drive(planner, start, 0.0, station_xy, 0.0, steps=400, fix=lambda now: (rov, None))
+    walking = [(xy, hull) for xy, hull, _ in way if 0.2 < float(np.linalg.norm(xy - start)) < 1.8]
+    assert walking
+    for _, hull in walking:
+        assert abs(wrap_angle(hull - math.pi / 2)) < math.radians(1.0)
+    xy, hull, _ = way[-1]
+    assert float(np.linalg.norm(xy - station_xy)) < 0.01
+    sonar = planner.sonar_xy(xy, hull)
+    assert abs(wrap_angle(hull - math.atan2(rov[1] - sonar[1], rov[0] - sonar[0]))) < 0.06
+
+
+def test_the_heading_asked_for_stays_wrapped_however_often_the_hull_turns() -> None:
+    """A ROV circling the station three times: headings stay within +-pi.
+
+    (Unwrapped, the carrot's heading wound past the +-7 rad a command may carry, and the bridge
+    refused every command from then on: a mockup run.)
+    """
+    planner = StationPlanner(SonarMountConfig(), TankBounds(), StationSettings(drive="steered"))
+    station_xy = np.array([14.0, 8.0])
+
+    def circling(now: float) -> tuple[np.ndarray, np.ndarray | None]:
+        angle = 3.0 * math.tau * now / 90.0
+        return np.array([14.0 + 6.0 * math.cos(angle), 8.0 + 6.0 * math.sin(angle), -3.5]), None
+
+    way = _drive(planner, station_xy, 0.0, station_xy, 0.0, steps=900, fix=circling)
+    headings = np.array([hull for _, hull, _ in way])
+    assert np.all(np.abs(headings) <= math.pi + 1e-9)
+    assert np.ptp(headings) > 6.0  # it did turn all round

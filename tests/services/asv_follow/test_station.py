@@ -293,3 +293,41 @@ def test_a_station_sees_the_rovs_leg_ahead_where_the_walls_stop_the_asv_backing_
         )
         == 0.0
     )
+
+
+def test_a_steered_hull_stays_where_it_sees_the_rov_and_turns_to_it() -> None:
+    """ArduRover's GUIDED turns a hull to its way: from a good place it only turns.
+
+    The lateral planner moves to its ring's best station; the steered one stays where it is
+    (a move would take the sonar off the ROV), turned to face the ROV.
+    """
+    rov = np.array([16.0, 8.0, -3.5])
+    planner = _planner()
+    # At the ideal distance, on a bearing between the planner's rings' (every 5 deg).
+    bearing = math.radians(7.5)
+    sonar_off = planner.ideal_distance(rov)
+    here = rov[:2] - (sonar_off + MOUNT.position_m[0]) * np.array(
+        [math.cos(bearing), math.sin(bearing)]
+    )
+    steered = _planner(drive="steered").choose(rov, here, 0.0)
+    lateral = _planner(drive="lateral").choose(rov, here, 0.0)
+    assert steered is not None
+    assert lateral is not None
+    assert float(np.linalg.norm(steered.position_xy - here)) < 1e-9
+    assert abs(steered.view.azimuth_rad) < math.radians(0.5)
+    assert float(np.linalg.norm(lateral.position_xy - here)) > 0.05
+
+
+def test_a_steered_hull_is_blind_on_a_way_off_the_rov_and_not_on_one_at_it() -> None:
+    """The blind seconds: turning to the way, driving, turning to the station's heading."""
+    planner = _planner(drive="steered", transit_speed_m_s=0.5, turn_rate_rad_s=math.radians(15.0))
+    rov = np.array([16.0, 8.0, -3.5])
+    here = np.array([8.0, 8.0])
+    # Straight at the ROV: the sonar stays on it.
+    assert planner.blind_s(here, 0.0, np.array([9.0, 8.0]), 0.0, rov) == 0.0
+    # Abeam, 2 m: 90 deg out, 4 s, 90 deg back = 6 + 4 + 6 s.
+    assert math.isclose(
+        planner.blind_s(here, 0.0, np.array([8.0, 10.0]), 0.0, rov), 16.0, rel_tol=1e-9
+    )
+    # No move (the autopilot's arrival): no way to be blind on.
+    assert planner.blind_s(here, 0.0, here + 0.01, 1.0, rov) == 0.0
