@@ -376,6 +376,7 @@ class RovFix(Payload, frozen=True, kw_only=True):
 
 
 CommandKind = Literal["engage", "goto", "hold"]
+DriveDirection = Literal["forward", "reverse"]
 
 
 class VehicleCommand(Payload, frozen=True, kw_only=True):
@@ -398,6 +399,10 @@ class VehicleCommand(Payload, frozen=True, kw_only=True):
     # A ROV mission's engage and goto: the waypoint the leg ends at, also while the ROV waits
     # for the ASV at `position_m` (the follower re-stations for the leg, not for the wait).
     leg_end_m: Vec3 | None = None
+    # The ASV's goto: which way its hull drives to `position_m` (ArduRover's GUIDED steers the
+    # hull to its way, or its stern with MAV_CMD_DO_SET_REVERSE: backing off a ROV keeps the
+    # sonar on it). The ROV's bridge ignores it.
+    direction: DriveDirection = "forward"
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -25,14 +25,17 @@ from pathlib import Path
 from typing import Self
 
 from capsd.errors import CapsdError
+from capsd.payloads import DriveDirection
 from capsd.protocols.mavlink import (
     MAV_CMD_DO_SET_MODE,
+    MAV_CMD_DO_SET_REVERSE,
     MAV_CMD_PREFLIGHT_CALIBRATION,
     MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN,
     MAV_CMD_REQUEST_MESSAGE,
     MAV_CMD_SET_MESSAGE_INTERVAL,
     MAV_RESULT_ACCEPTED,
     MAV_RESULT_DENIED,
+    MAV_RESULT_UNSUPPORTED,
     MAV_SYS_STATUS_SENSOR_VISION_POSITION,
     Attitude,
     Autopilot,
@@ -147,6 +150,7 @@ class AutopilotStandIn:
         on_mode: Callable[[str], None] | None = None,
         on_target: Callable[[PositionTarget], None] | None = None,
         on_estimate: Callable[[VisionPositionEstimate], None] | None = None,
+        on_direction: Callable[[DriveDirection], None] | None = None,
         gcs_port: int | None = None,
     ):
         self.port = port
@@ -156,6 +160,7 @@ class AutopilotStandIn:
         self.on_mode = on_mode
         self.on_target = on_target
         self.on_estimate = on_estimate
+        self.on_direction = on_direction  # ArduRover's MAV_CMD_DO_SET_REVERSE
         self.state = state
         self.params = dict(DEFAULT_PARAMS if params is None else params)
         # The air's pressure; the surface reference is what the autopilot measured at boot
@@ -391,6 +396,15 @@ class AutopilotStandIn:
         command = message.command if isinstance(message, CommandLong) else None
         if isinstance(message, CommandLong) and command == MAV_CMD_DO_SET_MODE:
             link.send_command_ack(command=message.command, result=self._set_mode(message, now))
+        elif isinstance(message, CommandLong) and command == MAV_CMD_DO_SET_REVERSE:
+            # ArduRover takes it in any mode (its GUIDED position targets then drive astern).
+            rover = self.autopilot == "ardurover"
+            if rover and self.on_direction is not None:
+                self.on_direction("reverse" if message.params[0] == 1 else "forward")
+            link.send_command_ack(
+                command=message.command,
+                result=MAV_RESULT_ACCEPTED if rover else MAV_RESULT_UNSUPPORTED,
+            )
         elif isinstance(message, CommandLong) and command == MAV_CMD_REQUEST_MESSAGE:
             if int(message.params[0]) == message_id("GPS_GLOBAL_ORIGIN") and self.origin:
                 link.send_origin_report(self.origin)

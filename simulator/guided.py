@@ -25,6 +25,7 @@ from typing import Literal
 import numpy as np
 
 from capsd.geometry import euler_zyx_to_matrix, wrap_angle
+from capsd.payloads import DriveDirection
 from capsd.simulator.world import RovState, Waves, rov_attitude, wave_motion
 
 Array = np.ndarray
@@ -171,7 +172,8 @@ class GuidedAsv:
     ignoring the target's yaw as ArduRover does: `steered` (the default, AsvDrive) turns the
     hull towards the way and drives forward at the target velocity's forward part (more than
     `pivot_angle_rad` off the way it turns on the spot first; at its target it holds fore and
-    aft only), `lateral` moves any way keeping its heading; a heading-only target stops it and
+    aft only; `set_direction` "reverse": the stern to the way, astern), `lateral` moves any way
+    keeping its heading; a heading-only target stops it and
     turns it (rate limited); in GUIDED
     without a target, LOITER and HOLD it keeps where it believed it was when the mode began;
     otherwise (no pilot in the simulation) it drifts to a stop. Like the ROV it steers on what
@@ -199,6 +201,7 @@ class GuidedAsv:
         self._yaw = float(start_yaw_rad)
         self._hold = (self._p.copy(), self._yaw)
         self._arrived = False  # steered: reached its position target (it steers no more)
+        self._direction: DriveDirection = "forward"  # steered: astern to its targets or not
         self._error = np.zeros(2)
         self._last_estimate_t = -math.inf
         self._t = 0.0
@@ -218,6 +221,7 @@ class GuidedAsv:
             if mode != self._mode:
                 self._hold = (self._p + self._error, self._yaw)
                 self._target = None
+                self._direction = "forward"  # as ArduRover's mode entry
             self._mode = mode
 
     def set_target(self, target_xy: Array) -> None:
@@ -232,6 +236,11 @@ class GuidedAsv:
                 if self._target is None or float(np.linalg.norm(xy - self._target[0])) > 1e-3:
                     self._arrived = False  # a new target: steer for it again
                 self._target = (xy, None)
+
+    def set_direction(self, direction: DriveDirection) -> None:
+        """MAV_CMD_DO_SET_REVERSE: a steered hull drives astern to its targets (or not)."""
+        with self._lock:
+            self._direction = direction
 
     def set_heading(self, heading_rad: float) -> None:
         """A GUIDED heading alone: stop where it believes it is and turn in place to it."""
@@ -294,8 +303,11 @@ class GuidedAsv:
                 self._arrived = self._arrived or (
                     float(np.linalg.norm(to_go)) <= lim.arrive_radius_m
                 )
+                astern = self._direction == "reverse"
                 if yaw_goal is None and not self._arrived:
-                    yaw_goal = math.atan2(float(to_go[1]), float(to_go[0]))
+                    yaw_goal = math.atan2(float(to_go[1]), float(to_go[0])) + (
+                        math.pi if astern else 0.0
+                    )
                 hull = np.array([math.cos(self._yaw), math.sin(self._yaw)])
                 pivot = yaw_goal is not None and (
                     abs(wrap_angle(yaw_goal - self._yaw)) > lim.pivot_angle_rad
@@ -303,8 +315,8 @@ class GuidedAsv:
                 forward = float(wanted @ hull)
                 if pivot:
                     forward = 0.0
-                elif not self._arrived:
-                    forward = max(0.0, forward)  # on its way: forwards only
+                elif not self._arrived:  # on its way: ahead only (astern only, reversed)
+                    forward = min(0.0, forward) if astern else max(0.0, forward)
                 wanted = forward * hull  # no lateral thrust; at its target it holds fore-aft
         else:
             wanted = np.zeros(2)

@@ -184,6 +184,7 @@ def hosted_asv_autopilot(config: Config, asv: GuidedAsv, start_ns: int) -> Autop
         on_mode=asv.set_mode,
         on_target=on_target,
         on_estimate=on_estimate,
+        on_direction=asv.set_direction,
     )
 
 

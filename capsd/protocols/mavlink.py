@@ -27,6 +27,7 @@ MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY = 197
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
 MAV_CMD_PREFLIGHT_CALIBRATION = 241
 MAV_CMD_DO_SET_MODE = 176
+MAV_CMD_DO_SET_REVERSE = 194
 MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN = 246
 MAV_CMD_REQUEST_MESSAGE = 512
 # SYS_STATUS sensor bit of external position (ArduPilot: VISO_TYPE set; healthy once the
@@ -48,6 +49,7 @@ HEADING_ONLY_MASK = 0b1001_1111_1111
 Autopilot = Literal["ardusub", "ardurover"]
 MAV_RESULT_ACCEPTED = 0
 MAV_RESULT_DENIED = 2
+MAV_RESULT_UNSUPPORTED = 3
 MAV_SEVERITY = {"emergency": 0, "alert": 1, "critical": 2, "error": 3, "warning": 4,
                 "notice": 5, "info": 6, "debug": 7}  # fmt: skip
 _ARMED_FLAG = 128  # MAV_MODE_FLAG_SAFETY_ARMED
@@ -593,6 +595,15 @@ class MavLink:
         self._mav.set_position_target_local_ned_send(
             time_boot_ms & 0xFFFFFFFF, target_system, 1, MAV_FRAME_LOCAL_NED, HEADING_ONLY_MASK,
             0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, float(yaw_rad), 0.0,
+        )  # fmt: skip
+
+    def send_set_reverse(
+        self, *, target_system: int, direction: Literal["forward", "reverse"]
+    ) -> None:
+        """MAV_CMD_DO_SET_REVERSE: ArduRover drives its position targets backwards (or not)."""
+        self._mav.command_long_send(
+            target_system, 1, MAV_CMD_DO_SET_REVERSE, 0,
+            1.0 if direction == "reverse" else 0.0, 0, 0, 0, 0, 0, 0,
         )  # fmt: skip
 
     def send_set_gps_global_origin(

@@ -51,7 +51,14 @@ from typing import Literal
 import numpy as np
 
 from capsd.geometry import Array, wrap_angle
-from capsd.services.asv_follow.station import STAY_M, Station, StationPlanner, View
+from capsd.payloads import DriveDirection
+from capsd.services.asv_follow.station import (
+    STAY_M,
+    Station,
+    StationPlanner,
+    View,
+    drive_heading,
+)
 
 FollowState = Literal["standby", "holding", "following", "no_station"]
 ARRIVED_M = 1.0  # this near its station the hull faces the ROV itself, not where it will be
@@ -125,6 +132,7 @@ class Target:
     heading_rad: float
     state: FollowState
     replanned: bool  # a new station was chosen on this step
+    direction: DriveDirection = "forward"  # steered: the hull ahead or astern to the position
 
 
 class Follower:
@@ -153,6 +161,8 @@ class Follower:
         self._aim: Array | None = None  # where the station was chosen to look
         self._last_step_s: float | None = None
         self.leg_end: Array | None = None  # where the ROV's mission sends it now (W)
+        self._direction: DriveDirection = "forward"  # steered: how the hull drives its way
+        self._direction_for: Array | None = None  # ... to this station
         self._leg_end_s = -math.inf
 
     def on_leg_end(self, now_s: float, position_m: Array | None) -> None:
@@ -258,7 +268,7 @@ class Follower:
         else:
             state = "following" if fresh else "holding"
         self._walk(dt, fresh=fresh)
-        return Target(self._carrot.copy(), self._carrot_heading, state, replanned)
+        return Target(self._carrot.copy(), self._carrot_heading, state, replanned, self._direction)
 
     def _look_point(self, *, fresh: bool) -> Array | None:
         """Where the ROV is (ahead, with a fresh fix) or is looked for (the station's aim)."""
@@ -555,7 +565,8 @@ class Follower:
     def _walk(self, dt: float, *, fresh: bool) -> None:
         """Turn the carrot, then move it towards the station (speed, acceleration, turn rate).
 
-        On the way the hull is to face the ROV (`_wanted_heading`); while it faces more than
+        On the way the hull is to face the ROV (`_wanted_heading`; a steered hull: its way,
+        ahead or astern, see the module's docstring); while it faces more than
         `turn_first_rad` off that, the carrot only turns, where the hull is.
         """
         assert self._carrot is not None
@@ -565,10 +576,28 @@ class Follower:
         goal = self._around(self._look_point(fresh=fresh), self.station.position_xy)
         way = goal - self._carrot
         walking = float(np.linalg.norm(way)) > STAY_M
+        look = self._look_point(fresh=fresh)
         if self.planner.settings.drive == "steered" and walking:
             # The autopilot turns the hull to its way whatever it is told (ArduRover's GUIDED):
-            # ask for that, so that turning first is turning to the way.
-            heading = math.atan2(float(way[1]), float(way[0]))
+            # ask for that, so that turning first is turning to the way; its stern to the way
+            # where that faces the ROV better (backing off it).
+            way_heading = math.atan2(float(way[1]), float(way[0]))
+            station_xy = self.station.position_xy
+            starting = self._direction_for is None or (
+                float(np.linalg.norm(self._direction_for - station_xy)) > STAY_M
+            )
+            if look is None:
+                heading, self._direction = wrap_angle(way_heading), "forward"
+            elif starting:
+                # Chosen as the way to a station starts and kept: on a way across the ROV's
+                # bearing the better end swaps half way, and each swap is a half turn.
+                facing = self.planner.facing(self._carrot, look)
+                heading, self._direction = drive_heading(
+                    way_heading, facing, current=self._direction
+                )
+                self._direction_for = station_xy.copy()
+            else:
+                heading = wrap_angle(way_heading + (math.pi if self._direction == "reverse" else 0))
         else:
             heading = self._wanted_heading(fresh=fresh)
         turn = wrap_angle(heading - self._carrot_heading)

@@ -232,6 +232,7 @@ class FollowNode:
                 position_m=(float(target.position_xy[0]), float(target.position_xy[1]), 0.0),
                 heading_rad=float(target.heading_rad),
                 reason="station" if target.replanned else "repeat",
+                direction=target.direction,
             )
         )
         self.put_count += 1

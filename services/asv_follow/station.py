@@ -41,6 +41,7 @@ import numpy as np
 from capsd.echo_cell import any_inside, cell_points, fixture_boxes
 from capsd.geometry import Array, Transform, wrap_angle
 from capsd.mounts import SonarMountConfig
+from capsd.payloads import DriveDirection
 from capsd.sonar_geometry import to_polar
 from capsd.tank import TankBounds, TankFixture
 
@@ -51,8 +52,31 @@ from capsd.tank import TankBounds, TankFixture
 AsvDrive = Literal["steered", "lateral"]
 # Steered: a move whose way is further than this off the ROV's bearing turns the sonar off it.
 BLIND_OFF_RAD = math.radians(20.0)
+# Steered: astern only where that faces the ROV this much better than ahead.
+REVERSE_BETTER_RAD = math.radians(20.0)
 # Steered: nearer than this is no move (the autopilot's arrival).
 STAY_M = 0.05
+
+
+def drive_heading(
+    way_heading_rad: float, facing_rad: float, *, current: DriveDirection = "forward"
+) -> tuple[float, DriveDirection]:
+    """A steered hull's heading on a way, and which way it drives: the nearer the facing one.
+
+    Ahead, the bow to the way; astern (MAV_CMD_DO_SET_REVERSE), the stern: backing away from
+    the ROV keeps the sonar on it. The `current` direction is kept unless the other faces the
+    ROV REVERSE_BETTER_RAD better (a way across the ROV's bearing does not flip it, each flip
+    a half turn).
+    """
+    ahead = wrap_angle(way_heading_rad)
+    astern = wrap_angle(way_heading_rad + math.pi)
+    off = {
+        "forward": abs(wrap_angle(ahead - facing_rad)),
+        "reverse": abs(wrap_angle(astern - facing_rad)),
+    }
+    other: DriveDirection = "reverse" if current == "forward" else "forward"
+    chosen = other if off[other] + REVERSE_BETTER_RAD < off[current] else current
+    return (astern if chosen == "reverse" else ahead), chosen
 
 
 @dataclass(frozen=True)
@@ -333,20 +357,22 @@ class StationPlanner:
     ) -> float:
         """Seconds a steered hull's sonar is off the ROV on its way from `asv_xy` to `origin`.
 
-        Its autopilot turns the hull to the way, drives, and turns it to the station's heading;
-        a way more than BLIND_OFF_RAD off the ROV's bearing takes the sonar off it for all that
-        (one nearer STAY_M is no move: the hull turns where it is, facing the ROV).
+        Its autopilot turns the hull to the way (its bow, or its stern backing away:
+        drive_heading), drives, and turns it to the station's heading; a hull more than
+        BLIND_OFF_RAD off the ROV's bearing so takes the sonar off it for all that (a way
+        nearer STAY_M is no move: the hull turns where it is, facing the ROV).
         """
         way = np.asarray(origin[:2], dtype=np.float64) - np.asarray(asv_xy[:2], dtype=np.float64)
         length = float(np.linalg.norm(way))
         if length < STAY_M:
             return 0.0
-        way_heading = math.atan2(float(way[1]), float(way[0]))
-        # The hull along its way: the sonar on the ROV if that is about the facing heading.
-        if abs(wrap_angle(way_heading - self.facing(asv_xy, rov_m))) <= BLIND_OFF_RAD:
-            return 0.0  # driving at the ROV: still in view
+        facing = self.facing(asv_xy, rov_m)
+        hull, _ = drive_heading(math.atan2(float(way[1]), float(way[0])), facing)
+        # The hull along its way (or astern): the sonar on the ROV if that is about facing it.
+        if abs(wrap_angle(hull - facing)) <= BLIND_OFF_RAD:
+            return 0.0  # driving at the ROV, or backing away from it: still in view
         s = self.settings
-        turns = abs(wrap_angle(way_heading - heading_rad)) + abs(wrap_angle(heading - way_heading))
+        turns = abs(wrap_angle(hull - heading_rad)) + abs(wrap_angle(heading - hull))
         return turns / s.turn_rate_rad_s + length / s.transit_speed_m_s
 
     def _candidates(

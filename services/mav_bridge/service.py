@@ -45,6 +45,7 @@ from capsd.mailbox import Mailbox
 from capsd.ned import TankToNed, upper_triangle
 from capsd.payloads import (
     AutopilotStatus,
+    DriveDirection,
     RovAttitude,
     RovDepth,
     VehicleCommand,
@@ -290,6 +291,9 @@ class Bridge:
         # Role asv: the last position target sent (W), None once the autopilot left GUIDED or
         # the link was lost (its target is gone with it).
         self._asv_target_xy: Array | None = None
+        # The drive direction ArduRover was last told (None: not since it took GUIDED, whose
+        # entry sets forward, or since the link came back).
+        self._asv_direction: DriveDirection | None = None
         self._outage_reasons: Counter[str] = Counter()
         self._announced: str | None = None
         self._last_statustext: dict[str, float] = {}
@@ -475,6 +479,7 @@ class Bridge:
         self.attitude = None
         self.mode = None  # a mission's hold must never act on a mode from before the loss
         self._asv_target_xy = None
+        self._asv_direction = None
         self.ekf_flags = 0
         self.uptake.reset()
         self.surface_pressure_pa = self.config.depth.surface_pressure_pa
@@ -568,6 +573,7 @@ class Bridge:
             self.mode = mode_name(message.custom_mode, self.autopilot)
             if self.mode != "GUIDED":
                 self._asv_target_xy = None
+                self._asv_direction = None
         elif isinstance(message, CommandAck) and message.command == MAV_CMD_DO_SET_MODE:
             self._on_mode_answer(message.result)
         elif isinstance(message, Attitude):
@@ -767,6 +773,11 @@ class Bridge:
             )
             self.counts["commands_sent_heading"] += 1
         else:
+            if self.config.role == "asv" and command.direction != self._asv_direction:
+                # Before the target it is for: ArduRover drives its stern to it, or its bow.
+                self.link.send_set_reverse(target_system=target, direction=command.direction)
+                self.counts[f"commands_sent_{command.direction}"] += 1
+                self._asv_direction = command.direction
             self.link.send_position_target(
                 target_system=target,
                 time_boot_ms=self.clock.last_boot_ms(),

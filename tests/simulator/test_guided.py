@@ -79,7 +79,11 @@ def _asv_flight(drive: str):  # type: ignore[no-untyped-def]
 
     calm = Waves(heave_m=0.0, roll_deg=0.0, pitch_deg=0.0)
     asv = GuidedAsv(
-        (5.0, 5.0), 0.0, waves=calm, mode="GUIDED", limits=AsvLimits(drive=drive)  # type: ignore[arg-type]
+        (5.0, 5.0),
+        0.0,
+        waves=calm,
+        mode="GUIDED",
+        limits=AsvLimits(drive=drive),  # type: ignore[arg-type]
     )
 
     def fly(t0: float, t1: float) -> tuple[np.ndarray, np.ndarray]:
@@ -130,3 +134,20 @@ def test_a_steered_asv_turns_to_its_way_before_it_drives_as_ardurover_guided() -
     rotation, position = fly(30.0, 50.0)
     assert matrix_to_euler_zyx(rotation)[0] == pytest.approx(0.0, abs=0.02)
     assert position[:2] == pytest.approx([5.0, 7.0], abs=0.06)  # turned in place
+
+
+def test_a_steered_asv_told_to_reverse_backs_to_a_target_astern_without_turning() -> None:
+    """MAV_CMD_DO_SET_REVERSE: the stern to the way; a new mode drives ahead again."""
+    from capsd.geometry import matrix_to_euler_zyx
+
+    asv, fly = _asv_flight("steered")
+    asv.set_direction("reverse")
+    asv.set_target(np.array([3.0, 5.0]))  # 2 m astern
+    rotation, position = fly(0.0, 20.0)
+    assert position[:2] == pytest.approx([3.0, 5.0], abs=0.06)
+    assert matrix_to_euler_zyx(rotation)[0] == pytest.approx(0.0, abs=0.05)  # still facing +x
+    asv.set_mode("HOLD")
+    asv.set_mode("GUIDED")
+    asv.set_target(np.array([1.0, 5.0]))  # astern again, but ahead now: it turns round
+    rotation, _ = fly(20.0, 30.0)
+    assert abs(matrix_to_euler_zyx(rotation)[0]) > 2.5

@@ -6,6 +6,7 @@ import math
 from typing import Literal
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -331,3 +332,18 @@ def test_a_steered_hull_is_blind_on_a_way_off_the_rov_and_not_on_one_at_it() -> 
     )
     # No move (the autopilot's arrival): no way to be blind on.
     assert planner.blind_s(here, 0.0, here + 0.01, 1.0, rov) == 0.0
+
+
+def test_a_steered_hull_backs_away_from_the_rov_facing_it() -> None:
+    """Astern (MAV_CMD_DO_SET_REVERSE) the sonar stays on the ROV: no blind seconds."""
+    from capsd.services.asv_follow.station import drive_heading
+
+    planner = _planner(drive="steered")
+    rov = np.array([16.0, 8.0, -3.5])
+    here = np.array([8.0, 8.0])
+    assert planner.blind_s(here, 0.0, np.array([7.0, 8.0]), 0.0, rov) == 0.0
+    assert drive_heading(math.pi, 0.0) == (pytest.approx(0.0), "reverse")
+    # Across the ROV's bearing: ahead, and the current direction kept within the margin.
+    assert drive_heading(math.pi / 2, 0.0)[1] == "forward"
+    assert drive_heading(math.radians(100.0), 0.0, current="reverse")[1] == "reverse"
+    assert drive_heading(math.radians(100.0), 0.0, current="forward")[1] == "forward"

@@ -745,8 +745,13 @@ def test_the_asv_role_feeds_its_pose_and_passes_follow_targets_only_in_guided(
     The pose's own attitude goes with it; never an engage; its status on asv/autopilot.
     """
     heading_deg = 30.0
+    directions: list[str] = []  # MAV_CMD_DO_SET_REVERSE as ArduRover heard it
     with AutopilotStandIn(
-        free_port(), mode="MANUAL", autopilot="ardurover", params=CONFIGURED_PARAMS
+        free_port(),
+        mode="MANUAL",
+        autopilot="ardurover",
+        params=CONFIGURED_PARAMS,
+        on_direction=directions.append,
     ) as rover:
         config = tmp_path / "asv_bridge.yaml"
         config.write_text(
@@ -792,10 +797,12 @@ def test_the_asv_role_feeds_its_pose_and_passes_follow_targets_only_in_guided(
             )  # fmt: skip
             poses.put(Codec(AsvPose).encode(pose), attachment=time.time_ns().to_bytes(8, "little"))
 
-        def put_command(kind: str, position: tuple[float, float, float]) -> None:
+        def put_command(
+            kind: str, position: tuple[float, float, float], direction: str = "forward"
+        ) -> None:
             command = VehicleCommand(
                 stamp_ns=time.time_ns(), seq=0, mission="follow", kind=kind,  # type: ignore[arg-type]
-                position_m=position, heading_rad=yaw_w,
+                position_m=position, heading_rad=yaw_w, direction=direction,  # type: ignore[arg-type]
             )  # fmt: skip
             data = Codec(VehicleCommand).encode(command)
             key_expr = topics.ASV_COMMAND.key("tank", "topside")
@@ -868,6 +875,28 @@ def test_the_asv_role_feeds_its_pose_and_passes_follow_targets_only_in_guided(
         assert (moved.north_m, moved.east_m) == pytest.approx(
             tuple(ned.position(np.array([9.25, 8.0, 0.0]))[:2]), abs=1e-4
         )
+        # Astern (a steered hull backing off the ROV): ArduRover is told once, before the
+        # target it is for; ahead again once. (It took GUIDED set to ahead: told ahead first.)
+        assert directions == ["forward"]
+        before = len(rover.recorded.position_targets)
+
+        def astern_sent() -> bool:
+            put_pose()
+            put_command("goto", (8.0, 8.0, 0.0), direction="reverse")
+            time.sleep(0.1)
+            return len(rover.recorded.position_targets) > before + 2
+
+        wait_for(astern_sent, timeout_s=10, what="targets astern")
+        assert directions == ["forward", "reverse"]
+
+        def ahead_again() -> bool:
+            put_pose()
+            put_command("goto", (9.0, 9.0, 0.0))
+            time.sleep(0.1)
+            return directions[-1] == "forward"
+
+        wait_for(ahead_again, timeout_s=10, what="ahead again")
+        assert directions == ["forward", "reverse", "forward"]
         # Fenced out (0.5 m from a wall, the fence is 1 m): refused.
         before = len(rover.recorded.position_targets)
         for _ in range(5):
