@@ -235,6 +235,10 @@ class Follower:
             and self.rov_m is not None
             and self.station is not None
             and not self._searched  # once searching, the search's looks decide
+            # Not for longer: where no station sees that point (a last fix off by the wall),
+            # this would take every turn and the search below never start (a mockup run:
+            # the ASV held 280 s).
+            and lost_for < self.settings.reacquire_after_s
             and now_s - self._last_plan_s >= self.settings.replan_after_s
             and not self._in_view_of_station(held := self._held_at(lost_for))
         ):

@@ -650,3 +650,22 @@ def test_a_steered_follower_backs_off_a_rov_astern_facing_it() -> None:
     assert float(np.linalg.norm(xy - station_xy)) < 0.01
     assert all(t.direction == "reverse" for t in targets)
     assert max(abs(wrap_angle(t.heading_rad)) for t in targets) < math.radians(1.0)
+
+
+def test_a_rov_lost_where_no_station_sees_it_is_still_searched_for() -> None:
+    """Its last fix by a wall, no station sees where it holds: the search starts all the same.
+
+    (The look "where it holds, at once" took every turn, found no station, and the search never
+    started: a mockup run's ASV held 280 s.)
+    """
+    follower = _follower()
+    follower.on_mode("GUIDED")
+    rov = np.array([45.0, 8.0, -3.5])  # a wrong last fix, beyond the tank: no station sees it
+    follower.on_fix(0.0, np.array([16.0, 8.0, -3.5]), None)
+    follower.step(0.0)
+    assert follower.station is not None
+    follower.on_fix(0.5, rov, np.array([0.2, 0.0, 0.0]))
+    assert follower.planner.choose(follower._held_at(5.0), START, 0.0) is None
+    for k in range(1, 300):
+        follower.step(0.5 + k * 0.1)
+    assert follower.looks >= 1
