@@ -37,9 +37,10 @@ turn rate, the hull turned to its way, the target's yaw ignored (the steered dri
 sonar looks along the way whenever the ASV moves, so the ASV watches the ROV by turning where
 it is: the dead band has no azimuth (the station is seen facing the ROV), the planner prefers
 staying, or a way at the ROV, and charges each second a move would turn the sonar off it; on
-the way the hull is asked for the way's heading (turning first is turning to the way) and,
-once the carrot is at the station, to face the ROV; the carrot is not pushed off a near ROV
-(backing off would turn the hull's back on it: it re-stations instead).
+the way the hull is asked for the way's heading, its bow's or (backing away from the ROV,
+MAV_CMD_DO_SET_REVERSE) its stern's, chosen as the way to a station starts (turning first is
+turning to the way) and, once the carrot is at the station, to face the ROV; the carrot is not
+pushed off a near ROV (each push a new way to steer for: it re-stations instead).
 """
 
 from __future__ import annotations
