@@ -394,15 +394,19 @@ class StationPlanner:
     ) -> list[tuple[Array, float, float]]:
         """(origin, heading, bearing) of the stations to try: rings round the ROV, facing it.
 
-        A steered hull also tries staying where it is, turned to face the ROV.
+        A steered hull also tries staying where it is, turned to face the ROV, and each ring's
+        point on its line of sight now: the rings' bearings are 5 deg apart, and a move that
+        is a little across the line (0.3 m at 7 m) turns the hull to it, off the ROV.
         """
         out: list[tuple[Array, float, float]] = []
+        bearings = [float(b) for b in np.linspace(-math.pi, math.pi, 72, endpoint=False)]
         if self.settings.drive == "steered":
             here = np.asarray(asv_xy[:2], dtype=np.float64).copy()
             heading = self.facing(here, rov_m)
             out.append((here, heading, wrap_angle(heading + self.mount_yaw)))
+            bearings.insert(0, wrap_angle(heading + self.mount_yaw))
         for distance in self._distances(drop):
-            for bearing in np.linspace(-math.pi, math.pi, 72, endpoint=False):
+            for bearing in bearings:
                 heading = wrap_angle(float(bearing) - self.mount_yaw)
                 # The sonar on the ring at `distance` from the ROV, looking along `bearing`.
                 sonar = np.array(

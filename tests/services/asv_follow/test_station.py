@@ -367,3 +367,24 @@ def test_a_steered_hull_watches_a_moving_rov_along_its_way_and_a_lateral_one_fro
     along = [abs(math.cos(s.heading_rad)) for s in (lateral, steered)]
     assert along[0] < 0.3  # looking across the ROV's way
     assert along[1] > 0.9  # looking along it
+
+
+def test_a_steered_hull_too_near_the_rov_backs_straight_away_from_it() -> None:
+    """Too near, between the rings' bearings: the station is on the line of sight, astern.
+
+    (A ring's point 2.5 deg round was a way 48 deg off the ROV astern: the sonar off it, lost
+    for 5 s in an nfp run.)
+    """
+    from capsd.services.asv_follow.station import drive_heading
+
+    planner = _planner(drive="steered")
+    rov = np.array([16.0, 8.0, -3.5])
+    bearing = math.radians(2.5)  # from the ASV to the ROV, between two rings' bearings
+    here = rov[:2] - 4.8 * np.array([math.cos(bearing), math.sin(bearing)])
+    station = planner.choose(rov, here, bearing)
+    assert station is not None
+    way = station.position_xy - here
+    hull, direction = drive_heading(math.atan2(way[1], way[0]), planner.facing(here, rov))
+    assert direction == "reverse"
+    assert abs(wrap_angle(hull - planner.facing(here, rov))) < math.radians(1.0)
+    assert planner.blind_s(here, bearing, station.position_xy, station.heading_rad, rov) == 0.0
