@@ -93,6 +93,8 @@ LEG_END_VALID_S = 5.0
 # The lead is at most this share of the ideal horizontal distance to the ROV.
 LEAD_SHARE = 0.25
 PATH_STEP_M = 0.25  # the spacing of the points of the ROV's leg a station is to see
+# Steered: a way at most this far across the ROV's line of sight goes along it only.
+ACROSS_SLACK_M = 0.5
 
 
 @dataclass(frozen=True)
@@ -164,6 +166,8 @@ class Follower:
         self.leg_end: Array | None = None  # where the ROV's mission sends it now (W)
         self._direction: DriveDirection = "forward"  # steered: how the hull drives its way
         self._direction_for: Array | None = None  # ... to this station
+        self._sight_only = False  # steered: this station's way goes along the sight only
+        self._sight_for: Array | None = None  # ... decided for this station
         self._leg_end_s = -math.inf
 
     def on_leg_end(self, now_s: float, position_m: Array | None) -> None:
@@ -578,10 +582,21 @@ class Follower:
         if self.station is None or dt <= 0.0:
             return
         s = self.settings
-        goal = self._around(self._look_point(fresh=fresh), self.station.position_xy)
+        look = self._look_point(fresh=fresh)
+        goal = self._around(look, self.station.position_xy)
+        if self.planner.settings.drive == "steered" and fresh and look is not None:
+            # Decided as the way to a station starts: a way that starts far across goes all
+            # the way (else it would stop ACROSS_SLACK_M short of its station).
+            station_xy = self.station.position_xy
+            if self._sight_for is None or (
+                float(np.linalg.norm(self._sight_for - station_xy)) > STAY_M
+            ):
+                self._sight_for = station_xy.copy()
+                self._sight_only = self._across(goal, look) <= ACROSS_SLACK_M
+            if self._sight_only:
+                goal = self._along_sight(goal, look)
         way = goal - self._carrot
         walking = float(np.linalg.norm(way)) > STAY_M
-        look = self._look_point(fresh=fresh)
         if self.planner.settings.drive == "steered" and walking:
             # The autopilot turns the hull to its way whatever it is told (ArduRover's GUIDED):
             # ask for that, so that turning first is turning to the way; its stern to the way
@@ -642,6 +657,37 @@ class Follower:
         if fresh and self.planner.settings.drive == "lateral":
             # (A steered hull would turn its back on the ROV to back off: it re-stations.)
             self._keep_off()
+
+    def _sight(self, look: Array) -> Array | None:
+        """The unit vector from the carrot along the line of sight to `look` (None: on it)."""
+        assert self._carrot is not None
+        sight = np.asarray(look[:2], dtype=np.float64) - self._carrot
+        length = float(np.linalg.norm(sight))
+        return None if length < 1e-6 else sight / length
+
+    def _across(self, goal: Array, look: Array) -> float:
+        """How far the way to `goal` goes across the line of sight to `look`."""
+        assert self._carrot is not None
+        unit = self._sight(look)
+        if unit is None:
+            return 0.0
+        return abs(float((goal - self._carrot) @ np.array([-unit[1], unit[0]])))
+
+    def _along_sight(self, goal: Array, look: Array) -> Array:
+        """A steered hull's goal less the part of its way across the line of sight.
+
+        ArduRover turns the hull to its way: a way a little across the ROV's bearing (the ASV
+        a few centimetres off its carrot, a station a ring's step round) turns the sonar off
+        the ROV (an nfp run: a 0.2 m move turned it 68 deg away), where only the distance
+        matters for the view (the hull turns to the ROV where it stands). So a way that starts
+        at most ACROSS_SLACK_M across goes along the line of sight only, ahead or astern.
+        """
+        assert self._carrot is not None
+        unit = self._sight(look)
+        if unit is None:
+            return goal
+        out: Array = self._carrot + float((goal - self._carrot) @ unit) * unit
+        return out
 
     def _keep_off(self) -> None:
         """The carrot no nearer the ROV than where it would sink out of the aperture's bottom.

@@ -669,3 +669,21 @@ def test_a_rov_lost_where_no_station_sees_it_is_still_searched_for() -> None:
     for k in range(1, 300):
         follower.step(0.5 + k * 0.1)
     assert follower.looks >= 1
+
+
+def test_a_small_move_of_a_steered_hull_goes_along_the_line_of_sight_only() -> None:
+    """A station 0.3 m across and 0.5 m back: astern along the sight, the sonar on the ROV.
+
+    (ArduRover turns the hull to its way: a 0.2 m move turned the sonar 68 deg off the ROV in
+    an nfp run.)
+    """
+    planner = StationPlanner(SonarMountConfig(), TankBounds(), StationSettings(drive="steered"))
+    rov = np.array([16.0, 8.0, -3.5])
+    start = np.array([10.0, 8.0])
+    station_xy = np.array([9.5, 8.3])
+    way = _drive(planner, start, 0.0, station_xy, 0.0, steps=150, fix=lambda now: (rov, None))
+    for xy, hull, _ in way:
+        sonar = planner.sonar_xy(xy, hull)
+        assert abs(wrap_angle(hull - math.atan2(rov[1] - sonar[1], rov[0] - sonar[0]))) < 0.03
+    xy, _, _ = way[-1]
+    assert xy == pytest.approx([9.5, 8.0], abs=0.02)  # the station's distance, on the sight
