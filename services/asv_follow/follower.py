@@ -594,7 +594,10 @@ class Follower:
                 self._sight_for = station_xy.copy()
                 self._sight_only = self._across(goal, look) <= ACROSS_SLACK_M
             if self._sight_only:
-                goal = self._along_sight(goal, look)
+                along = self._along_sight(goal, look)
+                # Never nearer a wall than a station may be (a mockup run: the hull 0.97 m).
+                along = self.planner.within_walls(along)
+                goal = along if self.planner.clear(along) else goal
         way = goal - self._carrot
         walking = float(np.linalg.norm(way)) > STAY_M
         if self.planner.settings.drive == "steered" and walking:

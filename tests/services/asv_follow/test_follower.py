@@ -687,3 +687,15 @@ def test_a_small_move_of_a_steered_hull_goes_along_the_line_of_sight_only() -> N
         assert abs(wrap_angle(hull - math.atan2(rov[1] - sonar[1], rov[0] - sonar[0]))) < 0.03
     xy, _, _ = way[-1]
     assert xy == pytest.approx([9.5, 8.0], abs=0.02)  # the station's distance, on the sight
+
+
+def test_a_move_along_the_line_of_sight_keeps_the_hulls_wall_clearance() -> None:
+    """Along the sight, astern towards a wall: no nearer than a station may be."""
+    planner = StationPlanner(SonarMountConfig(), TankBounds(), StationSettings(drive="steered"))
+    rov = np.array([6.0, 8.0, -3.5])
+    start = np.array([2.3, 8.0])
+    clearance = 1.0 + 0.6 + 0.5  # the wall, the hull's radius, the tracking margin
+    way = _drive(
+        planner, start, 0.0, np.array([1.9, 8.3]), 0.0, steps=150, fix=lambda now: (rov, None)
+    )
+    assert min(float(xy[0]) for xy, _, _ in way) >= clearance - 1e-9
