@@ -349,26 +349,6 @@ def test_a_steered_hull_backs_away_from_the_rov_facing_it() -> None:
     assert drive_heading(math.radians(100.0), 0.0, current="forward")[1] == "forward"
 
 
-def test_a_steered_hull_watches_a_moving_rov_along_its_way_and_a_lateral_one_from_abeam() -> None:
-    """The drift cost alone (no blind seconds, from the ROV's place).
-
-    Lateral: abeam (the elevation hardly drifts); steered: along the line of sight, where the
-    hull follows the ROV ahead or astern with the sonar on it.
-    """
-    rov = np.array([14.0, 8.0, -3.5])
-    velocity = np.array([0.25, 0.0, 0.0])
-    here = rov[:2]
-    lateral = _planner(drive="lateral").choose(rov, here, 0.0, rov_velocity_m_s=velocity)
-    steered = _planner(drive="steered", blind_cost_per_s=0.0).choose(
-        rov, here, 0.0, rov_velocity_m_s=velocity
-    )
-    assert lateral is not None
-    assert steered is not None
-    along = [abs(math.cos(s.heading_rad)) for s in (lateral, steered)]
-    assert along[0] < 0.3  # looking across the ROV's way
-    assert along[1] > 0.9  # looking along it
-
-
 def test_a_steered_hull_too_near_the_rov_backs_straight_away_from_it() -> None:
     """Too near, between the rings' bearings: the station is on the line of sight, astern.
 
