@@ -342,7 +342,9 @@ def test_a_steered_hull_backs_away_from_the_rov_facing_it() -> None:
     rov = np.array([16.0, 8.0, -3.5])
     here = np.array([8.0, 8.0])
     assert planner.blind_s(here, 0.0, np.array([7.0, 8.0]), 0.0, rov) == 0.0
-    assert drive_heading(math.pi, 0.0) == (pytest.approx(0.0), "reverse")
+    hull, direction = drive_heading(math.pi, 0.0)
+    assert hull == pytest.approx(0.0)
+    assert direction == "reverse"
     # Across the ROV's bearing: ahead, and the current direction kept within the margin.
     assert drive_heading(math.pi / 2, 0.0)[1] == "forward"
     assert drive_heading(math.radians(100.0), 0.0, current="reverse")[1] == "reverse"
