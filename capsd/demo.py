@@ -38,8 +38,8 @@ from capsd.harness import (
     write_configs,
 )
 from capsd.mission.plan import Waypoint
+from capsd.mounts import AsvDrive
 from capsd.payloads import Health
-from capsd.simulator.guided import AsvDrive
 from capsd.simulator.world import TankName, TrajectoryName
 
 # How long the recorder may take to write its backlog and finish the file once stopped.

@@ -28,8 +28,8 @@ from capsd.codec import Codec
 from capsd.errors import PayloadError
 from capsd.health import query_health
 from capsd.keys import is_concrete
+from capsd.mounts import AsvDrive
 from capsd.payloads import GroundTruth, Health, RovFix, SonarLabel
-from capsd.simulator.guided import AsvDrive
 from capsd.simulator.world import TankName, TrajectoryName
 
 SERVICES = (

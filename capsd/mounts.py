@@ -3,13 +3,19 @@
 from __future__ import annotations
 
 import math
-from typing import Annotated
+from typing import Annotated, Literal
 
 import msgspec
 
 from capsd.config import ConfigSection
 from capsd.geometry import Transform
 from capsd.sonar_geometry import BeamModel
+
+# How the ASV's autopilot moves it to a position target. steered: as ArduRover's GUIDED drives
+# a boat or an omni frame (a forward speed and a turn rate: the hull turns to its way, and the
+# sonar with it); lateral: any way with the heading kept (an omni frame on a controller that
+# uses its lateral thrust, not ArduRover's GUIDED). The follower and the simulator's stand-in.
+AsvDrive = Literal["steered", "lateral"]
 
 
 class SonarMountConfig(ConfigSection, frozen=True, kw_only=True):

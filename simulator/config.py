@@ -9,10 +9,9 @@ import msgspec
 
 from capsd.config import ConfigSection, ServiceConfig
 from capsd.geometry import Transform
-from capsd.mounts import RovConfig, SonarMountConfig
+from capsd.mounts import AsvDrive, RovConfig, SonarMountConfig
 from capsd.simulator import sonar_look
 from capsd.simulator.clock import ClockModel
-from capsd.simulator.guided import AsvDrive
 from capsd.simulator.imu import ImuModel
 from capsd.simulator.install_errors import InstallErrorsConfig
 from capsd.simulator.lidar import LidarModel
@@ -160,7 +159,7 @@ class AsvGuidedConfig(ConfigSection, frozen=True, kw_only=True):
     max_speed_m_s: Annotated[float, msgspec.Meta(gt=0.0, le=2.0)] = 0.3
     # steered: as ArduRover's GUIDED drives a boat or an omni frame, the hull turned towards
     # its way; lateral: an omni frame moving any way with its heading kept (a controller of
-    # its own, not ArduRover's GUIDED). capsd.simulator.guided.AsvDrive.
+    # its own, not ArduRover's GUIDED). capsd.mounts.AsvDrive.
     drive: AsvDrive = "steered"
 
 

@@ -20,11 +20,11 @@ import math
 import threading
 from collections import deque
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 
 from capsd.geometry import euler_zyx_to_matrix, wrap_angle
+from capsd.mounts import AsvDrive
 from capsd.payloads import DriveDirection
 from capsd.simulator.world import RovState, Waves, rov_attitude, wave_motion
 
@@ -32,12 +32,6 @@ Array = np.ndarray
 DT_S = 0.02
 POSITION_MODES = ("GUIDED", "POSHOLD")
 HISTORY_S = 120.0
-# How the ASV's hull moves to a position target. steered: as ArduRover's GUIDED drives every
-# frame (Rover's position controller turns the target velocity into a forward speed, never
-# below zero unless reversed, and a turn rate; an omni frame's lateral thrust is not used), so
-# the hull turns towards its target and drives along its way; lateral: an omni frame whose
-# controller uses its lateral thrust (not ArduRover's GUIDED), moving any way, heading kept.
-AsvDrive = Literal["steered", "lateral"]
 
 
 @dataclass(frozen=True)

@@ -25,11 +25,11 @@ from capsd import topics
 from capsd.config import ConfigSection, ServiceConfig
 from capsd.geometry import quat_to_matrix
 from capsd.keys import check_name
-from capsd.mounts import SonarMountConfig
+from capsd.mounts import AsvDrive, SonarMountConfig
 from capsd.payloads import AsvPose, AutopilotStatus, RovFix, VehicleCommand
 from capsd.runner import Publisher, ServiceRunner
 from capsd.services.asv_follow.follower import Follower, FollowSettings, Target
-from capsd.services.asv_follow.station import AsvDrive, StationPlanner, StationSettings
+from capsd.services.asv_follow.station import StationPlanner, StationSettings
 from capsd.signing import site_key
 from capsd.tank import TankBounds, TankFixture
 

@@ -35,23 +35,18 @@ taken where one exists.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 
 from capsd.echo_cell import any_inside, cell_points, fixture_boxes
 from capsd.geometry import Array, Transform, wrap_angle
-from capsd.mounts import SonarMountConfig
+from capsd.mounts import AsvDrive, SonarMountConfig
 from capsd.payloads import DriveDirection
 from capsd.sonar_geometry import to_polar
 from capsd.tank import TankBounds, TankFixture
 
-# How the ASV's autopilot moves it to a position target. steered: as ArduRover's GUIDED drives
-# a boat or an omni frame (a forward speed and a turn rate: the hull turns to its way, and the
-# sonar with it); lateral: any way with the heading kept (an omni frame on a controller that
-# uses its lateral thrust).
-AsvDrive = Literal["steered", "lateral"]
 # Steered: a move whose way is further than this off the ROV's bearing turns the sonar off it.
 BLIND_OFF_RAD = math.radians(20.0)
 # Steered: astern only where that faces the ROV this much better than ahead.
@@ -308,11 +303,8 @@ class StationPlanner:
                     rov_velocity_m_s[0] * math.cos(bearing)
                     + rov_velocity_m_s[1] * math.sin(bearing)
                 )
-                # d(elevation)/dt = drop / range^2 * (the ROV's speed away from the sonar).
-                # (For a steered hull the rate the bearing turns was tried, 6727e0c: stations
-                # along the ROV's way. With it and the later line-of-sight moves two nfp runs
-                # gave 61.3 and 48.0 % against 72.5 % before, the mockup 63.9 and 72.5 %
-                # against 59.9 %: not separated, one run each; taken out for the nfp tank.)
+                # d(elevation)/dt = drop / range^2 * (the ROV's speed away from the sonar)
+                # (the steered drive too: its bearing's rate was tried, README session 32)
                 rate = drop / view.range_m**2 * away
                 cost += s.drift_cost_per_deg_s * math.degrees(abs(rate))
             if current_bearing_rad is not None:
@@ -383,19 +375,18 @@ class StationPlanner:
 
     def _candidates(
         self, rov_m: Array, asv_xy: Array, drop: float
-    ) -> list[tuple[Array, float, float]]:
+    ) -> Iterator[tuple[Array, float, float]]:
         """(origin, heading, bearing) of the stations to try: rings round the ROV, facing it.
 
         A steered hull also tries staying where it is, turned to face the ROV, and each ring's
         point on its line of sight now: the rings' bearings are 5 deg apart, and a move that
         is a little across the line (0.3 m at 7 m) turns the hull to it, off the ROV.
         """
-        out: list[tuple[Array, float, float]] = []
         bearings = [float(b) for b in np.linspace(-math.pi, math.pi, 72, endpoint=False)]
         if self.settings.drive == "steered":
             here = np.asarray(asv_xy[:2], dtype=np.float64).copy()
             heading = self.facing(here, rov_m)
-            out.append((here, heading, wrap_angle(heading + self.mount_yaw)))
+            yield here, heading, wrap_angle(heading + self.mount_yaw)
             bearings.insert(0, wrap_angle(heading + self.mount_yaw))
         for distance in self._distances(drop):
             for bearing in bearings:
@@ -407,8 +398,7 @@ class StationPlanner:
                         rov_m[1] - distance * math.sin(bearing),
                     ]
                 )
-                out.append((sonar - self.sonar_xy(np.zeros(2), heading), heading, float(bearing)))
-        return out
+                yield sonar - self.sonar_xy(np.zeros(2), heading), heading, float(bearing)
 
     def nearest_distance(self, rov_m: Array) -> float:
         """The horizontal sonar-to-ROV distance at the aperture's lower edge, less the margin.
