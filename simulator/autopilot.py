@@ -56,6 +56,7 @@ from capsd.protocols.mavlink import (
     mode_name,
     mode_number,
 )
+from capsd.simulator.guided import WP_RADIUS_M
 from capsd.stop_signal import set_after_handler
 
 # A fresh ArduSub as far as external position is concerned (what `capsd mav check` fixes).
@@ -79,6 +80,20 @@ CONFIGURED_PARAMS: dict[str, float] = DEFAULT_PARAMS | {
     "EK3_SRC1_VELXY": 0.0,
     "GPS1_TYPE": 0.0,
     "VISO_POS_M_NSE": 0.05,
+}
+# A fresh ArduRover (the ASV) adds how GUIDED drives to a target (AR_WPNav's and Rover's
+# defaults): it stops steering 2 m from it, a boat then drifts 2 m before it drives back.
+ROVER_DEFAULT_PARAMS: dict[str, float] = DEFAULT_PARAMS | {
+    "WP_RADIUS": 2.0,
+    "LOIT_RADIUS": 2.0,
+    "WP_SPEED": 2.0,
+}
+# ... after `capsd mav check --role asv --apply` and a reboot (the ASV's yaw: its pose's).
+ROVER_CONFIGURED_PARAMS: dict[str, float] = CONFIGURED_PARAMS | {
+    "EK3_SRC1_YAW": 6.0,
+    "WP_RADIUS": WP_RADIUS_M,  # the simulated ASV stops steering this near its target
+    "LOIT_RADIUS": 0.3,
+    "WP_SPEED": 0.5,
 }
 # Read by ArduPilot at boot only (its parameter documentation: RebootRequired).
 BOOT_PARAMS = ("VISO_TYPE", "GPS1_TYPE")

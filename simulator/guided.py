@@ -139,6 +139,11 @@ def _clip(v: Array, limit: float) -> Array:
     return v if norm <= limit else v * (limit / norm)
 
 
+# ArduRover's WP_RADIUS as `capsd mav check --role asv` sets it (at most 0.2 m; its default
+# 2 m stops GUIDED that far short of a station, as ArduRover SITL showed).
+WP_RADIUS_M = 0.2
+
+
 @dataclass(frozen=True)
 class AsvLimits:
     """How the ArduRover stand-in drives the ASV (an omnidirectional MallARD-like frame)."""
@@ -152,9 +157,9 @@ class AsvLimits:
     dead_reckoning_s: float = 1.0
     drift_m_s: float = 0.01
     drive: AsvDrive = "steered"
-    # Steered: this near its position target it stops steering for it (ArduRover's arrival;
-    # a tank's WP_RADIUS), else it would spin round a target it sits on.
-    arrive_radius_m: float = 0.05
+    # Steered: this near its position target it stops steering for it (ArduRover's arrival),
+    # else it would spin round a target it sits on.
+    arrive_radius_m: float = WP_RADIUS_M
     # Steered: further than this off its way it turns on the spot first (WP_PIVOT_ANGLE).
     pivot_angle_rad: float = math.radians(60.0)
 

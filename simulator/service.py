@@ -29,7 +29,12 @@ from capsd.ned import TankToNed
 from capsd.payloads import Payload, SimControl, SonarFrame
 from capsd.protocols.mavlink import PositionTarget, VisionPositionEstimate
 from capsd.runner import Publisher, ServiceRunner
-from capsd.simulator.autopilot import CONFIGURED_PARAMS, AutopilotStandIn, VehicleState
+from capsd.simulator.autopilot import (
+    CONFIGURED_PARAMS,
+    ROVER_CONFIGURED_PARAMS,
+    AutopilotStandIn,
+    VehicleState,
+)
 from capsd.simulator.config import Config
 from capsd.simulator.guided import GuidedAsv, GuidedRov
 from capsd.simulator.sim import Event, Simulation
@@ -178,7 +183,7 @@ def hosted_asv_autopilot(config: Config, asv: GuidedAsv, start_ns: int) -> Autop
     return AutopilotStandIn(
         g.port,
         state=vehicle,
-        params=CONFIGURED_PARAMS,
+        params=ROVER_CONFIGURED_PARAMS,
         mode=g.mode,
         autopilot="ardurover",
         on_mode=asv.set_mode,

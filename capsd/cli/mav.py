@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Literal
 
 from capsd.cli.common import Subcommands, fail
 from capsd.config import BusConfig
@@ -86,14 +86,24 @@ def _estimates_arriving(args: argparse.Namespace) -> bool | None:
     return sent[1] > sent[0]
 
 
+# What each role's autopilot is, and the yaw its EKF should use by default: the ROV's compass;
+# the ASV's scan-matched heading (a compass beside a steel tank wall is off).
+_ROLE_AUTOPILOT: dict[str, Literal["ardusub", "ardurover"]] = {"rov": "ardusub", "asv": "ardurover"}
+_ROLE_YAW: dict[str, Literal["compass", "vision"]] = {"rov": "compass", "asv": "vision"}
+
+
 def _cmd_mav_check(args: argparse.Namespace) -> int:
+    if args.vehicle is None:
+        args.vehicle = args.role
     delay = _measured_delay_ms(args) if args.delay_ms == "auto" else float(args.delay_ms)
     return _mav_tool(
         args,
         lambda check: check.run_check(
             args.connect,
             apply=args.apply,
-            yaw_source=args.yaw_source,
+            yaw_source=args.yaw_source or _ROLE_YAW[args.role],
+            autopilot=_ROLE_AUTOPILOT[args.role],
+            max_speed_m_s=args.max_speed_m_s,
             position_noise_m=args.position_noise_m,
             delay_ms=delay,
             timeout_s=args.timeout,
@@ -114,13 +124,13 @@ def register(sub: Subcommands) -> None:
     """Add the mav verbs to the `capsd` parser's subcommands."""
     mav = sub.add_parser(
         "mav",
-        help="ArduSub set-up tools",
+        help="ArduSub / ArduRover set-up tools",
         description="Tools that talk to the autopilot over MAVLink.",
     )
     mav_sub = mav.add_subparsers(dest="mav_command", required=True, metavar="TOOL")
     check = mav_sub.add_parser(
         "check",
-        help="check (and --apply) ArduSub parameters for external position",
+        help="check (and --apply) ArduSub's (ArduRover's) parameters for external position",
         description="Read the autopilot's parameters, print what is wrong for CAP-SD's "
         "external position and the values to set; --apply sets them. Exit 0: all right; 1: "
         "parameters wrong; 3: a reboot is pending (a boot-time parameter changed, or estimates "
@@ -138,10 +148,24 @@ def register(sub: Subcommands) -> None:
         help="reboot the autopilot (disarmed only) when a reboot is pending",
     )
     check.add_argument(
+        "--role",
+        choices=["rov", "asv"],
+        default="rov",
+        help="rov (default): ArduSub on the ROV; asv: ArduRover on the ASV, also how GUIDED "
+        "drives to the follower's stations (WP_RADIUS, LOIT_RADIUS, WP_SPEED)",
+    )
+    check.add_argument(
         "--yaw-source",
         choices=["compass", "vision"],
-        default="compass",
-        help="EK3 yaw source: the compass (1) or the yaw CAP-SD sends (6)",
+        default=None,
+        help="EK3 yaw source: the compass (1) or the yaw CAP-SD sends (6); default: compass "
+        "for the rov, vision for the asv",
+    )
+    check.add_argument(
+        "--max-speed-m-s",
+        type=positive_float,
+        default=0.5,
+        help="--role asv: WP_SPEED at most this (the follower's motion.max_speed_m_s)",
     )
     check.add_argument(
         "--position-noise-m",
@@ -163,7 +187,9 @@ def register(sub: Subcommands) -> None:
         "estimates are arriving)",
     )
     check.add_argument("--site", default="tank", help="site of the bridge (--delay-ms auto)")
-    check.add_argument("--vehicle", default="rov", help="vehicle of the bridge (--delay-ms auto)")
+    check.add_argument(
+        "--vehicle", default=None, help="vehicle of the bridge (--delay-ms auto): the role's name"
+    )
     check.add_argument(
         "--timeout", type=positive_float, default=5.0, help="seconds to wait for answers"
     )

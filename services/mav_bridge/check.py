@@ -4,6 +4,11 @@ The values (FIELD-NOTES, ArduSub 4.5-4.7): VISO_TYPE=1 (MAVLink; takes effect af
 EK3_SRC1_POSXY=6 (ExternalNav), EK3_SRC1_VELXY=0, EK3_SRC1_POSZ=1 (baro: the Bar30),
 EK3_SRC1_YAW=1 (compass) or 6 (the yaw we send), GPS1_TYPE=0 (GPS_TYPE before 4.6),
 VISO_POS_M_NSE at most our position noise (it is a floor), VISO_DELAY_MS near our latency.
+ArduRover (the ASV, `--role asv`) also: WP_RADIUS at most 0.2 m (GUIDED calls a position target
+reached this near and stops steering for it: 2 m by default, so a follower's station ends up to
+2 m off and the bridge's turn to the station's heading, within 0.3 m, never comes), LOIT_RADIUS
+at most 0.3 m (a boat at its target drifts freely this far: 2 m by default), WP_SPEED at most
+the follower's speed (2 m/s by default). Found with ArduRover SITL (README).
 
 VISO_TYPE and GPS1_TYPE are read at boot only. Whether the running firmware uses what the
 parameters say is the autopilot's own state: its SYS_STATUS reports external position healthy
@@ -26,6 +31,7 @@ from capsd.protocols.mavlink import (
     MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN,
     MAV_RESULT_ACCEPTED,
     MAV_SYS_STATUS_SENSOR_VISION_POSITION,
+    Autopilot,
     CommandAck,
     Heartbeat,
     MavLink,
@@ -66,19 +72,42 @@ class Finding:
     why: str
 
 
-def rules(*, yaw_source: YawSource, position_noise_m: float, delay_ms: float | None) -> list[Rule]:
-    """The parameter rules; VISO_DELAY_MS only when the delay is known (measured or given)."""
+# ArduRover: GUIDED stops steering for a target this near (its WP_RADIUS), and the bridge turns
+# the ASV to its station's heading once within 0.3 m (`heading_only_within_m`): below that.
+ASV_ARRIVE_WITHIN_M = 0.2
+# A boat at its GUIDED target drifts freely within LOIT_RADIUS before it drives back.
+ASV_LOITER_WITHIN_M = 0.3
+
+
+def rules(
+    *,
+    yaw_source: YawSource,
+    position_noise_m: float,
+    delay_ms: float | None,
+    autopilot: Autopilot = "ardusub",
+    max_speed_m_s: float = 0.5,
+) -> list[Rule]:
+    """The parameter rules; VISO_DELAY_MS only when the delay is known (measured or given).
+
+    `autopilot` ardurover (the ASV): also how GUIDED drives to the follower's stations, with
+    `max_speed_m_s` the follower's speed.
+    """
+    rov = autopilot == "ardusub"
     out = [
         Rule(("VISO_TYPE",), 1, "external position over MAVLink (reboot needed)"),
         Rule(("EK3_SRC1_POSXY",), 6, "horizontal position from ExternalNav (CAP-SD)"),
         Rule(("EK3_SRC1_VELXY",), 0, "no horizontal velocity source: CAP-SD sends positions"),
-        Rule(("EK3_SRC1_POSZ",), 1, "depth from the barometer (the Bar30)"),
+        Rule(
+            ("EK3_SRC1_POSZ",),
+            1,
+            "depth from the barometer (the Bar30)" if rov else "height from the barometer",
+        ),
         Rule(
             ("EK3_SRC1_YAW",),
             1 if yaw_source == "compass" else 6,
             "yaw from the compass" if yaw_source == "compass" else "yaw from the estimates",
         ),
-        Rule(("GPS1_TYPE", "GPS_TYPE"), 0, "no GPS underwater"),
+        Rule(("GPS1_TYPE", "GPS_TYPE"), 0, "no GPS underwater" if rov else "no GPS indoors"),
         Rule(
             ("VISO_POS_M_NSE",),
             position_noise_m,
@@ -88,6 +117,22 @@ def rules(*, yaw_source: YawSource, position_noise_m: float, delay_ms: float | N
     ]
     if delay_ms is not None:
         out.append(Rule(("VISO_DELAY_MS",), delay_ms, "measured latency", tolerance=5.0))
+    if not rov:
+        out += [
+            Rule(
+                ("WP_RADIUS",),
+                ASV_ARRIVE_WITHIN_M,
+                "GUIDED stops this near a station (then the bridge turns it to its heading)",
+                at_most=True,
+            ),
+            Rule(
+                ("LOIT_RADIUS",),
+                ASV_LOITER_WITHIN_M,
+                "a boat drifts this far from its station before it drives back",
+                at_most=True,
+            ),
+            Rule(("WP_SPEED",), max_speed_m_s, "GUIDED's speed: the follower's", at_most=True),
+        ]
     return out
 
 
@@ -181,6 +226,8 @@ def run_check(
     timeout_s: float = 5.0,
     estimates_arriving: Callable[[], bool | None] = lambda: None,
     reboot: RebootChoice = "ask",
+    autopilot: Autopilot = "ardusub",
+    max_speed_m_s: float = 0.5,
     out: TextIO = sys.stdout,
 ) -> int:
     """Print the findings (and fix them with `apply`); the exit code (module docstring).
@@ -188,7 +235,13 @@ def run_check(
     `estimates_arriving`: whether estimates reach the autopilot now (the bridge's word), None
     when unknown. `reboot`: when_pending reboots a disarmed autopilot whose reboot is pending.
     """
-    checks = rules(yaw_source=yaw_source, position_noise_m=position_noise_m, delay_ms=delay_ms)
+    checks = rules(
+        yaw_source=yaw_source,
+        position_noise_m=position_noise_m,
+        delay_ms=delay_ms,
+        autopilot=autopilot,
+        max_speed_m_s=max_speed_m_s,
+    )
     with _Autopilot(connection, timeout_s=timeout_s, out=out) as (link, target):
         if target is None:
             return 1

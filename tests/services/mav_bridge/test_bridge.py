@@ -33,7 +33,14 @@ from capsd.payloads import (
     VehicleCommand,
 )
 from capsd.signing import SiteKey, write_key
-from capsd.simulator.autopilot import CONFIGURED_PARAMS, AutopilotStandIn, VehicleState
+from capsd.simulator.autopilot import (
+    CONFIGURED_PARAMS,
+    ROVER_CONFIGURED_PARAMS,
+    ROVER_DEFAULT_PARAMS,
+    AutopilotStandIn,
+    VehicleState,
+)
+from capsd.simulator.guided import AsvLimits
 from tests.conftest import REPO, Proc, free_port, wait_for
 
 pytestmark = pytest.mark.integration
@@ -473,6 +480,58 @@ def test_mav_check_applies_and_tracks_a_pending_reboot_through_the_autopilot(
             stop.set()
             feeder.join(timeout=2)
         assert bridge.popen.poll() is None
+
+
+def test_mav_check_for_the_asv_sets_how_ardurover_drives_to_a_station() -> None:
+    """A fresh ArduRover stops 2 m short of a GUIDED target: `--role asv` wants it within 0.2 m.
+
+    Found with ArduRover SITL (README): WP_RADIUS 2 left the follower's stations up to 2 m off,
+    so the bridge's turn to the station's heading (within 0.3 m) never came.
+    """
+    with AutopilotStandIn(
+        free_port(),
+        state=lambda _t: STATE,
+        armed=False,
+        mode="HOLD",
+        autopilot="ardurover",
+        params=ROVER_DEFAULT_PARAMS,
+        gcs_port=free_port(),
+    ) as rover:
+
+        def check(*extra: str) -> subprocess.CompletedProcess[str]:
+            return _capsd(
+                "mav", "check", "--connect", f"tcp:127.0.0.1:{rover.gcs_port}", "--role", "asv",
+                "--delay-ms", "10", "--bus", "tcp/127.0.0.1:1", *extra,
+            )  # fmt: skip
+
+        first = check()
+        assert first.returncode == 1, first.stdout
+        wrong = {line.split()[0] for line in first.stdout.splitlines() if "CHANGE" in line}
+        assert {"WP_RADIUS", "LOIT_RADIUS", "WP_SPEED", "EK3_SRC1_YAW"} <= wrong
+        # An ArduSub is not asked about ArduRover's GUIDED.
+        assert "WP_RADIUS" not in _capsd(
+            "mav", "check", "--connect", f"tcp:127.0.0.1:{rover.gcs_port}",
+            "--delay-ms", "10", "--bus", "tcp/127.0.0.1:1",
+        ).stdout  # fmt: skip
+        applied = check("--apply", "--max-speed-m-s", "0.4")
+        assert applied.returncode == 3, applied.stdout  # VISO_TYPE: a reboot is pending
+        assert rover.params["WP_RADIUS"] == pytest.approx(0.2)
+        assert rover.params["LOIT_RADIUS"] == pytest.approx(0.3)
+        assert rover.params["WP_SPEED"] == pytest.approx(0.4)
+        assert rover.params["EK3_SRC1_YAW"] == 6.0  # the ASV's own heading, not its compass
+        # A smaller radius or speed is as good: "at most".
+        rover.params["WP_RADIUS"] = 0.1
+        again = check("--max-speed-m-s", "0.4")
+        assert "CHANGE" not in again.stdout, again.stdout
+
+
+def test_the_simulated_ardurover_is_configured_as_the_check_wants() -> None:
+    """The demo's ArduRover stand-in reports (and drives by) what `--role asv --apply` sets."""
+    from capsd.services.mav_bridge.check import evaluate, rules
+
+    wanted = rules(yaw_source="vision", position_noise_m=0.05, delay_ms=None, autopilot="ardurover")
+    assert [f.name for f in evaluate(ROVER_CONFIGURED_PARAMS, wanted) if not f.ok] == []
+    assert AsvLimits().arrive_radius_m == ROVER_CONFIGURED_PARAMS["WP_RADIUS"]
 
 
 def test_gps_input_output_and_requested_rates(
