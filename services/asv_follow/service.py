@@ -79,6 +79,12 @@ class StationConfig(ConfigSection, frozen=True, kw_only=True):
         )
 
 
+# How much of the ROV's leg ahead a station is to see, by the drive: an ASV that crabs keeps
+# pace with the ROV (the next 6 s at the plan's 0.25 m/s); a steered one turns after it from
+# where it stands (a lane of the nfp plans is 16 m).
+PATH_AHEAD_M: dict[AsvDrive, float] = {"lateral": 1.5, "steered": 20.0}
+
+
 class MotionConfig(ConfigSection, frozen=True, kw_only=True):
     """Dead band and limits (capsd.services.asv_follow.follower)."""
 
@@ -87,8 +93,11 @@ class MotionConfig(ConfigSection, frozen=True, kw_only=True):
     replan_after_s: Positive = 1.0
     fix_timeout_s: Positive = 1.0
     lead_s: Annotated[float, msgspec.Meta(ge=0.0, le=30.0)] = 3.0
-    # Stations are to see this much of the ROV's mission leg ahead of it too.
-    path_ahead_m: Annotated[float, msgspec.Meta(ge=0.0, le=50.0)] = 1.5
+    # Stations are to see this much of the ROV's mission leg ahead of it too. None: by the
+    # drive (PATH_AHEAD_M): a steered hull watches by turning where it stands, so its station
+    # is to see the rest of the leg, where one can: a move after the ROV along its lane is
+    # across the line of sight, blind (ArduRover SITL, README session 33).
+    path_ahead_m: Annotated[float, msgspec.Meta(ge=0.0, le=50.0)] | None = None
     reacquire_after_s: Positive = 6.0
     max_speed_m_s: Annotated[float, msgspec.Meta(gt=0.0, le=2.0)] = 0.5
     max_accel_m_s2: Annotated[float, msgspec.Meta(gt=0.0, le=2.0)] = 0.25
@@ -116,7 +125,9 @@ class MotionConfig(ConfigSection, frozen=True, kw_only=True):
             replan_after_s=self.replan_after_s,
             fix_timeout_s=self.fix_timeout_s,
             lead_s=self.lead_s,
-            path_ahead_m=self.path_ahead_m,
+            path_ahead_m=(
+                PATH_AHEAD_M[self.drive] if self.path_ahead_m is None else self.path_ahead_m
+            ),
             reacquire_after_s=self.reacquire_after_s,
             max_speed_m_s=self.max_speed_m_s,
             max_accel_m_s2=self.max_accel_m_s2,

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from typing import Literal
 
+import msgspec
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -370,3 +371,35 @@ def test_a_steered_hull_too_near_the_rov_backs_straight_away_from_it() -> None:
     assert direction == "reverse"
     assert abs(wrap_angle(hull - planner.facing(here, rov))) < math.radians(1.0)
     assert planner.blind_s(here, bearing, station.position_xy, station.heading_rad, rov) == 0.0
+
+
+def test_a_steered_hull_takes_a_station_that_sees_the_rest_of_the_lane() -> None:
+    """The nfp lawnmower's lane at y = 10 m, the ASV north of it after the lane before.
+
+    North of this lane the walls leave the ASV 4 m at most: its stations look at the ROV from
+    40-60 deg off the lane, and each move after it along the lane is across the line of sight,
+    blind for a steered hull (ArduRover SITL, README session 33). With the rest of the lane as
+    its path (the steered default) the planner takes a station south of it from which the lane
+    stays inside the aperture's margin by turning on the spot (but for a few degrees at its
+    far end: 16 against 274 degrees summed over its points); with the next 1.5 m (the lateral
+    default) a station the ROV soon flies out of the view of.
+    """
+    from capsd.services.asv_follow.service import MotionConfig, StationConfig
+
+    drive = MotionConfig().drive_settings(StationConfig().settings())
+    planner = StationPlanner(MOUNT, TANK, drive)
+    rov = np.array([22.0, 10.0, -4.0])
+    lane = rov + np.outer(np.arange(1, 65) * 0.25, [-1.0, 0.0, 0.0])  # west to x = 6 m
+    asv, heading = np.array([16.8, 12.8]), math.radians(-40.0)
+    reach = MotionConfig().settings().path_ahead_m
+    assert reach >= 16.0
+    whole = planner.choose(rov, asv, heading, path_m=lane[: int(reach / 0.25)])
+    near = planner.choose(rov, asv, heading, path_m=lane[:6])
+    assert whole is not None
+    assert near is not None
+    unseen_whole = planner._beyond_margin_deg(whole.position_xy, whole.heading_rad, rov, lane)
+    unseen_near = planner._beyond_margin_deg(near.position_xy, near.heading_rad, rov, lane)
+    assert unseen_whole < 0.1 * unseen_near
+    assert float(whole.position_xy[1]) < 10.0 < float(near.position_xy[1])  # across the lane
+    lateral = msgspec.convert({"drive": "lateral"}, MotionConfig).settings()
+    assert lateral.path_ahead_m == pytest.approx(1.5)
