@@ -177,6 +177,7 @@ class AutopilotStandIn:
         self.on_estimate = on_estimate
         self.on_direction = on_direction  # ArduRover's MAV_CMD_DO_SET_REVERSE
         self.state = state
+        self.heartbeat_sent_s = -math.inf
         self.params = dict(DEFAULT_PARAMS if params is None else params)
         # The air's pressure; the surface reference is what the autopilot measured at boot
         # (BARO2_GND_PRESS), `boot_depth_m` under water if it booted there.
@@ -297,6 +298,7 @@ class AutopilotStandIn:
             try:
                 if now >= next_due["heartbeat"]:
                     next_due["heartbeat"] = now + 1.0
+                    self.heartbeat_sent_s = now  # monotonic: tests time a change between two
                     link.send_heartbeat_vehicle(
                         armed=self.armed,
                         custom_mode=mode_number(self.mode, self.autopilot),

@@ -744,7 +744,11 @@ class Bridge:
         if command.kind == "goto" and self.mode != "GUIDED":
             self.counts["commands_goto_not_guided"] += 1
             return
-        if command.kind == "engage" and self.mode != "GUIDED":
+        if command.kind == "engage":
+            # Always asked, whatever the last HEARTBEAT said: at 1 Hz it can be older than the
+            # hold this bridge sent since (ArduSub SITL: a resume 2 s after a pause found
+            # "GUIDED", sent no mode, and the mission saw POSHOLD and ended). An autopilot
+            # already in GUIDED takes it as it is.
             self.link.send_set_mode(target_system=target, mode="GUIDED")
             self._hold_sent_at = -math.inf  # a refusal now answers this, not a hold
             # Ours until a HEARTBEAT says otherwise: a hold right after an engage must not be

@@ -291,6 +291,29 @@ def test_a_hold_is_sent_again_to_a_holding_vehicle_but_never_over_the_pilots_mod
             bridge.close()
 
 
+def test_an_engage_asks_for_guided_whatever_the_last_heartbeat_said(
+    spawn: Callable[..., Proc], client: zenoh.Session, endpoint: str, tmp_path: Path
+) -> None:
+    # The HEARTBEAT comes at 1 Hz: the mode it told the bridge can be older than a change since
+    # (found with ArduSub SITL: a resume after a pause was not passed on as a mode, the vehicle
+    # stayed in POSHOLD and the mission ended).
+    state = VehicleState(roll=0.0, pitch=0.0, yaw=0.5, depth_m=3.0)
+    with AutopilotStandIn(
+        free_port(), state=lambda _t: state, mode="GUIDED", params=CONFIGURED_PARAMS
+    ) as guided:
+        bridge = Commands(spawn, client, endpoint, tmp_path, guided)
+        try:
+            time.sleep(1.5)  # a HEARTBEAT has told the bridge GUIDED
+            wait_for(lambda: time.monotonic() - guided.heartbeat_sent_s < 0.1, timeout_s=2,
+                     what="a HEARTBEAT just sent")  # fmt: skip
+            guided.mode = "POSHOLD"  # not heard till the next HEARTBEAT, 0.9 s away
+            bridge.put("engage", (5.0, 4.0, -3.0))
+            wait_for(lambda: guided.mode == "GUIDED", timeout_s=0.8, what="GUIDED asked again")
+            assert ("GUIDED", True) in [(m, taken) for _, m, taken in _modes(guided)]
+        finally:
+            bridge.close()
+
+
 def test_a_position_hold_the_autopilot_refuses_becomes_a_depth_hold(
     spawn: Callable[..., Proc],
     client: zenoh.Session,
