@@ -7,6 +7,7 @@ fixes stopping, GUIDED again once they are back, the plan flown and a report wri
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import threading
@@ -263,32 +264,41 @@ def test_bad_invocations_exit_2_naming_what(
     assert "nope.yaml" in capfd.readouterr().err
 
 
+@contextlib.contextmanager
+def _bridge_to(
+    spawn: Callable[..., Proc], client: zenoh.Session, endpoint: str, tmp_path: Path, *, mode: str
+) -> Iterator[tuple[AutopilotStandIn, Commands]]:
+    """A stand-in ArduSub in `mode`, the bridge to it, and the commands' publisher."""
+    state = VehicleState(roll=0.0, pitch=0.0, yaw=0.5, depth_m=3.0)
+    with AutopilotStandIn(
+        free_port(), state=lambda _t: state, mode=mode, params=CONFIGURED_PARAMS
+    ) as autopilot:
+        bridge = Commands(spawn, client, endpoint, tmp_path, autopilot)
+        try:
+            yield autopilot, bridge
+        finally:
+            bridge.close()
+
+
 def test_a_hold_is_sent_again_to_a_holding_vehicle_but_never_over_the_pilots_mode(
     spawn: Callable[..., Proc], client: zenoh.Session, endpoint: str, tmp_path: Path
 ) -> None:
     # A HEARTBEAT from before the autopilot took the mission's GUIDED can still say POSHOLD
     # when the mission's next hold arrives: that hold must go out, not be dropped.
-    state = VehicleState(roll=0.0, pitch=0.0, yaw=0.5, depth_m=3.0)
-    with AutopilotStandIn(
-        free_port(), state=lambda _t: state, mode="POSHOLD", params=CONFIGURED_PARAMS
-    ) as holding:
-        bridge = Commands(spawn, client, endpoint, tmp_path, holding)
-        try:
-            time.sleep(1.5)  # a HEARTBEAT (1 Hz) has told the bridge the mode
-            bridge.put("hold", None)
-            wait_for(lambda: [m for _, m, _ in _modes(holding) if m == "POSHOLD"],
-                     timeout_s=10, what="POSHOLD sent again")  # fmt: skip
-            # The pilot takes MANUAL: a hold now is not acted on.
-            holding.mode = "MANUAL"
-            time.sleep(1.5)
-            before = len(_modes(holding))
-            bridge.put("hold", None)
-            wait_for(lambda: _health(client).counters.get("commands_hold_not_guided", 0) >= 1,
-                     timeout_s=10, what="the hold refused in MANUAL")  # fmt: skip
-            assert len(_modes(holding)) == before
-            assert holding.mode == "MANUAL"
-        finally:
-            bridge.close()
+    with _bridge_to(spawn, client, endpoint, tmp_path, mode="POSHOLD") as (holding, bridge):
+        time.sleep(1.5)  # a HEARTBEAT (1 Hz) has told the bridge the mode
+        bridge.put("hold", None)
+        wait_for(lambda: [m for _, m, _ in _modes(holding) if m == "POSHOLD"],
+                 timeout_s=10, what="POSHOLD sent again")  # fmt: skip
+        # The pilot takes MANUAL: a hold now is not acted on.
+        holding.mode = "MANUAL"
+        time.sleep(1.5)
+        before = len(_modes(holding))
+        bridge.put("hold", None)
+        wait_for(lambda: _health(client).counters.get("commands_hold_not_guided", 0) >= 1,
+                 timeout_s=10, what="the hold refused in MANUAL")  # fmt: skip
+        assert len(_modes(holding)) == before
+        assert holding.mode == "MANUAL"
 
 
 def test_an_engage_asks_for_guided_whatever_the_last_heartbeat_said(
@@ -297,21 +307,14 @@ def test_an_engage_asks_for_guided_whatever_the_last_heartbeat_said(
     # The HEARTBEAT comes at 1 Hz: the mode it told the bridge can be older than a change since
     # (found with ArduSub SITL: a resume after a pause was not passed on as a mode, the vehicle
     # stayed in POSHOLD and the mission ended).
-    state = VehicleState(roll=0.0, pitch=0.0, yaw=0.5, depth_m=3.0)
-    with AutopilotStandIn(
-        free_port(), state=lambda _t: state, mode="GUIDED", params=CONFIGURED_PARAMS
-    ) as guided:
-        bridge = Commands(spawn, client, endpoint, tmp_path, guided)
-        try:
-            time.sleep(1.5)  # a HEARTBEAT has told the bridge GUIDED
-            wait_for(lambda: time.monotonic() - guided.heartbeat_sent_s < 0.1, timeout_s=2,
-                     what="a HEARTBEAT just sent")  # fmt: skip
-            guided.mode = "POSHOLD"  # not heard till the next HEARTBEAT, 0.9 s away
-            bridge.put("engage", (5.0, 4.0, -3.0))
-            wait_for(lambda: guided.mode == "GUIDED", timeout_s=0.8, what="GUIDED asked again")
-            assert ("GUIDED", True) in [(m, taken) for _, m, taken in _modes(guided)]
-        finally:
-            bridge.close()
+    with _bridge_to(spawn, client, endpoint, tmp_path, mode="GUIDED") as (guided, bridge):
+        time.sleep(1.5)  # a HEARTBEAT has told the bridge GUIDED
+        wait_for(lambda: time.monotonic() - guided.heartbeat_sent_s < 0.1, timeout_s=2,
+                 what="a HEARTBEAT just sent")  # fmt: skip
+        guided.mode = "POSHOLD"  # not heard till the next HEARTBEAT, 0.9 s away
+        bridge.put("engage", (5.0, 4.0, -3.0))
+        wait_for(lambda: guided.mode == "GUIDED", timeout_s=0.8, what="GUIDED asked again")
+        assert ("GUIDED", True) in [(m, taken) for _, m, taken in _modes(guided)]
 
 
 def test_a_position_hold_the_autopilot_refuses_becomes_a_depth_hold(
