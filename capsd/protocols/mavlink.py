@@ -419,7 +419,12 @@ class MavLink:
         return self._conn.mav
 
     def recv(self, *, timeout_s: float = 0.0) -> Received | None:
-        """The next known message, or None if none came within `timeout_s`."""
+        """The next known message, or None if none came within `timeout_s`.
+
+        Messages this adapter does not know are passed over, also past the deadline while
+        more are already here: an autopilot streams many (SERVO_OUTPUT_RAW, RC_CHANNELS, ...),
+        and a read that gave up at the first left the caller seconds behind the stream.
+        """
         if self._conn is None:
             return None
         deadline = time.monotonic() + timeout_s
@@ -435,8 +440,6 @@ class MavLink:
             converted = _convert(msg) if msg.get_type() != "BAD_DATA" else None
             if converted is not None:
                 return Received(converted, msg.get_srcSystem(), msg.get_srcComponent())
-            if time.monotonic() >= deadline:
-                return None
 
     # ------------------------------------------------------------ companion side
 
