@@ -699,3 +699,41 @@ def test_a_move_along_the_line_of_sight_keeps_the_hulls_wall_clearance() -> None
         planner, start, 0.0, np.array([1.9, 8.3]), 0.0, steps=150, fix=lambda now: (rov, None)
     )
     assert min(float(xy[0]) for xy, _, _ in way) >= clearance - 1e-9
+
+
+def test_a_loss_on_a_way_chosen_blind_goes_on_to_the_station() -> None:
+    """A ROV lost on a way the planner chose knowing it blind: the ASV goes on to the station.
+
+    The nfp lane at y = 10 m, the ASV north of it: the station for the rest of the lane is
+    south of it, and the way there takes the sonar off the ROV (a steered hull). The ROV lost
+    on that way is the move's own doing: the follower goes on to the station, and looks again
+    only once the way's blind time (with slack) is over. Looking at once from where the ASV was
+    gave the crossing up each time (ArduRover SITL, README session 33).
+    """
+    from capsd.services.asv_follow.service import MotionConfig, StationConfig
+
+    motion = MotionConfig()
+    planner = StationPlanner(
+        SonarMountConfig(), TankBounds(), motion.drive_settings(StationConfig().settings())
+    )
+    follower = Follower(planner, motion.settings())
+    follower.on_pose(np.array([16.8, 12.8]), math.radians(-40.0))
+    follower.on_mode("GUIDED")
+    rov = np.array([22.0, 10.0, -4.0])
+    follower.on_leg_end(0.0, np.array([6.0, 10.0, -4.0]))
+    follower.on_fix(0.0, rov)
+    follower.step(0.0)
+    crossing = follower.station
+    assert crossing is not None
+    assert float(crossing.position_xy[1]) < 10.0  # across the lane
+    blind = planner.blind_s(
+        np.array([16.8, 12.8]), math.radians(-40.0), crossing.position_xy,
+        crossing.heading_rad, rov,
+    )  # fmt: skip
+    assert blind > motion.reacquire_after_s  # a look again would come on the way
+    steps = [follower.step(0.1 * k) for k in range(1, int(10 * blind))]  # no fix from 0 s on
+    assert follower.station is crossing
+    assert follower.looks == 0
+    assert all(t is not None and t.state == "holding" for t in steps[20:])
+    follower.step(follower_module.BLIND_SLACK * blind + 6.5)
+    assert follower.looks == 1  # the blind time over: looked for again
