@@ -92,9 +92,6 @@ SEARCH_STUCK_S = 30.0
 LEG_END_VALID_S = 5.0
 # The lead is at most this share of the ideal horizontal distance to the ROV.
 LEAD_SHARE = 0.25
-# A blind way to a station takes this much longer than the planner's estimate (its turns
-# and transit at full rate; the autopilot accelerates and settles).
-BLIND_SLACK = 1.5
 PATH_STEP_M = 0.25  # the spacing of the points of the ROV's leg a station is to see
 # Steered: a way at most this far across the ROV's line of sight goes along it only.
 ACROSS_SLACK_M = 0.5
@@ -163,10 +160,6 @@ class Follower:
         # Where this loss's looks saw no ROV, and from which bearing (W: x, y, bearing).
         self._seen: list[tuple[float, float, float]] = []
         self._searched = False  # this loss has had a search look
-        # Steered: until when the way to the chosen station keeps the sonar off the ROV (the
-        # planner's blind time, with slack): a loss before then is the move's own, looked for
-        # once the hull faces the ROV again, not by giving up the station.
-        self._blind_until_s = -math.inf
         self._arrived_s: float | None = None  # when the carrot reached the look's station
         self._aim: Array | None = None  # where the station was chosen to look
         self._last_step_s: float | None = None
@@ -204,7 +197,6 @@ class Follower:
         if mode != "GUIDED":
             self._carrot = None  # a new hand-over starts where the ASV then is
             self.station = None
-            self._blind_until_s = -math.inf
         self.mode = mode
 
     def step(self, now_s: float) -> Target | None:
@@ -242,17 +234,7 @@ class Follower:
                 self._aim = self._ahead()
                 self.replans += 1
                 replanned = True
-                if self.planner.settings.drive == "steered":
-                    blind = self.planner.blind_s(
-                        self._carrot, self._carrot_heading, chosen.position_xy,
-                        chosen.heading_rad, self._aim,
-                    )  # fmt: skip
-                    self._blind_until_s = now_s + BLIND_SLACK * blind if blind > 0.0 else -math.inf
         lost_for = now_s - self.fix_s
-        # A loss on a way the planner chose knowing it blind: go on to the station (ArduSub,
-        # the mission paused, holds meanwhile). Looking again from where the ASV is then
-        # gave the crossing up each time (ArduRover SITL: the nfp lane at y = 10 m).
-        own_blindness = now_s < self._blind_until_s
         if (
             not fresh
             and self.rov_m is not None
@@ -263,7 +245,6 @@ class Follower:
             # the ASV held 280 s).
             and lost_for < self.settings.reacquire_after_s
             and now_s - self._last_plan_s >= self.settings.replan_after_s
-            and not own_blindness
             and not self._in_view_of_station(held := self._held_at(lost_for))
         ):
             # Lost where the station cannot see it (it left the aperture faster than the ASV
@@ -281,7 +262,6 @@ class Follower:
             and self.station is not None
             and lost_for >= self.settings.reacquire_after_s
             and now_s - self._last_plan_s >= self.settings.reacquire_after_s
-            and not own_blindness
             and (not self._searched or self._looked_long_enough(now_s))
         ):
             self._last_plan_s = now_s
