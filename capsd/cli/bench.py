@@ -157,6 +157,14 @@ def _cmd_bench_search(_args: argparse.Namespace) -> int:
     return search.run()
 
 
+def _cmd_bench_follow(args: argparse.Namespace) -> int:
+    from capsd.bench import follow
+
+    return follow.run(
+        args.tank, args.mission, drive=args.asv_drive, duration_s=args.duration, seeds=args.seeds
+    )
+
+
 def _cmd_bench_footprint(args: argparse.Namespace) -> int:
     from capsd.bench import footprint
 
@@ -394,6 +402,27 @@ def register(sub: Subcommands) -> None:
         "seen again within 150 s, within 60 s, the median time.",
     )
     bsearch.set_defaults(func=_cmd_bench_search)
+    bfollow = bench_sub.add_parser(
+        "follow",
+        help="a mission with the ASV following, geometry alone (a perfect detector), in seconds",
+        description="Fly a mission plan on the simulated ArduSub with the follower driving the "
+        "simulated ArduRover (the demo's settings), fixes the true position whenever the ROV is "
+        "in the sonar's view; print the share of the mission's time in view, the losses of 5 s "
+        "or more, the ASV's nearest wall. What the follower's choices give, apart from the "
+        "detector (`capsd demo --mission PLAN --asv follow` has both).",
+    )
+    bfollow.add_argument("--tank", choices=("nfp", "mockup", "pond"), default="nfp")
+    bfollow.add_argument(
+        "--mission",
+        type=Path,
+        default=Path("deploy/missions/nfp-lawnmower.yaml"),
+        help="the plan (default: deploy/missions/nfp-lawnmower.yaml)",
+    )
+    bfollow.add_argument("--asv-drive", choices=("steered", "lateral"), default="steered")
+    bfollow.add_argument("--duration", type=positive_float, default=900.0,
+                         help="seconds at most per run")  # fmt: skip
+    bfollow.add_argument("--seeds", type=int, default=1, help="runs (fix noise seeds)")
+    bfollow.set_defaults(func=_cmd_bench_follow)
     blat = bench_sub.add_parser(
         "latency",
         help="ping to autopilot latency per stage at 10/20/40 Hz, Zenoh floor, CPU and RSS",

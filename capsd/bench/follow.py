@@ -1,0 +1,276 @@
+"""`capsd bench follow`: the closed loop's geometry alone, a mission in seconds, not minutes.
+
+What the follower's choices give, apart from the detector: the ROV flies a mission plan
+(capsd.mission's controller, the simulated ArduSub) on fixes that are its true position
+(plus 2 cm of noise) whenever it is in the sonar's view from the ASV's true pose (inside the
+vertical aperture, within `HALF_FAN_DEG` of the boresight, in range: what a perfect detector
+and locator would fix), ten a second; the follower (services/asv_follow, the demo's settings
+for the tank) drives the simulated ArduRover (the demo's stand-in, steered or lateral)
+through the ASV bridge's rules (a heading alone at the station). The mission pauses and
+waits as it does in the demo (its view guard from the ASV's pose). Printed: whether the
+mission was done and when, the share of its time the ROV was in view, how much of that a
+mapped fixture shared the ROV's range cell (where a real detector may miss it), the ASV's
+nearest approach to a wall, the stations chosen, and each loss of 5 s or more (where, and the
+hull's heading off the ROV's bearing). The demo's figures (`capsd demo --mission ... --asv
+follow`) add the detector's misses and the locator's refusals to these.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import msgspec
+import numpy as np
+
+from capsd.geometry import Transform, wrap_angle
+from capsd.harness import FOLLOW_STATION, sonar_mount, start_station
+from capsd.mission.controller import MissionController
+from capsd.mission.plan import load_plan
+from capsd.mission.view_guard import view_margin_rad
+from capsd.mounts import AsvDrive, SonarMountConfig
+from capsd.progress import Progress
+from capsd.services.asv_follow.follower import Follower
+from capsd.services.asv_follow.service import Config as FollowConfig
+from capsd.services.asv_follow.service import MotionConfig, StationConfig
+from capsd.services.asv_follow.station import StationPlanner
+from capsd.simulator.guided import AsvLimits, GuidedAsv, GuidedRov
+from capsd.simulator.world import TankName, Waves, make_tank, tank_bounds
+from capsd.sonar_geometry import to_polar
+
+STEP_S = 0.1  # fixes, the mission and the view: ten a second
+FOLLOW_EVERY = 2  # the follower's commands: five a second (its command_rate_hz)
+FIX_NOISE_M = 0.02
+HALF_FAN_DEG = 60.0  # the fan is 130 deg wide; its edges are weak
+MIN_RANGE_M = 0.3
+MAX_RANGE_M = 20.0
+HEADING_ONLY_WITHIN_M = 0.3  # the ASV bridge's `heading_only_within_m`
+LOSS_REPORTED_S = 5.0
+
+
+@dataclass
+class Loss:
+    """A stretch of the mission's time with the ROV out of view."""
+
+    start_s: float
+    end_s: float
+    rov_m: tuple[float, float, float]
+    asv_xy: tuple[float, float]
+    hull_off_deg: tuple[float, float]  # the hull's heading off the ROV's bearing, min and max
+
+
+@dataclass
+class FollowRun:
+    """One mission's figures."""
+
+    tank: str
+    drive: str
+    state: str
+    waypoints: tuple[int, int]  # reached, of
+    mission_s: float
+    steps: int = 0
+    in_view: int = 0
+    in_view_masked: int = 0
+    nearest_wall_m: float = math.inf
+    stations: int = 0
+    losses: list[Loss] = field(default_factory=list)
+
+
+def _in_view(mount: SonarMountConfig, sonar: Transform, rov_m: np.ndarray) -> tuple[bool, float]:
+    """Whether a perfect detector would see the ROV from this sonar pose; and its azimuth."""
+    p = sonar.inverse().apply(rov_m)
+    try:
+        r, azimuth, elevation = to_polar(mount.beam_model, p)
+    except ValueError:
+        return False, 0.0
+    inside = (
+        abs(elevation) <= math.radians(mount.vertical_aperture_deg) / 2.0
+        and abs(azimuth) <= math.radians(HALF_FAN_DEG)
+        and MIN_RANGE_M <= r <= MAX_RANGE_M
+    )
+    return inside, azimuth
+
+
+def run_mission(
+    tank_name: TankName,
+    plan_path: Path,
+    *,
+    drive: AsvDrive,
+    duration_s: float,
+    seed: int = 0,
+    progress: Progress | None = None,
+) -> FollowRun:
+    """Fly the plan once with the follower; see the module docstring."""
+    rng = np.random.default_rng(seed)
+    world_tank = make_tank(tank_name)
+    bounds = tank_bounds(world_tank)
+    plan, points = load_plan(plan_path, tank=bounds)
+    config = FollowConfig(
+        tank=bounds,
+        sonar=msgspec.convert(sonar_mount(tank_name), SonarMountConfig),
+        station=StationConfig(**FOLLOW_STATION.get(tank_name, {})),  # type: ignore[arg-type]
+        motion=MotionConfig(drive=drive),
+        fix_auth="off",
+    )
+    mount = config.sonar
+    planner = StationPlanner(
+        mount, config.tank, config.motion.drive_settings(config.station.settings())
+    )
+    follower = Follower(planner, config.motion.settings())
+    start = np.array(points[0].position_m)
+    chosen = start_station(tank_name, points[0].position_m)
+    if chosen is None:
+        raise ValueError(f"no ASV station in the {tank_name} tank sees the plan's start")
+    (sx, sy), heading_deg = chosen
+    asv = GuidedAsv(
+        (sx, sy),
+        math.radians(heading_deg),
+        waves=Waves(),
+        mode="GUIDED",
+        limits=AsvLimits(drive=drive),
+    )
+    rov = GuidedRov(start)
+    rov.set_mode("POSHOLD")
+    mission = MissionController(plan, points)
+    follower.on_mode("GUIDED")
+    sonar_on_asv = mount.transform()
+    out = FollowRun(tank_name, drive, "waiting", (0, len(points)), 0.0)
+    last_target: np.ndarray | None = None
+    lost_from: float | None = None
+    lost_rows: list[tuple[np.ndarray, np.ndarray, float]] = []
+    started: float | None = None
+    steps = int(duration_s / STEP_S)
+    for k in range(1, steps + 1):
+        t = k * STEP_S
+        rotation, translation = asv.pose(t)
+        body = Transform(rotation, translation)
+        state = rov.state(t)
+        rov_m = state.position_m
+        seen, azimuth = _in_view(mount, body.compose(sonar_on_asv), rov_m)
+        yaw = math.atan2(float(rotation[1, 0]), float(rotation[0, 0]))
+        asv_xy = np.array(translation[:2])
+        follower.on_pose(asv_xy, yaw)
+        asv.on_estimate(t, asv_xy)
+        if seen:
+            fix = rov_m + rng.normal(0.0, FIX_NOISE_M, 3)
+            rov.on_estimate(t, fix)
+            follower.on_fix(t, fix, state.velocity_m_s)
+            mission.on_fix(good=True, position_m=(fix[0], fix[1], fix[2]), now=t)
+        margin = view_margin_rad(
+            asv=body, mount=mount, rov_m=rov_m, velocity_m_s=state.velocity_m_s, lookahead_s=1.5
+        )
+        mission.on_view(margin, now=t)
+        mission.on_mode(rov.mode, now=t)
+        for command in mission.step(t):
+            if command.kind == "hold":
+                rov.set_mode("POSHOLD")
+                follower.on_leg_end(t, None)
+                continue
+            if command.kind == "engage":
+                rov.set_mode("GUIDED")
+            assert command.position_m is not None
+            rov.set_target(np.array(command.position_m))
+            leg_end = mission.leg_end(command)
+            follower.on_leg_end(t, None if leg_end is None else np.array(leg_end))
+        if k % FOLLOW_EVERY == 0:
+            target = follower.step(t)
+            if target is not None:
+                at_goal = float(np.linalg.norm(asv_xy - target.position_xy))
+                steady = (
+                    last_target is not None
+                    and float(np.linalg.norm(last_target - target.position_xy))
+                    <= HEADING_ONLY_WITHIN_M / 3.0
+                )
+                if at_goal <= HEADING_ONLY_WITHIN_M and steady:
+                    asv.set_heading(target.heading_rad)
+                else:
+                    asv.set_direction(target.direction)
+                    asv.set_target(target.position_xy)
+                    last_target = target.position_xy.copy()
+        running = mission.progress.state in ("running", "paused")
+        if running and started is None:
+            started = t
+        if started is not None and (running or mission.progress.state == "done"):
+            if mission.progress.state == "done":
+                break
+            out.steps += 1
+            out.nearest_wall_m = min(
+                out.nearest_wall_m,
+                float(asv_xy[0]),
+                float(asv_xy[1]),
+                bounds.length_m - float(asv_xy[0]),
+                bounds.width_m - float(asv_xy[1]),
+            )
+            if seen:
+                out.in_view += 1
+                if planner.masked(asv_xy, yaw, rov_m):
+                    out.in_view_masked += 1
+            bearing = math.atan2(float(rov_m[1] - asv_xy[1]), float(rov_m[0] - asv_xy[0]))
+            off = math.degrees(wrap_angle(bearing - yaw - math.radians(mount.yaw_deg)))
+            if not seen:
+                if lost_from is None:
+                    lost_from, lost_rows = t, []
+                lost_rows.append((rov_m.copy(), asv_xy.copy(), off))
+            elif lost_from is not None:
+                _close_loss(out, lost_from, t, lost_rows)
+                lost_from = None
+        if progress is not None and k % 50 == 0:
+            progress.update(t)
+        del azimuth
+    if lost_from is not None:
+        _close_loss(out, lost_from, steps * STEP_S, lost_rows)
+    out.state = mission.progress.state
+    reached = mission.progress.waypoint + (1 if out.state == "done" else 0)
+    out.waypoints = (reached, len(points))
+    out.mission_s = out.steps * STEP_S
+    out.stations = follower.replans
+    return out
+
+
+def _close_loss(
+    out: FollowRun, start_s: float, end_s: float, rows: list[tuple[np.ndarray, np.ndarray, float]]
+) -> None:
+    if end_s - start_s < LOSS_REPORTED_S or not rows:
+        return
+    rov_m, asv_xy, _ = rows[len(rows) // 2]
+    offs = [r[2] for r in rows]
+    out.losses.append(
+        Loss(
+            start_s,
+            end_s,
+            (float(rov_m[0]), float(rov_m[1]), float(rov_m[2])),
+            (float(asv_xy[0]), float(asv_xy[1])),
+            (min(offs), max(offs)),
+        )
+    )
+
+
+def run(tank: TankName, plan_path: Path, *, drive: AsvDrive, duration_s: float, seeds: int) -> int:
+    """Print one line per seed and the losses; the median share in view."""
+    shares = []
+    for seed in range(seeds):
+        progress = Progress(duration_s, label=f"bench follow seed {seed}", unit=" s")
+        r = run_mission(tank, plan_path, drive=drive, duration_s=duration_s, seed=seed,
+                        progress=progress)  # fmt: skip
+        progress.close()
+        share = r.in_view / r.steps if r.steps else 0.0
+        shares.append(share)
+        masked = r.in_view_masked / r.steps if r.steps else 0.0
+        print(
+            f"{tank} {plan_path.name} ({drive}) seed {seed}: mission {r.state}, waypoint "
+            f"{r.waypoints[0]} of {r.waypoints[1]}, {r.mission_s:.0f} s; ROV in view "
+            f"{100 * share:.1f} % of it ({100 * masked:.1f} % with a fixture in its range "
+            f"cell); ASV origin nearest a wall {r.nearest_wall_m:.2f} m; {r.stations} stations"
+        )
+        for loss in r.losses:
+            print(
+                f"  out of view {loss.start_s:6.1f}-{loss.end_s:6.1f} s "
+                f"({loss.end_s - loss.start_s:4.1f} s): ROV ({loss.rov_m[0]:.1f}, "
+                f"{loss.rov_m[1]:.1f}, {loss.rov_m[2]:.1f}), ASV ({loss.asv_xy[0]:.1f}, "
+                f"{loss.asv_xy[1]:.1f}), hull {loss.hull_off_deg[0]:.0f} to "
+                f"{loss.hull_off_deg[1]:.0f} deg off the ROV's bearing"
+            )
+    if seeds > 1:
+        print(f"median in view over {seeds} seeds: {100 * float(np.median(shares)):.1f} %")
+    return 0

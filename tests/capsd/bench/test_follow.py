@@ -1,0 +1,45 @@
+"""`capsd bench follow`: what counts as in view, and a mission flown on it."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from capsd.bench.follow import _in_view, run_mission
+from capsd.geometry import Transform
+from capsd.mounts import SonarMountConfig
+
+REPO = Path(__file__).resolve().parents[3]
+
+
+def test_in_view_is_the_aperture_and_the_fan() -> None:
+    mount = SonarMountConfig()  # 30 deg down, 20 deg aperture
+    sonar = Transform.from_euler_zyx((0.0, 0.0, 0.0), yaw_rad=0.0, pitch_rad=0.0, roll_rad=0.0)
+    sonar = sonar.compose(mount.transform())
+    z = float(sonar.translation[2])
+
+    def at(distance_m: float, bearing_deg: float) -> np.ndarray:
+        b = math.radians(bearing_deg)
+        return np.array([distance_m * math.cos(b), distance_m * math.sin(b), z - 3.0])
+
+    mid = 3.0 / math.tan(math.radians(30.0))
+    assert _in_view(mount, sonar, at(mid, 0.0))[0]
+    assert not _in_view(mount, sonar, at(mid * 0.6, 0.0))[0]  # under the aperture
+    assert not _in_view(mount, sonar, at(mid * 2.0, 0.0))[0]  # above it
+    assert not _in_view(mount, sonar, at(mid, 90.0))[0]  # off the fan
+
+
+def test_a_mockup_mission_starts_in_view_and_is_scored() -> None:
+    run = run_mission(
+        "mockup",
+        REPO / "deploy" / "missions" / "mockup-lawnmower.yaml",
+        drive="steered",
+        duration_s=40.0,
+    )
+    assert run.state in ("running", "paused", "done")
+    assert run.steps > 300  # the mission started within a few seconds
+    assert 0 < run.in_view <= run.steps
+    assert run.waypoints[0] >= 1
+    assert run.nearest_wall_m > 1.0
