@@ -54,21 +54,23 @@ import numpy as np
 from capsd.geometry import Array, wrap_angle
 from capsd.payloads import DriveDirection
 from capsd.services.asv_follow.station import (
+    AROUND_STEP_RAD,
     STAY_M,
     Station,
     StationPlanner,
     View,
     drive_heading,
+    round_turn,
 )
+from capsd.services.asv_follow.station import AROUND_WITHIN as STATION_AROUND_WITHIN
 
 FollowState = Literal["standby", "holding", "following", "no_station"]
 ARRIVED_M = 1.0  # this near its station the hull faces the ROV itself, not where it will be
 # At its station the hull turns to face the ROV once it is this far off the boresight.
 FACE_WITHIN_RAD = math.radians(3.0)
 # A way that passes nearer the ROV than this share of the carrot's or the station's distance
-# from it goes round instead, heading at most this much bearing ahead round the ROV.
-AROUND_WITHIN = 0.8
-AROUND_STEP_RAD = math.radians(30.0)
+# from it goes round instead (station.round_turn).
+AROUND_WITHIN = STATION_AROUND_WITHIN
 # A lost ROV is looked for over a disc round where it stopped (points on rings at these shares
 # of its radius), its centre at least this far from a wall (half a BlueROV2's length); the
 # disc is at least SEARCH_MIN_RADIUS_M across (where it stopped is not known better).
@@ -295,21 +297,13 @@ class Follower:
         if look is None:
             return station_xy
         centre = look[:2]
+        turn = round_turn(self._carrot, station_xy, centre, within=AROUND_WITHIN)
+        if turn == 0.0:
+            return station_xy
         here = self._carrot - centre
-        there = station_xy - centre
-        r_here, r_there = float(np.linalg.norm(here)), float(np.linalg.norm(there))
-        way = station_xy - self._carrot
-        length2 = float(way @ way)
-        if length2 < 1e-12 or min(r_here, r_there) < 0.5:
-            return station_xy
-        t = min(max(float((centre - self._carrot) @ way) / length2, 0.0), 1.0)
-        closest = float(np.linalg.norm(self._carrot + t * way - centre))
-        if closest >= AROUND_WITHIN * min(r_here, r_there):
-            return station_xy
+        r_here = float(np.linalg.norm(here))
+        r_there = float(np.linalg.norm(station_xy - centre))
         a_here = math.atan2(here[1], here[0])
-        turn = wrap_angle(math.atan2(there[1], there[0]) - a_here)
-        if abs(turn) <= AROUND_STEP_RAD:
-            return station_xy
         step = math.copysign(AROUND_STEP_RAD, turn)
         # On the tangent, not the circle: heading for a point on the circle cuts inside it.
         radius = (r_here + (r_there - r_here) * step / turn) / math.cos(step)

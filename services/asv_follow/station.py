@@ -53,6 +53,37 @@ BLIND_OFF_RAD = math.radians(20.0)
 REVERSE_BETTER_RAD = math.radians(20.0)
 # Steered: nearer than this is no move (the autopilot's arrival).
 STAY_M = 0.05
+# A way that passes nearer the ROV than this share of its start's or its end's distance from
+# it goes round instead (the follower), heading at most AROUND_STEP_RAD bearing ahead round
+# the ROV at a time.
+AROUND_WITHIN = 0.8
+AROUND_STEP_RAD = math.radians(30.0)
+
+
+def round_turn(
+    start_xy: Array, end_xy: Array, centre_xy: Array, *, within: float = AROUND_WITHIN
+) -> float:
+    """The bearing a way from `start_xy` to `end_xy` goes round `centre_xy` (0: straight).
+
+    A straight way that passes nearer the centre (the ROV) than `within` of the nearer end's
+    distance from it, and turns more than AROUND_STEP_RAD of bearing round it, passes over the
+    ROV, where it is under the sonar's aperture: such a way goes round it. 0.0 where it does
+    not, or either end is within 0.5 m of the centre (no bearing to go round by).
+    """
+    start = np.asarray(start_xy[:2], dtype=np.float64)
+    end = np.asarray(end_xy[:2], dtype=np.float64)
+    centre = np.asarray(centre_xy[:2], dtype=np.float64)
+    here, there = start - centre, end - centre
+    r_here, r_there = float(np.linalg.norm(here)), float(np.linalg.norm(there))
+    way = end - start
+    length2 = float(way @ way)
+    if length2 < 1e-12 or min(r_here, r_there) < 0.5:
+        return 0.0
+    t = min(max(float((centre - start) @ way) / length2, 0.0), 1.0)
+    if float(np.linalg.norm(start + t * way - centre)) >= within * min(r_here, r_there):
+        return 0.0
+    turn = wrap_angle(math.atan2(there[1], there[0]) - math.atan2(here[1], here[0]))
+    return 0.0 if abs(turn) <= AROUND_STEP_RAD else turn
 
 
 def drive_heading(
@@ -335,12 +366,23 @@ class StationPlanner:
         """
         limit = self.half_aperture - self.settings.elevation_margin_rad
         total = 0.0
+        sight = math.atan2(float(rov_m[1] - asv_xy[1]), float(rov_m[0] - asv_xy[0]))
         for point in path_m:
             if self.settings.drive == "steered":
                 view = self.view(asv_xy[:2], self.facing(asv_xy, point), point)
-            else:
-                moved = self.within_walls(asv_xy[:2] + point[:2] - rov_m[:2])
-                view = self.view(moved, heading_rad, point)
+                beyond = max(0.0, abs(view.elevation_rad) - limit)
+                offset = point[:2] - rov_m[:2]
+                off_sight = abs(wrap_angle(math.atan2(float(offset[1]), float(offset[0])) - sight))
+                if beyond > 0.0 and min(off_sight, math.pi - off_sight) <= BLIND_OFF_RAD:
+                    # The ROV's way lies along the line of sight: the hull keeps pace ahead or
+                    # astern, facing it (backing away from a ROV flying at the station).
+                    moved = self.within_walls(asv_xy[:2] + offset)
+                    paced = self.view(moved, self.facing(moved, point), point)
+                    beyond = min(beyond, max(0.0, abs(paced.elevation_rad) - limit))
+                total += beyond
+                continue
+            moved = self.within_walls(asv_xy[:2] + point[:2] - rov_m[:2])
+            view = self.view(moved, heading_rad, point)
             total += max(0.0, abs(view.elevation_rad) - limit)
         return math.degrees(total)
 
@@ -366,11 +408,19 @@ class StationPlanner:
             return 0.0
         facing = self.facing(asv_xy, rov_m)
         hull, _ = drive_heading(math.atan2(float(way[1]), float(way[0])), facing)
+        s = self.settings
+        turns = abs(wrap_angle(hull - heading_rad)) + abs(wrap_angle(heading - hull))
+        round_rad = round_turn(asv_xy, origin, rov_m)
+        if round_rad != 0.0:
+            # Not at the ROV but round it (a way to its far side): across the line of sight
+            # all the way, on an arc about as long as the turn at the mean distance.
+            r_here = float(np.linalg.norm(np.asarray(asv_xy[:2]) - rov_m[:2]))
+            r_there = float(np.linalg.norm(np.asarray(origin[:2]) - rov_m[:2]))
+            arc = 0.5 * (r_here + r_there) * abs(round_rad) + abs(r_there - r_here)
+            return (turns + math.pi) / s.turn_rate_rad_s + arc / s.transit_speed_m_s
         # The hull along its way (or astern): the sonar on the ROV if that is about facing it.
         if abs(wrap_angle(hull - facing)) <= BLIND_OFF_RAD:
             return 0.0  # driving at the ROV, or backing away from it: still in view
-        s = self.settings
-        turns = abs(wrap_angle(hull - heading_rad)) + abs(wrap_angle(heading - hull))
         return turns / s.turn_rate_rad_s + length / s.transit_speed_m_s
 
     def _candidates(
