@@ -47,6 +47,7 @@ MIN_RANGE_M = 0.3
 MAX_RANGE_M = 20.0
 HEADING_ONLY_WITHIN_M = 0.3  # the ASV bridge's `heading_only_within_m`
 LOSS_REPORTED_S = 5.0
+OFF_BINS_DEG = (15.0, 45.0)
 
 
 @dataclass
@@ -75,6 +76,9 @@ class FollowRun:
     nearest_wall_m: float = math.inf
     stations: int = 0
     losses: list[Loss] = field(default_factory=list)
+    # Steps out of view by the hull's heading off the ROV's bearing (OFF_BINS_DEG's bins):
+    # facing it (the ROV under or over the aperture), part turned (a move), turned away.
+    out_by_off: list[int] = field(default_factory=lambda: [0] * (len(OFF_BINS_DEG) + 1))
 
 
 def _in_view(mount: SonarMountConfig, sonar: Transform, rov_m: np.ndarray) -> tuple[bool, float]:
@@ -209,6 +213,7 @@ def run_mission(
             bearing = math.atan2(float(rov_m[1] - asv_xy[1]), float(rov_m[0] - asv_xy[0]))
             off = math.degrees(wrap_angle(bearing - yaw - math.radians(mount.yaw_deg)))
             if not seen:
+                out.out_by_off[int(np.searchsorted(OFF_BINS_DEG, abs(off)))] += 1
                 if lost_from is None:
                     lost_from, lost_rows = t, []
                 lost_rows.append((rov_m.copy(), asv_xy.copy(), off))
@@ -262,6 +267,14 @@ def run(tank: TankName, plan_path: Path, *, drive: AsvDrive, duration_s: float, 
             f"{r.waypoints[0]} of {r.waypoints[1]}, {r.mission_s:.0f} s; ROV in view "
             f"{100 * share:.1f} % of it ({100 * masked:.1f} % with a fixture in its range "
             f"cell); ASV origin nearest a wall {r.nearest_wall_m:.2f} m; {r.stations} stations"
+        )
+        bins = [0.0, *OFF_BINS_DEG, 180.0]
+        print(
+            "  out of view, by the hull's heading off the ROV's bearing: "
+            + ", ".join(
+                f"{lo:g}-{hi:g} deg {n * STEP_S:.0f} s"
+                for lo, hi, n in zip(bins[:-1], bins[1:], r.out_by_off, strict=True)
+            )
         )
         for loss in r.losses:
             print(

@@ -608,10 +608,17 @@ class Follower:
             elif starting:
                 # Chosen as the way to a station starts and kept: on a way across the ROV's
                 # bearing the better end swaps half way, and each swap is a half turn.
-                facing = self.planner.facing(self._carrot, look)
-                heading, self._direction = drive_heading(
-                    way_heading, facing, current=self._direction
-                )
+                # Judged from where the hull is, which the autopilot drives (the carrot may be
+                # past a station just behind it: "ahead" there turns the hull half round).
+                hull_xy = self._carrot if self.asv_xy is None else self.asv_xy
+                from_hull = goal - hull_xy
+                if float(np.linalg.norm(from_hull)) > STAY_M:
+                    _, self._direction = drive_heading(
+                        math.atan2(float(from_hull[1]), float(from_hull[0])),
+                        self.planner.facing(hull_xy, look),
+                        current=self._direction,
+                    )
+                heading = wrap_angle(way_heading + (math.pi if self._direction == "reverse" else 0))
                 self._direction_for = station_xy.copy()
             else:
                 heading = wrap_angle(way_heading + (math.pi if self._direction == "reverse" else 0))
@@ -633,6 +640,10 @@ class Follower:
             # Turn first: the carrot waits where the hull is, so the target is a heading.
             self._carrot = self.asv_xy.copy()
             self._carrot_v = np.zeros(2)
+            # Steered: the way now starts where the hull is, not where the carrot was (a new
+            # station just behind the hull, chosen while the carrot was past it: "ahead" there
+            # turned the hull half round, off the ROV: `capsd bench follow`, nfp, 30 s lost).
+            self._direction_for = None
             return
         to_go = goal - self._carrot
         distance = float(np.linalg.norm(to_go))

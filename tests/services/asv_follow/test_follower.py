@@ -652,6 +652,35 @@ def test_a_steered_follower_backs_off_a_rov_astern_facing_it() -> None:
     assert max(abs(wrap_angle(t.heading_rad)) for t in targets) < math.radians(1.0)
 
 
+def test_a_station_just_behind_the_hull_is_backed_to_even_with_the_carrot_past_it() -> None:
+    """The drive direction is judged from the hull, not from where the carrot was left.
+
+    The carrot walks ahead of the hull; a new station chosen between the two (just behind the
+    hull, the carrot past it) was driven to "ahead" from the carrot's side: the autopilot then
+    turned the hull half round to drive its bow there, the sonar off the ROV (`capsd bench
+    follow`, nfp: a 30 s loss, the ROV's mission paused).
+    """
+    planner = StationPlanner(SonarMountConfig(), TankBounds(), StationSettings(drive="steered"))
+    follower = Follower(planner, FollowSettings())
+    rov = np.array([16.0, 8.0, -3.5])
+    xy, hull = np.array([10.0, 8.0]), 0.0
+    follower.on_pose(xy, hull)
+    follower.on_mode("GUIDED")
+    follower.on_fix(0.0, rov, None)
+    assert follower.step(0.0) is not None
+    follower._carrot = np.array([9.2, 8.0])  # on its way west (astern), past the new station
+    follower._direction = "forward"  # the way before ran towards the ROV
+    station_xy = np.array([9.8, 8.0])
+    view = planner.view(station_xy, 0.0, rov)
+    follower.station = Station(position_xy=station_xy, heading_rad=0.0, view=view)
+    follower._last_plan_s = math.inf  # keep this station
+    follower.on_fix(0.1, rov, None)
+    target = follower.step(0.1)
+    assert target is not None
+    assert target.direction == "reverse"
+    assert abs(wrap_angle(target.heading_rad)) < math.radians(20.0)  # still facing the ROV
+
+
 def test_a_rov_lost_where_no_station_sees_it_is_still_searched_for() -> None:
     """Its last fix by a wall, no station sees where it holds: the search starts all the same.
 
