@@ -141,7 +141,7 @@ class StationSettings:
     # How the ASV's autopilot moves it (AsvDrive) and, for a steered hull, what a second with
     # the sonar turned off the ROV costs, and how fast it drives and turns.
     drive: AsvDrive = "lateral"
-    blind_cost_per_s: float = 2.0
+    blind_cost_per_s: float = 8.0
     transit_speed_m_s: float = 0.3
     turn_rate_rad_s: float = math.radians(15.0)
 

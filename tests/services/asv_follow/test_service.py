@@ -27,7 +27,7 @@ def test_the_drive_reaches_the_planner_with_the_vehicles_speed_and_turn_rate() -
     assert settings.drive == "steered"
     assert settings.transit_speed_m_s == pytest.approx(0.4)
     assert settings.turn_rate_rad_s == pytest.approx(math.radians(10.0))
-    assert settings.blind_cost_per_s == pytest.approx(2.0)
+    assert settings.blind_cost_per_s == pytest.approx(8.0)
     lateral = msgspec.convert({"drive": "lateral"}, MotionConfig)
     assert lateral.drive_settings(StationConfig().settings()).drive == "lateral"
     with pytest.raises(msgspec.ValidationError, match="drive"):
