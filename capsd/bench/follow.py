@@ -25,7 +25,7 @@ import msgspec
 import numpy as np
 
 from capsd.geometry import Transform, wrap_angle
-from capsd.harness import FOLLOW_STATION, sonar_mount, start_station
+from capsd.harness import FOLLOW_STATION, AsvMode, sonar_mount, start_station
 from capsd.mission.controller import MissionController
 from capsd.mission.plan import load_plan
 from capsd.mission.view_guard import view_margin_rad
@@ -103,9 +103,10 @@ def run_mission(
     drive: AsvDrive,
     duration_s: float,
     seed: int = 0,
+    asv_mode: AsvMode = "follow",
     progress: Progress | None = None,
 ) -> FollowRun:
-    """Fly the plan once with the follower; see the module docstring."""
+    """Fly the plan once with the follower (or the ASV held at its start); see the module."""
     rng = np.random.default_rng(seed)
     world_tank = make_tank(tank_name)
     bounds = tank_bounds(world_tank)
@@ -177,7 +178,7 @@ def run_mission(
             rov.set_target(np.array(command.position_m))
             leg_end = mission.leg_end(command)
             follower.on_leg_end(t, None if leg_end is None else np.array(leg_end))
-        if k % FOLLOW_EVERY == 0:
+        if asv_mode == "follow" and k % FOLLOW_EVERY == 0:
             target = follower.step(t)
             if target is not None:
                 at_goal = float(np.linalg.norm(asv_xy - target.position_xy))
@@ -251,19 +252,28 @@ def _close_loss(
     )
 
 
-def run(tank: TankName, plan_path: Path, *, drive: AsvDrive, duration_s: float, seeds: int) -> int:
+def run(
+    tank: TankName,
+    plan_path: Path,
+    *,
+    drive: AsvDrive,
+    duration_s: float,
+    seeds: int,
+    asv_mode: AsvMode = "follow",
+) -> int:
     """Print one line per seed and the losses; the median share in view."""
     shares = []
     for seed in range(seeds):
         progress = Progress(duration_s, label=f"bench follow seed {seed}", unit=" s")
         r = run_mission(tank, plan_path, drive=drive, duration_s=duration_s, seed=seed,
-                        progress=progress)  # fmt: skip
+                        asv_mode=asv_mode, progress=progress)  # fmt: skip
         progress.close()
         share = r.in_view / r.steps if r.steps else 0.0
         shares.append(share)
         masked = r.in_view_masked / r.steps if r.steps else 0.0
+        asv = "held" if asv_mode == "station" else drive
         print(
-            f"{tank} {plan_path.name} ({drive}) seed {seed}: mission {r.state}, waypoint "
+            f"{tank} {plan_path.name} (ASV {asv}) seed {seed}: mission {r.state}, waypoint "
             f"{r.waypoints[0]} of {r.waypoints[1]}, {r.mission_s:.0f} s; ROV in view "
             f"{100 * share:.1f} % of it ({100 * masked:.1f} % with a fixture in its range "
             f"cell); ASV origin nearest a wall {r.nearest_wall_m:.2f} m; {r.stations} stations"

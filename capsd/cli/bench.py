@@ -161,7 +161,12 @@ def _cmd_bench_follow(args: argparse.Namespace) -> int:
     from capsd.bench import follow
 
     return follow.run(
-        args.tank, args.mission, drive=args.asv_drive, duration_s=args.duration, seeds=args.seeds
+        args.tank,
+        args.mission,
+        drive=args.asv_drive,
+        duration_s=args.duration,
+        seeds=args.seeds,
+        asv_mode=args.asv,
     )
 
 
@@ -419,6 +424,13 @@ def register(sub: Subcommands) -> None:
         help="the plan (default: deploy/missions/nfp-lawnmower.yaml)",
     )
     bfollow.add_argument("--asv-drive", choices=("steered", "lateral"), default="steered")
+    bfollow.add_argument(
+        "--asv",
+        choices=("follow", "station"),
+        default="follow",
+        help="station: the ASV held where it starts (the pilot's station for the plan's start), "
+        "to compare with following",
+    )
     bfollow.add_argument("--duration", type=positive_float, default=900.0,
                          help="seconds at most per run")  # fmt: skip
     bfollow.add_argument("--seeds", type=int, default=1, help="runs (fix noise seeds)")

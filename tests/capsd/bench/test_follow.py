@@ -43,3 +43,17 @@ def test_a_mockup_mission_starts_in_view_and_is_scored() -> None:
     assert 0 < run.in_view <= run.steps
     assert run.waypoints[0] >= 1
     assert run.nearest_wall_m > 1.0
+
+
+def test_an_asv_held_at_its_start_does_not_move() -> None:
+    """The stationary comparison: no follower, the ASV where the pilot put it."""
+    held = run_mission(
+        "nfp",
+        REPO / "deploy" / "missions" / "nfp-lawnmower.yaml",
+        drive="steered",
+        duration_s=30.0,
+        asv_mode="station",
+    )
+    assert held.stations == 0
+    assert held.steps > 0
+    assert held.in_view > 0  # it starts where the pilot's station sees it
