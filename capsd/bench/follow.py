@@ -81,19 +81,18 @@ class FollowRun:
     out_by_off: list[int] = field(default_factory=lambda: [0] * (len(OFF_BINS_DEG) + 1))
 
 
-def _in_view(mount: SonarMountConfig, sonar: Transform, rov_m: np.ndarray) -> tuple[bool, float]:
-    """Whether a perfect detector would see the ROV from this sonar pose; and its azimuth."""
+def _in_view(mount: SonarMountConfig, sonar: Transform, rov_m: np.ndarray) -> bool:
+    """Whether a perfect detector would see the ROV from this sonar pose."""
     p = sonar.inverse().apply(rov_m)
     try:
         r, azimuth, elevation = to_polar(mount.beam_model, p)
     except ValueError:
-        return False, 0.0
-    inside = (
+        return False
+    return (
         abs(elevation) <= math.radians(mount.vertical_aperture_deg) / 2.0
         and abs(azimuth) <= math.radians(HALF_FAN_DEG)
         and MIN_RANGE_M <= r <= MAX_RANGE_M
     )
-    return inside, azimuth
 
 
 def run_mission(
@@ -152,7 +151,7 @@ def run_mission(
         body = Transform(rotation, translation)
         state = rov.state(t)
         rov_m = state.position_m
-        seen, azimuth = _in_view(mount, body.compose(sonar_on_asv), rov_m)
+        seen = _in_view(mount, body.compose(sonar_on_asv), rov_m)
         yaw = math.atan2(float(rotation[1, 0]), float(rotation[0, 0]))
         asv_xy = np.array(translation[:2])
         follower.on_pose(asv_xy, yaw)
@@ -223,7 +222,6 @@ def run_mission(
                 lost_from = None
         if progress is not None and k % 50 == 0:
             progress.update(t)
-        del azimuth
     if lost_from is not None:
         _close_loss(out, lost_from, steps * STEP_S, lost_rows)
     out.state = mission.progress.state

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
-from capsd.bench.follow import _in_view, run_mission
+from capsd.bench.follow import FollowRun, _in_view, run_mission
 from capsd.geometry import Transform
 from capsd.mounts import SonarMountConfig
 
@@ -25,19 +26,19 @@ def test_in_view_is_the_aperture_and_the_fan() -> None:
         return np.array([distance_m * math.cos(b), distance_m * math.sin(b), z - 3.0])
 
     mid = 3.0 / math.tan(math.radians(30.0))
-    assert _in_view(mount, sonar, at(mid, 0.0))[0]
-    assert not _in_view(mount, sonar, at(mid * 0.6, 0.0))[0]  # under the aperture
-    assert not _in_view(mount, sonar, at(mid * 2.0, 0.0))[0]  # above it
-    assert not _in_view(mount, sonar, at(mid, 90.0))[0]  # off the fan
+    assert _in_view(mount, sonar, at(mid, 0.0))
+    assert not _in_view(mount, sonar, at(mid * 0.6, 0.0))  # under the aperture
+    assert not _in_view(mount, sonar, at(mid * 2.0, 0.0))  # above it
+    assert not _in_view(mount, sonar, at(mid, 90.0))  # off the fan
+
+
+def _fly(tank: Literal["nfp", "mockup"], duration_s: float, **options: object) -> FollowRun:
+    plan = REPO / "deploy" / "missions" / f"{tank}-lawnmower.yaml"
+    return run_mission(tank, plan, drive="steered", duration_s=duration_s, **options)  # type: ignore[arg-type]
 
 
 def test_a_mockup_mission_starts_in_view_and_is_scored() -> None:
-    run = run_mission(
-        "mockup",
-        REPO / "deploy" / "missions" / "mockup-lawnmower.yaml",
-        drive="steered",
-        duration_s=40.0,
-    )
+    run = _fly("mockup", 40.0)
     assert run.state in ("running", "paused", "done")
     assert run.steps > 300  # the mission started within a few seconds
     assert 0 < run.in_view <= run.steps
@@ -47,13 +48,7 @@ def test_a_mockup_mission_starts_in_view_and_is_scored() -> None:
 
 def test_an_asv_held_at_its_start_does_not_move() -> None:
     """The stationary comparison: no follower, the ASV where the pilot put it."""
-    held = run_mission(
-        "nfp",
-        REPO / "deploy" / "missions" / "nfp-lawnmower.yaml",
-        drive="steered",
-        duration_s=30.0,
-        asv_mode="station",
-    )
+    held = _fly("nfp", 30.0, asv_mode="station")
     assert held.stations == 0
     assert held.steps > 0
     assert held.in_view > 0  # it starts where the pilot's station sees it
