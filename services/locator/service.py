@@ -48,8 +48,9 @@ from capsd.services.locator.fix import (
 )
 from capsd.services.locator.moving_echo import MovingEchoes, MovingEchoSettings
 from capsd.services.locator.paper import paper_fix
+from capsd.services.locator.relocation import LastSeen, Relocation, RelocationSettings
 from capsd.services.locator.timeline import Lookup, Timeline
-from capsd.services.locator.tracker import Tracker, TrackerSettings
+from capsd.services.locator.tracker import Association, Tracker, TrackerSettings
 from capsd.services.locator.waiting import PoseWait
 from capsd.signing import SiteKey
 from capsd.sonar_geometry import to_polar
@@ -127,6 +128,24 @@ class TrackingConfig(ConfigSection, frozen=True, kw_only=True):
     manoeuvre_accel_density_xy: NonNeg = 0.5
     manoeuvre_accel_density_z: NonNeg = 0.1
     manoeuvre_window_s: Positive = 1.0
+    # Where the ROV could be since its last confirmed fix: within reach_radius_m +
+    # reach_drift_m_s x elapsed of where its velocity then carried it for up to reach_carry_s.
+    reach_radius_m: Annotated[float, msgspec.Meta(ge=0.0, le=20.0)] = 1.0
+    reach_drift_m_s: Annotated[float, msgspec.Meta(ge=0.0, le=2.0)] = 0.1
+    reach_carry_s: Annotated[float, msgspec.Meta(ge=0.0, le=30.0)] = 2.0
+    # prove: a track starting where the ROV could not be is unsure until its echo moves as no
+    # static one could, or for relocate_confirm_s; a candidate where the ROV could be takes
+    # over (capsd.services.locator.relocation). off: hits alone confirm any new track.
+    relocation: Literal["prove", "off"] = "prove"
+    relocate_confirm_s: Annotated[float, msgspec.Meta(ge=0.0, le=600.0)] = 20.0
+
+    def relocation_settings(self) -> RelocationSettings:
+        return RelocationSettings(
+            radius_m=self.reach_radius_m,
+            drift_m_s=self.reach_drift_m_s,
+            carry_s=self.reach_carry_s,
+            confirm_after_s=self.relocate_confirm_s,
+        )
 
     def settings(self) -> TrackerSettings:
         return TrackerSettings(
@@ -152,16 +171,14 @@ class ClutterConfig(ConfigSection, frozen=True, kw_only=True):
     # refuse_start: an echo whose range cell, at its bearing and anywhere in the vertical
     # aperture, holds a mapped fixture (`tank.fixtures`, grown by `map_margin_m`) may update a
     # track but never start one (the 2D image cannot tell the two apart), unless it lies where
-    # the ROV was last confirmed (see `reacquire_*`); refuse_unless_moving: the same, unless
+    # the ROV was last confirmed (see `reacquire_window_s`); refuse_unless_moving: the same, unless
     # the echo has moved as no static source's could (capsd.services.locator.moving_echo,
     # `moving_*`); off.
     map_explained: Literal["refuse_start", "refuse_unless_moving", "off"] = "refuse_unless_moving"
     map_margin_m: Annotated[float, msgspec.Meta(ge=0.0, le=2.0)] = 0.3
     # A ROV lost over a rack is found again where it was: a map-explained echo may start a
-    # track within reacquire_radius_m + reacquire_speed_m_s x (time since the last confirmed
-    # fix) of that fix, for reacquire_window_s. A fixture's echo farther off still may not.
-    reacquire_radius_m: Annotated[float, msgspec.Meta(ge=0.0, le=5.0)] = 0.5
-    reacquire_speed_m_s: Annotated[float, msgspec.Meta(ge=0.0, le=2.0)] = 0.3
+    # track where the ROV could be since its last confirmed fix (`tracking.reach_*`), for
+    # reacquire_window_s after it. A fixture's echo farther off still may not.
     reacquire_window_s: Annotated[float, msgspec.Meta(ge=0.0, le=600.0)] = 10.0
     # The moving-echo test: followed at least moving_min_age_s, then at least moving_shift_m
     # from wherever a static source of its first sighting would now appear.
@@ -341,8 +358,15 @@ class Locator:
         self.sonar_speed_pings = 0
         self._logged_scale: float | None = None
         self._installed = np.zeros((3, 3))  # the last fix's installation covariance
-        # Where and when the ROV was last seen by a confirmed track (the reacquire rule).
-        self._last_confirmed: tuple[int, Array] | None = None
+        # Where and when the ROV was last seen by a confirmed track (the reacquire and
+        # relocation rules), and whether the current track is an unproven relocation.
+        self._last_confirmed: LastSeen | None = None
+        self.relocation = Relocation(
+            config.tracking.relocation_settings(),
+            config.clutter.moving_settings(),
+            beam_model=config.sonar.beam_model,
+            half_aperture_rad=self.aperture_rad / 2.0,
+        )
         # Velocities wait here until the ping they precede, so the tracker sees time in order.
         self._velocities: list[tuple[int, Array, Array]] = []
         # Zenoh may run different subscribers' callbacks on different threads at once.
@@ -455,13 +479,37 @@ class Locator:
         """Whether a map-explained echo lies where the ROV was last confirmed (may restart)."""
         if self._last_confirmed is None:
             return False
-        seen_ns, seen_m = self._last_confirmed
-        settings = self.config.clutter
-        elapsed_s = (stamp - seen_ns) / 1e9
-        if not 0.0 <= elapsed_s <= settings.reacquire_window_s:
+        elapsed_s = (stamp - self._last_confirmed.stamp_ns) / 1e9
+        if not 0.0 <= elapsed_s <= self.config.clutter.reacquire_window_s:
             return False
-        radius_m = settings.reacquire_radius_m + settings.reacquire_speed_m_s * elapsed_s
-        return float(np.linalg.norm(position - seen_m)) <= radius_m
+        return self.relocation.reachable(stamp, position, self._last_confirmed)
+
+    def _track(
+        self, stamp: int, usable: list[tuple[Array, Array]], may_start: list[bool]
+    ) -> Association:
+        """The tracker's update, under the relocation rule (capsd.services.locator.relocation)."""
+        last = self._last_confirmed
+        if self.config.tracking.relocation == "off":
+            return self.tracker.update(stamp, usable, may_start=may_start)
+        if self.relocation.active:
+            # The ROV reappearing where it could be wins over an unproven far track.
+            near = [
+                i
+                for i, (p, _) in enumerate(usable)
+                if may_start[i] and self.relocation.reachable(stamp, p, last)
+            ]
+            if near:
+                best = min(near, key=lambda i: float(np.trace(usable[i][1])))
+                self.tracker.restart(stamp, *usable[best])
+                self.relocation.take_over()
+                return Association(best, None, reinitialised=True)
+        association = self.tracker.update(stamp, usable, may_start=may_start)
+        if association.reinitialised and association.index is not None:
+            if self.relocation.reachable(stamp, usable[association.index][0], last):
+                self.relocation.end()
+            else:
+                self.relocation.begin(stamp)
+        return association
 
     def _learn_clutter(
         self,
@@ -488,6 +536,10 @@ class Locator:
                 "static_clutter_cells": self.clutter.static_cells(self._solved_until_ns),
                 "map_explained_echoes": self.map_explained,
                 "moving_map_explained_echoes": self.moving_echoes,
+                "relocations": self.relocation.started,
+                "relocations_moved": self.relocation.proven_moving,
+                "relocations_waited": self.relocation.proven_waiting,
+                "relocations_taken_over": self.relocation.taken_over,
                 "water_speed_pings": self.water_speed_pings,
                 "sonar_speed_pings": self.sonar_speed_pings,
             }
@@ -526,6 +578,7 @@ class Locator:
         )
         reasons: list[str] = []
         fixes: list[tuple[Array, Array | None, Detection]] = []
+        sonar: Transform | None = None
         if not candidates:
             reasons.append("no_detection")
         for name, lookup in (("asv_pose", pose), ("depth", depth), ("attitude", attitude)):
@@ -533,6 +586,7 @@ class Locator:
                 reasons.append(f"{name}_{lookup.failure}")
         if pose.value is not None and depth.value is not None and attitude.value is not None:
             asv = Transform(quat_to_matrix(pose.value[1]), pose.value[0])
+            sonar = asv.compose(self.mount)
             # A depth extrapolated from its last two readings carries their noise amplified
             # (x2.2 one reading gap past the newest; more when readings are lost on a link).
             depth_m, depth_sigma_m, temperature_c = depth.value
@@ -555,7 +609,7 @@ class Locator:
             ]
         else:
             explained, installed = [], []
-        return self._finish(out, stamp, fixes, reasons, explained, installed)
+        return self._finish(out, stamp, fixes, reasons, explained, installed, sonar)
 
     def _rescale(
         self, candidates: list[Detection], assumed_m_s: float | None, temperature_c: float
@@ -671,6 +725,7 @@ class Locator:
         reasons: list[str],
         explained: list[bool],
         installed: list[Array],
+        sonar: Transform | None,
     ) -> RovFix:
         reason = ",".join(sorted(set(reasons))) or None
         if self.method.tracking == "per_frame":
@@ -684,6 +739,7 @@ class Locator:
                 raw_covariance_m2=None if covariance is None else _flat(covariance),
             )
         usable = [(p, c) for p, c, _ in fixes if c is not None]
+        echoes = [d for _, c, d in fixes if c is not None]
         by_map = [e for (_, c, _), e in zip(fixes, explained, strict=True) if c is not None]
         by_install = [i for (_, c, _), i in zip(fixes, installed, strict=True) if c is not None]
         self._fuse_velocities_until(stamp)
@@ -693,15 +749,29 @@ class Locator:
             and (not mapped or self._reacquires(stamp, p))
             for (p, _), mapped in zip(usable, by_map, strict=True)
         ]
-        association = self.tracker.update(stamp, usable, may_start=may_start)
+        association = self._track(stamp, usable, may_start)
+        if association.index is not None and sonar is not None:
+            echo = echoes[association.index]
+            self.relocation.observe(
+                stamp,
+                sonar,
+                range_m=echo.range_m,
+                azimuth_rad=echo.azimuth_rad,
+                position_m=usable[association.index][0],
+            )
         estimate = self.tracker.estimate()
+        if estimate.state in ("none", "lost"):
+            self.relocation.end()
+        unproven = self.relocation.active
         if (
             association.index is not None
             and estimate.state == "tracking"
             and estimate.position_m is not None
+            and estimate.velocity_m_s is not None
+            and not unproven
         ):
-            self._last_confirmed = (stamp, estimate.position_m)
-        if learning:
+            self._last_confirmed = LastSeen(stamp, estimate.position_m, estimate.velocity_m_s)
+        if learning and not unproven:
             self._learn_clutter(stamp, usable, association.index, estimate.position_m)
         raw = usable[association.index] if association.index is not None else None
         if raw is None and usable:
@@ -721,16 +791,21 @@ class Locator:
         out = msgspec.structs.replace(
             out,
             no_fix_reason=None if raw is not None else reason,
-            track_state=estimate.state,
+            # An unproven relocation is reported as the new track it is.
+            track_state="tentative"
+            if unproven and estimate.state == "tracking"
+            else estimate.state,
             track_resets=estimate.resets,
         )
         if estimate.position_m is None or estimate.covariance_m2 is None:
             return out
         assert estimate.velocity_m_s is not None
-        # Only a measured, gated update of a confirmed track is "good"; a coasted prediction or
-        # a tentative track is honest but "unsure".
+        # Only a measured, gated update of a confirmed track is "good"; a coasted prediction,
+        # a tentative track or an unproven relocation is honest but "unsure".
         quality: Literal["good", "unsure"] = (
-            "good" if estimate.state == "tracking" and raw is not None else "unsure"
+            "good"
+            if estimate.state == "tracking" and raw is not None and not unproven
+            else "unsure"
         )
         return msgspec.structs.replace(
             out,

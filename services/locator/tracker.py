@@ -120,6 +120,11 @@ class Tracker:
 
     # ------------------------------------------------------------------ inputs
 
+    def restart(self, stamp_ns: int, position: Array, covariance: Array) -> None:
+        """Start a new (tentative) track on this fix, whatever the current one; a reset."""
+        self.resets += 1
+        self._start(stamp_ns, position, covariance)
+
     def update(
         self,
         stamp_ns: int,

@@ -18,6 +18,7 @@ from capsd.services.locator.service import (
     Locator,
     MethodConfig,
     SoundSpeedConfig,
+    TrackingConfig,
 )
 from capsd.sonar_geometry import to_polar
 from capsd.sound_speed import speed_of_sound_m_s
@@ -287,8 +288,12 @@ def test_a_static_echo_learned_while_tracking_never_restarts_the_track() -> None
     assert not any(q.startswith("good") for q in after_loss)
     assert after_loss[-1] == "invalid:static_clutter"
     assert locator.clutter_refusals > 0
-    # Without the clutter map the lost track restarts on the echo, called good.
-    blind = _locator(clutter=ClutterConfig(mode="off"))
+    # Without the clutter map the lost track restarts on the echo; 1.6 m off where the ROV was
+    # lost 2 s before, it is an unproven relocation, unsure; with neither rule, called good.
+    unmapped = _locator(clutter=ClutterConfig(mode="off"))
+    assert not any(q.startswith("good") for q in _ghost_then_loss(unmapped))
+    assert unmapped.relocation.started == 1
+    blind = _locator(clutter=ClutterConfig(mode="off"), tracking=TrackingConfig(relocation="off"))
     assert any(q.startswith("good") for q in _ghost_then_loss(blind))
 
 
@@ -340,12 +345,14 @@ def test_an_echo_over_a_rack_that_moves_as_no_fixture_can_starts_a_track() -> No
     assert moving[-1] == "tracking:None", moving
 
 
-def _lost_then_over_the_rack(locator: Locator, *, hidden_s: float) -> list[str]:
+def _lost_then_over_the_rack(
+    locator: Locator, *, hidden_s: float, seen_s: float = 1.0
+) -> list[str]:
     """Tracked 1.5 m beside the rack for 2 s, unseen for `hidden_s`, then seen over the rack."""
     beside = ROV + np.array([0.0, 1.5, 0.0])
     states = []
     steps_before, hidden = 20, round(hidden_s * 10)
-    for k in range(steps_before + hidden + 10):  # 10 Hz
+    for k in range(steps_before + hidden + round(seen_s * 10)):  # 10 Hz
         stamp = k * SECOND // 10
         _feed_inputs(locator, from_s=k / 10, until_s=(k + 1) / 10)
         if k < steps_before:
@@ -363,19 +370,20 @@ def _lost_then_over_the_rack(locator: Locator, *, hidden_s: float) -> list[str]:
 def test_a_rov_lost_over_a_rack_is_found_again_where_it_was_last_confirmed() -> None:
     rack = TankFixture(name="rack", lo_m=(7.5, 4.5, -3.5), hi_m=(8.8, 5.5, -3.0))
     tank = TankBounds(fixtures=(rack,))
-    # 3 s unseen: 1.5 m from the last confirmed fix is within 0.5 m + 0.3 m/s x 3 s.
-    found = _lost_then_over_the_rack(_locator(tank=tank), hidden_s=3.0)
+    # 6 s unseen: 1.5 m from the last confirmed fix of a ROV holding still is within where it
+    # could be (1 m + 0.1 m/s x 6 s, `tracking.reach_*`).
+    found = _lost_then_over_the_rack(_locator(tank=tank), hidden_s=6.0)
     assert found[-1].startswith("tracking"), found
     # Without the rule, or too long unseen to say it is the same ROV: the rack's echo, refused.
     never = _locator(tank=tank, clutter=ClutterConfig(reacquire_window_s=0.0))
-    assert set(_lost_then_over_the_rack(never, hidden_s=3.0)) == {"lost:map_clutter"}
+    assert set(_lost_then_over_the_rack(never, hidden_s=6.0)) == {"lost:map_clutter"}
     stale = _locator(tank=tank, clutter=ClutterConfig(reacquire_window_s=5.0))
     assert set(_lost_then_over_the_rack(stale, hidden_s=6.0)) == {"lost:map_clutter"}
-    # Too far for the time unseen (0.5 m + 0.3 m/s x 2.5 s = 1.25 m < 1.5 m): refused until
-    # the ROV could have come that far (after 3.33 s).
-    fast = _lost_then_over_the_rack(_locator(tank=tank), hidden_s=2.5)
-    assert fast[:8] == ["lost:map_clutter"] * 8, fast
-    assert fast[-1].startswith("tentative"), fast
+    # Too far for the time unseen (1 m + 0.1 m/s x 3 s = 1.3 m < 1.5 m): refused until the ROV
+    # could have come that far (5 s after its last confirmed fix).
+    fast = _lost_then_over_the_rack(_locator(tank=tank), hidden_s=3.0, seen_s=3.0)
+    assert fast[:15] == ["lost:map_clutter"] * 15, fast
+    assert fast[-1].startswith("tracking"), fast
 
 
 def test_a_ping_past_the_newest_pose_is_one_to_wait_for() -> None:
@@ -390,3 +398,91 @@ def test_a_ping_past_the_newest_pose_is_one_to_wait_for() -> None:
     assert locator.pose_covers(2 * SECOND)
     fix = locator.locate(_ping(2 * SECOND, _detection_of(locator, ROV)), seq=0)
     assert fix.no_fix_reason is None or "asv_pose" not in fix.no_fix_reason
+
+
+def _lost_then_elsewhere(
+    locator: Locator,
+    *,
+    echo_m: np.ndarray,
+    echo_speed_m_s: float = 0.0,
+    rov_back_after_s: float | None = None,
+    seen_s: float = 8.0,
+) -> list[RovFix]:
+    """Tracked holding at ROV for 3 s, unseen 5 s, then an echo at `echo_m`, and the ROV again.
+
+    The echo moves along x at `echo_speed_m_s`; the ROV is seen where it was lost from
+    `rov_back_after_s` after the echo's first sighting.
+    """
+    fixes = []
+    for k in range(80 + round(seen_s * 10)):  # 10 Hz
+        stamp = k * SECOND // 10
+        _feed_inputs(locator, from_s=k / 10, until_s=(k + 1) / 10)
+        seen = []
+        if k < 30:
+            seen.append(_detection_of(locator, ROV))
+        elif k >= 80:
+            since_s = (k - 80) / 10
+            echo = echo_m + np.array([echo_speed_m_s * since_s, 0.0, 0.0])
+            seen.append(_detection_of(locator, echo))
+            if rov_back_after_s is not None and since_s >= rov_back_after_s:
+                seen.append(_detection_of(locator, ROV))
+        fix = locator.locate(_ping(stamp, *seen), seq=k)
+        if k >= 80:
+            fixes.append(fix)
+    return fixes
+
+
+def test_a_track_far_from_where_the_rov_was_lost_is_unsure_until_it_persists() -> None:
+    """An unmapped static echo 2.1 m from where the ROV was lost 5 s before.
+
+    Session 34's demo: confirmed on 3 hits, good for 8 s, 2.2-4.5 m off; ArduSub flew 1.5 m
+    off its lane.
+    """
+    echo = ROV + np.array([0.0, -2.1, 0.0])
+    wary = _locator(tracking=TrackingConfig(relocate_confirm_s=4.0))
+    fixes = _lost_then_elsewhere(wary, echo_m=echo)
+    good = [k for k, f in enumerate(fixes) if f.quality == "good"]
+    # 1 m + 0.1 m/s x 5 s = 1.5 m < 2.1 m: the ROV could not be there; good only after 4 s.
+    assert good, [f"{f.quality}:{f.track_state}" for f in fixes]
+    assert good[0] == 40, [f"{f.quality}:{f.track_state}" for f in fixes]
+    assert {f.track_state for f in fixes[:40]} == {"tentative"}
+    assert wary.counters()["relocations"] == 1
+    assert wary.counters()["relocations_waited"] == 1
+    # Hits alone: good on the third ping.
+    trusting = _locator(tracking=TrackingConfig(relocation="off"))
+    fixes = _lost_then_elsewhere(trusting, echo_m=echo)
+    assert [f.quality for f in fixes[:3]] == ["unsure", "unsure", "good"]
+    # Where the ROV could be (1.2 m off after 5 s): confirmed on hits as before.
+    near = _lost_then_elsewhere(_locator(), echo_m=ROV + np.array([0.0, -1.2, 0.0]))
+    assert [f.quality for f in near[:3]] == ["unsure", "unsure", "good"]
+
+
+def test_the_rov_reappearing_where_it_was_lost_takes_over_a_far_track() -> None:
+    echo = ROV + np.array([0.0, -2.1, 0.0])
+    locator = _locator()
+    fixes = _lost_then_elsewhere(locator, echo_m=echo, rov_back_after_s=2.0)
+    assert all(f.quality != "good" for f in fixes[:20])
+    back = fixes[20:]
+    assert back[0].raw_position_m is not None
+    assert np.allclose(back[0].raw_position_m, ROV, atol=0.05)  # taken over on its first ping
+    assert back[2].quality == "good"  # then confirmed on hits
+    assert all(
+        f.quality != "good" or np.linalg.norm(np.array(f.position_m) - ROV) < 0.1 for f in fixes
+    )
+    assert locator.counters()["relocations_taken_over"] == 1
+
+
+def test_a_far_track_whose_echo_moves_as_a_rov_is_proven_by_it() -> None:
+    """The pilot flew the ROV 3 m off while it was unseen; it is seen moving at 0.3 m/s."""
+    locator = _locator()
+    fixes = _lost_then_elsewhere(
+        locator, echo_m=ROV + np.array([-1.0, -3.0, 0.0]), echo_speed_m_s=0.3
+    )
+    good = [k for k, f in enumerate(fixes) if f.quality == "good"]
+    # Followed at least 1 s and 10 sightings, then 0.3 m from where a static source would be.
+    assert good, [f.quality for f in fixes]
+    assert 10 <= good[0] <= 25, [f.quality for f in fixes]
+    assert locator.counters()["relocations_moved"] == 1
+    # Held still there, it would wait the full relocate_confirm_s (20 s).
+    still = _lost_then_elsewhere(_locator(), echo_m=ROV + np.array([-1.0, -3.0, 0.0]))
+    assert all(f.quality != "good" for f in still)
