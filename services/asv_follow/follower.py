@@ -213,6 +213,7 @@ class Follower:
             self._carrot_v = np.zeros(2)
             self._carrot_heading = self.asv_heading
         fresh = self.rov_m is not None and now_s - self.fix_s <= self.settings.fix_timeout_s
+        self._note_arrival(now_s)
         replanned = False
         if (
             fresh
@@ -264,7 +265,10 @@ class Follower:
             and self.station is not None
             and lost_for >= self.settings.reacquire_after_s
             and now_s - self._last_plan_s >= self.settings.reacquire_after_s
-            and (not self._searched or self._looked_long_enough(now_s))
+            # The first look too waits for the station in hand: a ROV lost on a blind way to
+            # a station chosen to see it is seen once the hull is there and faces it (a bench
+            # run: a search 6 s into the loss sent the ASV 5 m off, blind, as it arrived).
+            and self._looked_long_enough(now_s)
         ):
             self._last_plan_s = now_s
             self._arrived_s = None
@@ -479,14 +483,11 @@ class Follower:
                 return SEARCH_SEEN_WEIGHT
         return 1.0
 
-    def _looked_long_enough(self, now_s: float) -> bool:
-        """Whether the last look's station was reached and watched for SEARCH_DWELL_S.
-
-        (A turn round a small tank's ROV takes longer than a look's period.) Or SEARCH_STUCK_S
-        passed since it was chosen.
-        """
-        assert self._carrot is not None
-        assert self.station is not None
+    def _note_arrival(self, now_s: float) -> None:
+        """Keep `_arrived_s`: when the carrot reached the station and its heading (or None)."""
+        if self._carrot is None or self.station is None:
+            self._arrived_s = None
+            return
         there = float(np.linalg.norm(self._carrot - self.station.position_xy)) < 0.05 and abs(
             wrap_angle(self._carrot_heading - self.station.heading_rad)
         ) < math.radians(5.0)
@@ -494,6 +495,13 @@ class Follower:
             self._arrived_s = None
         elif self._arrived_s is None:
             self._arrived_s = now_s
+
+    def _looked_long_enough(self, now_s: float) -> bool:
+        """Whether the station in hand was reached and watched for SEARCH_DWELL_S.
+
+        (A turn round a small tank's ROV takes longer than a look's period.) Or SEARCH_STUCK_S
+        passed since it was chosen.
+        """
         dwelt = self._arrived_s is not None and now_s - self._arrived_s >= SEARCH_DWELL_S
         return dwelt or now_s - self._last_plan_s >= SEARCH_STUCK_S
 

@@ -119,7 +119,23 @@ def test_without_a_fix_it_holds_then_looks_again_from_another_bearing() -> None:
     assert all(t is not None and t.state == "holding" for t in held)
     assert follower.station is first
     assert follower.replans == 1
-    follower.step(6.0)  # lost for 6 s: another look
+    # Lost for 6 s, but the hull is still on its way to the station chosen to see the ROV.
+    follower.step(6.0)
+    assert follower.station is first
+    assert follower.looks == 0
+    # Once there and watched for 2 s (SEARCH_DWELL_S), it looks again.
+    k, arrived_s = 61, None
+    while follower.looks == 0 and k < 600:
+        target = follower.step(k * 0.1)
+        assert target is not None
+        follower.on_pose(target.position_xy, target.heading_rad)  # an ASV on its target
+        there = np.allclose(target.position_xy, first.position_xy, atol=0.05)
+        if arrived_s is None and there and abs(target.heading_rad - first.heading_rad) < 0.08:
+            arrived_s = k * 0.1
+        k += 1
+    looked_s = (k - 1) * 0.1
+    assert arrived_s is not None
+    assert arrived_s + 2.0 - 1e-9 <= looked_s <= arrived_s + 2.2
     second = follower.station
     assert second is not None
     assert second is not first
@@ -133,13 +149,13 @@ def test_without_a_fix_it_holds_then_looks_again_from_another_bearing() -> None:
         second.position_xy, second.heading_rad, np.array([20.0, 6.0, -3.5])
     )
     assert follower.planner.view_is_good(view)
-    follower.step(9.0)
+    follower.step(looked_s + 3.0)
     assert follower.looks == 1  # not again before another 6 s
     # A pilot's mode change forgets the hand-over: back in GUIDED it starts where the ASV is.
     follower.on_mode("MANUAL")
     follower.on_pose(np.array([12.0, 9.0]), 0.5)
     follower.on_mode("GUIDED")
-    target = follower.step(31.0)
+    target = follower.step(looked_s + 25.0)
     assert target is not None
     assert np.allclose(target.position_xy, [12.0, 9.0])
     assert target.heading_rad == 0.5
