@@ -130,8 +130,8 @@ class TrackingConfig(ConfigSection, frozen=True, kw_only=True):
     manoeuvre_window_s: Positive = 1.0
     # Where the ROV could be since its last confirmed fix: within reach_radius_m +
     # reach_drift_m_s x elapsed of where its velocity then carried it for up to reach_carry_s.
-    reach_radius_m: Annotated[float, msgspec.Meta(ge=0.0, le=20.0)] = 1.0
-    reach_drift_m_s: Annotated[float, msgspec.Meta(ge=0.0, le=2.0)] = 0.1
+    reach_radius_m: Annotated[float, msgspec.Meta(ge=0.0, le=20.0)] = 0.5
+    reach_drift_m_s: Annotated[float, msgspec.Meta(ge=0.0, le=2.0)] = 0.2
     reach_carry_s: Annotated[float, msgspec.Meta(ge=0.0, le=30.0)] = 2.0
     # prove: a track starting where the ROV could not be is unsure until its echo moves as no
     # static one could, or for relocate_confirm_s; a candidate where the ROV could be takes
@@ -492,11 +492,13 @@ class Locator:
         if self.config.tracking.relocation == "off":
             return self.tracker.update(stamp, usable, may_start=may_start)
         if self.relocation.active:
-            # The ROV reappearing where it could be wins over an unproven far track.
+            # The ROV reappearing where it could be wins over an unproven far track; not the
+            # track's own echo, which the reach, growing with the time since, may come to hold.
+            own = self.tracker.gated(stamp, usable)
             near = [
                 i
                 for i, (p, _) in enumerate(usable)
-                if may_start[i] and self.relocation.reachable(stamp, p, last)
+                if may_start[i] and not own[i] and self.relocation.reachable(stamp, p, last)
             ]
             if near:
                 best = min(near, key=lambda i: float(np.trace(usable[i][1])))

@@ -120,6 +120,13 @@ class Tracker:
 
     # ------------------------------------------------------------------ inputs
 
+    def gated(self, stamp_ns: int, fixes: list[tuple[Array, Array]]) -> list[bool]:
+        """Whether each fix falls inside the current track's gate now (no track: none does)."""
+        if self.state in ("none", "lost") or self.stamp_ns is None or stamp_ns < self.stamp_ns:
+            return [False] * len(fixes)
+        x_pred, p_pred = self._predict(stamp_ns)
+        return [d <= self.settings.gate_chi2 for d, _ in _scored(fixes, x_pred, p_pred)]
+
     def restart(self, stamp_ns: int, position: Array, covariance: Array) -> None:
         """Start a new (tentative) track on this fix, whatever the current one; a reset."""
         self.resets += 1

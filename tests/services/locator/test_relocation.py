@@ -14,7 +14,7 @@ from capsd.services.locator.relocation import LastSeen, Relocation, RelocationSe
 from capsd.sonar_geometry import to_polar
 
 SECOND = 1_000_000_000
-SETTINGS = RelocationSettings(radius_m=1.0, drift_m_s=0.1, carry_s=2.0, confirm_after_s=5.0)
+SETTINGS = RelocationSettings(radius_m=0.5, drift_m_s=0.2, carry_s=2.0, confirm_after_s=5.0)
 
 
 def _relocation() -> Relocation:

@@ -371,7 +371,7 @@ def test_a_rov_lost_over_a_rack_is_found_again_where_it_was_last_confirmed() -> 
     rack = TankFixture(name="rack", lo_m=(7.5, 4.5, -3.5), hi_m=(8.8, 5.5, -3.0))
     tank = TankBounds(fixtures=(rack,))
     # 6 s unseen: 1.5 m from the last confirmed fix of a ROV holding still is within where it
-    # could be (1 m + 0.1 m/s x 6 s, `tracking.reach_*`).
+    # could be (0.5 m + 0.2 m/s x 6 s, `tracking.reach_*`).
     found = _lost_then_over_the_rack(_locator(tank=tank), hidden_s=6.0)
     assert found[-1].startswith("tracking"), found
     # Without the rule, or too long unseen to say it is the same ROV: the rack's echo, refused.
@@ -379,7 +379,7 @@ def test_a_rov_lost_over_a_rack_is_found_again_where_it_was_last_confirmed() -> 
     assert set(_lost_then_over_the_rack(never, hidden_s=6.0)) == {"lost:map_clutter"}
     stale = _locator(tank=tank, clutter=ClutterConfig(reacquire_window_s=5.0))
     assert set(_lost_then_over_the_rack(stale, hidden_s=6.0)) == {"lost:map_clutter"}
-    # Too far for the time unseen (1 m + 0.1 m/s x 3 s = 1.3 m < 1.5 m): refused until the ROV
+    # Too far for the time unseen (0.5 m + 0.2 m/s x 3 s = 1.1 m < 1.5 m): refused until the ROV
     # could have come that far (5 s after its last confirmed fix).
     fast = _lost_then_over_the_rack(_locator(tank=tank), hidden_s=3.0, seen_s=3.0)
     assert fast[:15] == ["lost:map_clutter"] * 15, fast
@@ -442,7 +442,7 @@ def test_a_track_far_from_where_the_rov_was_lost_is_unsure_until_it_persists() -
     wary = _locator(tracking=TrackingConfig(relocate_confirm_s=4.0))
     fixes = _lost_then_elsewhere(wary, echo_m=echo)
     good = [k for k, f in enumerate(fixes) if f.quality == "good"]
-    # 1 m + 0.1 m/s x 5 s = 1.5 m < 2.1 m: the ROV could not be there; good only after 4 s.
+    # 0.5 m + 0.2 m/s x 5 s = 1.5 m < 2.1 m: the ROV could not be there; good only after 4 s.
     assert good, [f"{f.quality}:{f.track_state}" for f in fixes]
     assert good[0] == 40, [f"{f.quality}:{f.track_state}" for f in fixes]
     assert {f.track_state for f in fixes[:40]} == {"tentative"}
