@@ -320,11 +320,17 @@ class PingStream:
                     continue
             if len(self._buffer) < total:
                 return
-            message = bytes(self._buffer[:total])
             if msg_id != MSG_SIMPLE_PING_RESULT:
+                # A header found inside noise (its id bytes, then whatever follows) may announce
+                # a small message that would swallow the ping behind it: a sound ping header
+                # inside says it is noise.
+                if _holds_a_ping(self._buffer, total):
+                    yield self._resync(f"message {msg_id:#x} of {payload_size} bytes holds a ping")
+                    continue
                 self.other_messages += 1
                 del self._buffer[:total]
                 continue
+            message = bytes(self._buffer[:total])
             try:
                 ping = parse_ping(message)
             except ProtocolError as exc:
@@ -339,6 +345,25 @@ class PingStream:
         self.skipped_bytes += 2
         del self._buffer[:2]
         return ProtocolError(reason)
+
+
+def _holds_a_ping(buffer: bytearray, total: int) -> bool:
+    """Whether a sound SimplePingResult header starts within `buffer[1:total]`."""
+    head_max = HEADER.size + FIRE_V2.size + RESULT_V2.size
+    at = buffer.find(b"\x53\x4f", 1, total)
+    while at >= 0:
+        if len(buffer) - at >= HEADER.size:
+            fields = HEADER.unpack_from(buffer, at)
+            msg_id, payload_size = fields[3], fields[5]
+            if (
+                msg_id == MSG_SIMPLE_PING_RESULT
+                and payload_size <= MAX_PAYLOAD
+                and _ping_head_problem(buffer[at : at + head_max], HEADER.size + payload_size)
+                is None
+            ):
+                return True
+        at = buffer.find(b"\x53\x4f", at + 1, total)
+    return False
 
 
 def _ping_head_problem(buffer: bytearray, total: int) -> str | None:

@@ -8,7 +8,7 @@ from typing import Literal
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from capsd.protocols.oculus import (
@@ -205,6 +205,9 @@ _BOGUS_HEADERS = st.lists(
 
 @settings(max_examples=200, deadline=None)
 @given(_BOGUS_HEADERS, st.lists(st.integers(1, len(THREE)), max_size=6))
+# Found by CI (session 35): the id bytes of the first header's message id start a header,
+# misaligned, that announces a small message of another kind, 20307 bytes: the first ping.
+@example(headers=[(0x4F53, 0, 65_537), (0x23, 0, 0)], cuts=[])
 def test_bogus_headers_never_swallow_the_pings_behind_them(
     headers: list[tuple[int, int, int]], cuts: list[int]
 ) -> None:
