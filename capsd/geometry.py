@@ -164,3 +164,11 @@ class Transform:
 def wrap_angle(angle_rad: float) -> float:
     """The same angle in (-pi, pi]."""
     return math.atan2(math.sin(angle_rad), math.cos(angle_rad))
+
+
+def distance_to_segment(point: Array, start: Array, end: Array) -> float:
+    """Distance from `point` to the segment from `start` to `end` (any dimension)."""
+    along = end - start
+    length2 = float(along @ along)
+    t = 0.0 if length2 == 0.0 else min(1.0, max(0.0, float((point - start) @ along) / length2))
+    return float(np.linalg.norm(point - (start + t * along)))

@@ -20,6 +20,7 @@ import numpy.typing as npt
 
 from capsd.config import ConfigSection, load_config
 from capsd.errors import ConfigError
+from capsd.geometry import distance_to_segment
 from capsd.tank import TankBounds
 
 Floats = npt.NDArray[np.float64]
@@ -186,7 +187,4 @@ def path_length_m(points: list[Waypoint]) -> float:
 
 def cross_track_m(position_m: Floats, start_m: Floats, end_m: Floats) -> float:
     """Distance from `position_m` to the segment start -> end (3D)."""
-    seg = end_m - start_m
-    length2 = float(seg @ seg)
-    t = 0.0 if length2 == 0.0 else min(1.0, max(0.0, float((position_m - start_m) @ seg) / length2))
-    return float(np.linalg.norm(position_m - (start_m + t * seg)))
+    return distance_to_segment(position_m, start_m, end_m)

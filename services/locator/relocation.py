@@ -34,9 +34,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-
-from capsd.geometry import Array, Transform
+from capsd.geometry import Array, Transform, distance_to_segment
 from capsd.services.locator.moving_echo import MovingEchoes, MovingEchoSettings
 from capsd.sonar_geometry import BeamModel
 
@@ -94,7 +92,7 @@ class Relocation:
         start = last.position_m
         end = start + last.velocity_m_s * min(elapsed_s, self.settings.carry_s)
         radius_m = self.settings.radius_m + self.settings.drift_m_s * elapsed_s
-        return _to_segment_m(position_m, start, end) <= radius_m
+        return distance_to_segment(position_m, start, end) <= radius_m
 
     def begin(self, stamp_ns: int) -> None:
         """A track started where the ROV could not be: unproven from now."""
@@ -138,11 +136,3 @@ class Relocation:
         elif (stamp_ns - self._since_ns) / 1e9 >= self.settings.confirm_after_s:
             self.proven_waiting += 1
             self.end()
-
-
-def _to_segment_m(point: Array, start: Array, end: Array) -> float:
-    """Distance from `point` to the segment from `start` to `end`."""
-    along = end - start
-    length2 = float(along @ along)
-    t = 0.0 if length2 == 0.0 else min(1.0, max(0.0, float((point - start) @ along) / length2))
-    return float(np.linalg.norm(point - (start + t * along)))

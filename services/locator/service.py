@@ -603,7 +603,7 @@ class Locator:
                 else:
                     fixes.append((solved[0], solved[1], detection))
             explained = [
-                self._explained(asv, d, p) and not self._moved(stamp, asv, d, p)
+                self._explained(sonar, d, p) and not self._moved(stamp, sonar, d, p)
                 for p, _, d in fixes
             ]
             installed = [
@@ -687,11 +687,10 @@ class Locator:
         except ArithmeticError:  # grazing geometry: the solver's own covariance says so
             return np.zeros((3, 3))
 
-    def _explained(self, asv: Transform, detection: Detection, position: Array) -> bool:
+    def _explained(self, sonar: Transform, detection: Detection, position: Array) -> bool:
         """Whether a mapped fixture shares this echo's range cell (capsd.echo_cell)."""
         if self.config.clutter.map_explained == "off" or not len(self._fixture_boxes[0]):
             return False
-        sonar = asv.compose(self.mount)
         own = to_polar(self.config.sonar.beam_model, sonar.inverse().apply(position))[2]
         points = cell_points(
             sonar,
@@ -706,13 +705,13 @@ class Locator:
         self.map_explained += int(found)
         return found
 
-    def _moved(self, stamp: int, asv: Transform, detection: Detection, position: Array) -> bool:
+    def _moved(self, stamp: int, sonar: Transform, detection: Detection, position: Array) -> bool:
         """Whether a map-explained echo has moved as no fixture's could (it may then start)."""
         if self.config.clutter.map_explained != "refuse_unless_moving":
             return False
         moved = self._movers.observe(
             stamp,
-            asv.compose(self.mount),
+            sonar,
             range_m=detection.range_m,
             azimuth_rad=detection.azimuth_rad,
             position_m=position,
