@@ -17,6 +17,7 @@ follow`) add the detector's misses and the locator's refusals to these.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,7 +25,7 @@ from pathlib import Path
 import msgspec
 import numpy as np
 
-from capsd.geometry import Transform, wrap_angle
+from capsd.geometry import Transform, distance_to_segment, wrap_angle
 from capsd.harness import FOLLOW_STATION, AsvMode, sonar_mount, start_station
 from capsd.mission.controller import MissionController
 from capsd.mission.plan import load_plan
@@ -75,6 +76,14 @@ class FollowRun:
     in_view_masked: int = 0
     nearest_wall_m: float = math.inf
     stations: int = 0
+    # The ROV waiting for the ASV (the plan's view guard): legs held, seconds, waits that
+    # ran out (max_wait_s) with the ROV still near the view's edge.
+    waits: int = 0
+    waited_s: float = 0.0
+    waits_timed_out: int = 0
+    # The ROV's true horizontal distance from the plan's path (its nearest leg), each step
+    # from the mission's start: the squares' sum, for the RMS.
+    cross_track_sq_m2: float = 0.0
     losses: list[Loss] = field(default_factory=list)
     # Steps out of view by the hull's heading off the ROV's bearing (OFF_BINS_DEG's bins):
     # facing it (the ROV under or over the aperture), part turned (a move), turned away.
@@ -140,6 +149,7 @@ def run_mission(
     follower.on_mode("GUIDED")
     sonar_on_asv = mount.transform()
     out = FollowRun(tank_name, drive, "waiting", (0, len(points)), 0.0)
+    legs = [(p.position_m, q.position_m) for p, q in itertools.pairwise(points)]
     last_target: np.ndarray | None = None
     lost_from: float | None = None
     lost_rows: list[tuple[np.ndarray, np.ndarray, float]] = []
@@ -199,6 +209,10 @@ def run_mission(
             if mission.progress.state == "done":
                 break
             out.steps += 1
+            off_plan = min(
+                distance_to_segment(rov_m[:2], np.array(a[:2]), np.array(b[:2])) for a, b in legs
+            )
+            out.cross_track_sq_m2 += off_plan**2
             out.nearest_wall_m = min(
                 out.nearest_wall_m,
                 float(asv_xy[0]),
@@ -229,6 +243,9 @@ def run_mission(
     out.waypoints = (reached, len(points))
     out.mission_s = out.steps * STEP_S
     out.stations = follower.replans
+    out.waits = mission.progress.waits
+    out.waited_s = mission.progress.waited_s
+    out.waits_timed_out = mission.progress.waits_timed_out
     return out
 
 
@@ -274,7 +291,10 @@ def run(
             f"{tank} {plan_path.name} (ASV {asv}) seed {seed}: mission {r.state}, waypoint "
             f"{r.waypoints[0]} of {r.waypoints[1]}, {r.mission_s:.0f} s; ROV in view "
             f"{100 * share:.1f} % of it ({100 * masked:.1f} % with a fixture in its range "
-            f"cell); ASV origin nearest a wall {r.nearest_wall_m:.2f} m; {r.stations} stations"
+            f"cell); ASV origin nearest a wall {r.nearest_wall_m:.2f} m; {r.stations} stations; "
+            f"the ROV waited for the ASV {r.waits} times, {r.waited_s:.0f} s "
+            f"({r.waits_timed_out} ran out); the ROV's true cross-track RMS "
+            f"{1000 * math.sqrt(r.cross_track_sq_m2 / max(r.steps, 1)):.0f} mm"
         )
         bins = [0.0, *OFF_BINS_DEG, 180.0]
         print(

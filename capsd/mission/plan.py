@@ -91,8 +91,9 @@ class Plan(ConfigSection, frozen=True, kw_only=True):
     points: Annotated[tuple[Point, ...], msgspec.Meta(max_length=MAX_WAYPOINTS)] = ()
     # A waypoint is reached when the ROV's fix is this close (3D).
     accept_radius_m: Annotated[float, msgspec.Meta(gt=0.02, le=5.0)] = 0.2
-    # The speed the plan is flown at (the autopilot's own limit may be lower): sets the
-    # carrot's pace along each leg, so the vehicle follows the line rather than cutting corners.
+    # The speed the plan is flown at (the autopilot's own limit may be lower): the GUIDED
+    # target runs this x 2 s ahead of the ROV on its leg (capsd.mission.controller), so the
+    # vehicle follows the line rather than cutting corners.
     speed_m_s: Annotated[float, msgspec.Meta(gt=0.0, le=2.0)] = 0.25
     # The fix must have been good for this long before a paused mission resumes.
     resume_after_s: Annotated[float, msgspec.Meta(ge=0.0, le=60.0)] = 2.0

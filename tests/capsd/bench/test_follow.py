@@ -44,6 +44,10 @@ def test_a_mockup_mission_starts_in_view_and_is_scored() -> None:
     assert 0 < run.in_view <= run.steps
     assert run.waypoints[0] >= 1
     assert run.nearest_wall_m > 1.0
+    # The ROV's true path against the plan: a perfect fix keeps it within centimetres.
+    assert 0.0 < math.sqrt(run.cross_track_sq_m2 / run.steps) < 0.15
+    assert run.waits >= 0
+    assert run.waited_s >= 0.0
 
 
 def test_an_asv_held_at_its_start_does_not_move() -> None:

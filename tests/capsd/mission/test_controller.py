@@ -7,7 +7,7 @@ import math
 import msgspec
 import pytest
 
-from capsd.mission.controller import GUIDED, POSHOLD, MissionController
+from capsd.mission.controller import CARROT_LEAD_S, GUIDED, POSHOLD, MissionController
 from capsd.mission.plan import Plan, Waypoint
 
 POINTS = [Waypoint((5.0, 4.0, -3.0)), Waypoint((9.0, 4.0, -3.0), dwell_s=2.0)]
@@ -291,3 +291,22 @@ def test_an_engage_the_autopilot_refuses_pauses_again_and_is_retried() -> None:
     states.append(ctl.progress.state)
     assert states[0] != "aborted"
     assert states[1] == "aborted"
+
+
+def test_on_a_leg_the_target_runs_ahead_of_the_rov_on_the_line() -> None:
+    """Off the line mid-leg, the ROV is sent back onto it ahead, not across to the leg's end."""
+    ctl = MissionController(_plan(), POINTS)
+    _fly(ctl, [(5.0, 4.0, -3.0)] * 3)  # engaged, at the first point: on to the second
+    ctl.on_fix(good=True, position_m=(6.0, 4.4, -3.0), now=1.0)  # 0.4 m off the line
+    ctl.on_mode(GUIDED, now=1.0)
+    (goto,) = ctl.step(1.0)
+    assert goto.kind == "goto"
+    assert goto.waypoint == 1
+    ahead = _plan().speed_m_s * CARROT_LEAD_S
+    assert goto.position_m == pytest.approx((6.0 + ahead, 4.0, -3.0))
+    assert ctl.leg_end(goto) == POINTS[1].position_m  # the follower still sees the leg's end
+    # Within that of the end: the end itself; reached there, not at the target.
+    ctl.on_fix(good=True, position_m=(8.7, 4.0, -3.0), now=2.0)
+    (goto,) = ctl.step(2.0)
+    assert goto.position_m == POINTS[1].position_m
+    assert ctl.progress.waypoint == 1

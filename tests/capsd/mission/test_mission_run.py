@@ -190,15 +190,20 @@ def test_mission_flies_pauses_on_lost_fix_resumes_and_reports(
         guided_again = [t for t, m, _ in _modes(autopilot) if m == "GUIDED"][-1]
         assert guided_again - back_at >= 0.9
         vehicle.position = np.array(WAYPOINTS[0])
+        # On the leg: the target runs ahead of the ROV on the line (the plan's 0.25 m/s x 2 s).
+        carrot = (5.5, 4.0, -3.0)
         wait_for(
-            lambda: any(np.allclose(t, WAYPOINTS[1], atol=1e-4) for t in _targets_tank(autopilot)),
+            lambda: any(np.allclose(t, carrot, atol=1e-3) for t in _targets_tank(autopilot)),
             timeout_s=10,
-            what="the second waypoint as the target",
+            what="a target on the second leg, 0.5 m ahead",
         )
         for x in np.linspace(5.0, 9.0, 20):
             vehicle.position = np.array([x, 4.05, -3.0])
             time.sleep(0.05)
         mission.popen.wait(timeout=20)
+        on_leg = [t for t in _targets_tank(autopilot) if t[0] > 5.0 + 1e-6]
+        assert all(t[1:] == pytest.approx((4.0, -3.0), abs=1e-4) for t in on_leg)  # on the line
+        assert on_leg[-1] == pytest.approx(WAYPOINTS[1], abs=1e-4)  # and its end last
         assert mission.popen.returncode == 0, mission.output()[-3000:]
         figures = json.loads((out / "mission.json").read_text())
         assert figures["state"] == "done"
