@@ -97,6 +97,9 @@ LEAD_SHARE = 0.25
 PATH_STEP_M = 0.25  # the spacing of the points of the ROV's leg a station is to see
 # Steered: a way at most this far across the ROV's line of sight goes along it only.
 ACROSS_SLACK_M = 0.5
+# A ROV holding on its leg is expected to go on at this (a plan's default speed_m_s).
+LEG_SPEED_M_S = 0.25
+ALONG_SIGHT_COS = math.cos(math.radians(45.0))  # ... where its leg runs along the sight
 
 
 @dataclass(frozen=True)
@@ -376,6 +379,33 @@ class Follower:
         v[2] = 0.0
         return None if float(np.linalg.norm(v)) < self.settings.min_lead_speed_m_s else v
 
+    def _expected_velocity(self) -> Array | None:
+        """The ROV's velocity as a station should expect it: on its leg, at least the plan's.
+
+        Where its leg runs along the line of sight (at the ASV or away), a ROV that waits for
+        the ASV (the mission's view guard) or creeps goes on at the plan's speed as soon as
+        the view lets it: a station for it as it is puts it at the view's edge as it goes
+        (ArduSub and ArduRover SITL: a 16 m lane at the ASV flown in 0.2 m steps, 110 waits,
+        499 s waited in 900 s). Across the sight, and off a leg, the tracked velocity.
+        """
+        v = self._horizontal_velocity()
+        if self.leg_end is None or self.rov_m is None:
+            return v
+        way = self.leg_end - self.rov_m
+        way[2] = 0.0
+        left = float(np.linalg.norm(way))
+        if left < PATH_STEP_M:
+            return v
+        if self.asv_xy is not None:
+            sight = self.rov_m[:2] - self.asv_xy
+            distance = float(np.linalg.norm(sight))
+            # Across the line of sight the ROV's elevation hardly changes as it goes on.
+            if distance > 0.0 and abs(float(way[:2] @ sight)) < ALONG_SIGHT_COS * left * distance:
+                return v
+        along = 0.0 if v is None else float(v @ way) / left
+        out: Array = way / left * max(along, LEG_SPEED_M_S)
+        return out
+
     def _held_at(self, lost_for_s: float) -> Array:
         """Where a ROV that lost its fix `lost_for_s` ago holds: carried on, then stopped."""
         assert self.rov_m is not None
@@ -513,7 +543,7 @@ class Follower:
         watched from a station for a point beyond its end).
         """
         assert self.rov_m is not None
-        v = self._horizontal_velocity()
+        v = self._expected_velocity()
         if v is None:
             return self.rov_m
         lead = v * self.settings.lead_s

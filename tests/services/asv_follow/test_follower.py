@@ -434,10 +434,11 @@ def test_the_rov_is_not_led_past_the_waypoint_its_mission_sent_it_to() -> None:
     assert np.allclose(follower._ahead(), [16.5, 8.0, -3.5])
     follower.on_leg_end(0.0, np.array([20.0, 8.0, -3.5]))  # far ahead: the full lead
     assert np.allclose(follower._ahead(), [16.75, 8.0, -3.5])
-    follower.on_leg_end(0.0, np.array([15.0, 8.0, -3.5]))  # behind it (turning back): no lead
-    assert np.allclose(follower._ahead(), rov)
+    # Behind it (turning back, along the sight): led back at the plan's speed, 1 m there.
+    follower.on_leg_end(0.0, np.array([15.0, 8.0, -3.5]))
+    assert np.allclose(follower._ahead(), [15.25, 8.0, -3.5])
     follower.on_leg_end(0.0, None)  # the mission holds it: the leg is paused, not ended
-    assert np.allclose(follower._ahead(), rov)
+    assert np.allclose(follower._ahead(), [15.25, 8.0, -3.5])
     # A waypoint not repeated for 5 s (the mission ended) is forgotten.
     follower.on_leg_end(0.0, np.array([16.5, 8.0, -3.5]))
     follower.step(6.0)
@@ -744,3 +745,21 @@ def test_a_move_along_the_line_of_sight_keeps_the_hulls_wall_clearance() -> None
         planner, start, 0.0, np.array([1.9, 8.3]), 0.0, steps=150, fix=lambda now: (rov, None)
     )
     assert min(float(xy[0]) for xy, _, _ in way) >= clearance - 1e-9
+
+
+def test_a_rov_holding_on_a_leg_along_the_sight_is_led_at_the_plans_speed() -> None:
+    """A ROV waiting for the ASV on a leg at it goes on as soon as it may: its station leads it."""
+    follower = _follower(lead_s=3.0)
+    follower.on_mode("GUIDED")
+    rov = np.array([16.0, 8.0, -3.5])  # the ASV at (10, 8): the leg at it runs along the sight
+    follower.on_fix(0.0, rov, np.zeros(3))
+    assert np.allclose(follower._ahead(), rov)  # no mission heard: as it is
+    follower.on_leg_end(0.0, np.array([12.0, 8.0, -3.5]))
+    lead = follower_module.LEG_SPEED_M_S * 3.0
+    assert np.allclose(follower._ahead(), rov - np.array([lead, 0.0, 0.0]))
+    follower.on_fix(0.1, rov, np.array([-0.05, 0.0, 0.0]))  # creeping: the plan's speed still
+    assert np.allclose(follower._ahead(), rov - np.array([lead, 0.0, 0.0]))
+    # A leg across the sight changes its elevation little: as it is.
+    follower.on_leg_end(0.2, np.array([16.0, 12.0, -3.5]))
+    follower.on_fix(0.2, rov, np.zeros(3))
+    assert np.allclose(follower._ahead(), rov)
