@@ -149,7 +149,10 @@ def run_mission(
     follower.on_mode("GUIDED")
     sonar_on_asv = mount.transform()
     out = FollowRun(tank_name, drive, "waiting", (0, len(points)), 0.0)
-    legs = [(p.position_m, q.position_m) for p, q in itertools.pairwise(points)]
+    legs = [
+        (np.array(p.position_m[:2]), np.array(q.position_m[:2]))
+        for p, q in itertools.pairwise(points)
+    ]
     last_target: np.ndarray | None = None
     lost_from: float | None = None
     lost_rows: list[tuple[np.ndarray, np.ndarray, float]] = []
@@ -209,9 +212,7 @@ def run_mission(
             if mission.progress.state == "done":
                 break
             out.steps += 1
-            off_plan = min(
-                distance_to_segment(rov_m[:2], np.array(a[:2]), np.array(b[:2])) for a, b in legs
-            )
+            off_plan = min(distance_to_segment(rov_m[:2], a, b) for a, b in legs)
             out.cross_track_sq_m2 += off_plan**2
             out.nearest_wall_m = min(
                 out.nearest_wall_m,
