@@ -18,7 +18,7 @@ import sys
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import zenoh
 
@@ -31,6 +31,9 @@ from capsd.keys import is_concrete
 from capsd.mounts import AsvDrive
 from capsd.payloads import GroundTruth, Health, RovFix, SonarLabel
 from capsd.simulator.world import TankName, TrajectoryName
+
+if TYPE_CHECKING:
+    from capsd.services.asv_follow.service import Config as FollowConfig
 
 SERVICES = (
     ("sim", "sim"),
@@ -156,6 +159,26 @@ def sonar_mount(tank: TankName) -> dict[str, float]:
     return {"pitch_deg": SONAR_PITCH_DEG[tank]} if tank in SONAR_PITCH_DEG else {}
 
 
+def follow_config(tank: TankName, *, drive: AsvDrive = "steered") -> FollowConfig:
+    """The follower's config as the demo runs it in a simulated tank (fix signing off).
+
+    (An `asv_follow` service Config: the tank with its fixtures, the demo's sonar mount and
+    station rules for the tank, the ASV's drive.)
+    """
+    import msgspec
+
+    from capsd.services.asv_follow.service import Config, MotionConfig, StationConfig
+    from capsd.simulator.world import make_tank, tank_bounds
+
+    return Config(
+        tank=tank_bounds(make_tank(tank)),
+        sonar=msgspec.convert(sonar_mount(tank), type(Config().sonar)),
+        station=StationConfig(**FOLLOW_STATION.get(tank, {})),  # type: ignore[arg-type]
+        motion=MotionConfig(drive=drive),
+        fix_auth="off",
+    )
+
+
 def start_station(
     tank: TankName, rov_m: tuple[float, float, float]
 ) -> tuple[tuple[float, float], float] | None:
@@ -163,19 +186,13 @@ def start_station(
 
     (origin xy, heading in degrees), or None when no station in this tank sees that point.
     """
-    import msgspec
     import numpy as np
 
-    from capsd.services.asv_follow.service import Config as FollowConfig
-    from capsd.services.asv_follow.service import StationConfig
     from capsd.services.asv_follow.station import StationPlanner
-    from capsd.simulator.world import make_tank, tank_bounds
 
-    t = make_tank(tank)
-    station = StationConfig(**FOLLOW_STATION.get(tank, {}))  # type: ignore[arg-type]
-    sonar = msgspec.convert(sonar_mount(tank), type(FollowConfig().sonar))
-    planner = StationPlanner(sonar, tank_bounds(t), station.settings())
-    centre = np.array([t.length_m / 2.0, t.width_m / 2.0])
+    config = follow_config(tank)
+    planner = StationPlanner(config.sonar, config.tank, config.station.settings())
+    centre = np.array([config.tank.length_m / 2.0, config.tank.width_m / 2.0])
     chosen = planner.choose(np.array(rov_m), centre, 0.0)
     if chosen is None:
         return None

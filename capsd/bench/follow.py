@@ -22,22 +22,19 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import msgspec
 import numpy as np
 
 from capsd.geometry import Transform, distance_to_segment, wrap_angle
-from capsd.harness import FOLLOW_STATION, AsvMode, sonar_mount, start_station
+from capsd.harness import AsvMode, follow_config, start_station
 from capsd.mission.controller import MissionController
 from capsd.mission.plan import load_plan
 from capsd.mission.view_guard import view_margin_rad
 from capsd.mounts import AsvDrive, SonarMountConfig
 from capsd.progress import Progress
 from capsd.services.asv_follow.follower import Follower
-from capsd.services.asv_follow.service import Config as FollowConfig
-from capsd.services.asv_follow.service import MotionConfig, StationConfig
 from capsd.services.asv_follow.station import StationPlanner
 from capsd.simulator.guided import AsvLimits, GuidedAsv, GuidedRov
-from capsd.simulator.world import TankName, Waves, make_tank, tank_bounds
+from capsd.simulator.world import TankName, Waves
 from capsd.sonar_geometry import to_polar
 
 STEP_S = 0.1  # fixes, the mission and the view: ten a second
@@ -116,16 +113,9 @@ def run_mission(
 ) -> FollowRun:
     """Fly the plan once with the follower (or the ASV held at its start); see the module."""
     rng = np.random.default_rng(seed)
-    world_tank = make_tank(tank_name)
-    bounds = tank_bounds(world_tank)
+    config = follow_config(tank_name, drive=drive)
+    bounds = config.tank
     plan, points = load_plan(plan_path, tank=bounds)
-    config = FollowConfig(
-        tank=bounds,
-        sonar=msgspec.convert(sonar_mount(tank_name), SonarMountConfig),
-        station=StationConfig(**FOLLOW_STATION.get(tank_name, {})),  # type: ignore[arg-type]
-        motion=MotionConfig(drive=drive),
-        fix_auth="off",
-    )
     mount = config.sonar
     planner = StationPlanner(
         mount, config.tank, config.motion.drive_settings(config.station.settings())

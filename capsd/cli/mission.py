@@ -38,6 +38,45 @@ def _cmd_mission_run(args: argparse.Namespace) -> int:
     )
 
 
+DEFAULT_FOLLOW_CONFIG = Path("deploy/config/asv_follow.yaml")
+
+
+def _cmd_mission_check(args: argparse.Namespace) -> int:
+    import msgspec
+
+    from capsd.config import load_config
+    from capsd.mission import check
+    from capsd.services.asv_follow.service import Config as FollowConfig
+
+    try:
+        if args.tank is not None:
+            from capsd.harness import follow_config
+
+            config = follow_config(args.tank)
+            source = f"the demo's for the simulated {args.tank} tank"
+        else:
+            config = load_config(args.follow_config, FollowConfig)
+            source = str(args.follow_config)
+        if args.sonar_pitch is not None:
+            sonar = msgspec.structs.replace(config.sonar, pitch_deg=args.sonar_pitch)
+            config = msgspec.structs.replace(config, sonar=sonar)
+            source += f", the sonar's pitch set to {args.sonar_pitch:g} deg"
+    except ConfigError as exc:
+        return fail(str(exc), EXIT_CONFIG)
+    return guarded(
+        lambda: check.main(
+            config, plan_path=args.plan, png=args.png, stream=sys.stdout, source=source
+        )
+    )
+
+
+def _pitch_deg(text: str) -> float:
+    value = float(text)
+    if not 0.0 < value < 90.0:
+        raise argparse.ArgumentTypeError(f"{text}: a pitch down between 0 and 90 deg")
+    return value
+
+
 def register(sub: Subcommands) -> None:
     """Add the mission verbs to the `capsd` parser's subcommands."""
     mission = sub.add_parser("mission", help="ROV missions on CAP-SD fixes (GUIDED via the bridge)")
@@ -63,3 +102,36 @@ def register(sub: Subcommands) -> None:
     add_namespace_flags(run)
     add_bus_flags(run)
     run.set_defaults(func=_cmd_mission_run)
+    check = verbs.add_parser(
+        "check",
+        help="before a dive: can the follower keep the plan in view, with how many stops",
+        description="For every point of the plan's path (sampled finely), the places the ASV "
+        "may be (as far from walls and keep-out boxes as the follower's stations) whose view, "
+        "the hull turned to face it, the follower calls good; per leg the share seen, and seen "
+        "with no fixture, floor or wall in the ROV's range cell; what no place sees; and the "
+        "fewest ASV stops that keep it in view by turning alone (each move between them is a "
+        "move a steered hull may make blind). Exit 0 when every point is seen, 1 when not.",
+    )
+    check.add_argument("plan", type=Path, help="the plan (YAML: `lawnmower:` or `points:`)")
+    where = check.add_mutually_exclusive_group()
+    where.add_argument(
+        "--follow-config",
+        type=Path,
+        default=DEFAULT_FOLLOW_CONFIG,
+        help="the site's follower config: tank, sonar mount, station rules (default: %(default)s)",
+    )
+    where.add_argument(
+        "--tank",
+        choices=("nfp", "mockup", "pond"),
+        default=None,
+        help="instead: the demo's follower settings for a simulated tank",
+    )
+    check.add_argument(
+        "--sonar-pitch",
+        type=_pitch_deg,
+        default=None,
+        metavar="DEG",
+        help="try the sonar pitched this far down instead of the config's",
+    )
+    check.add_argument("--png", type=Path, default=None, help="also draw the check (PNG)")
+    check.set_defaults(func=_cmd_mission_check)

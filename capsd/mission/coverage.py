@@ -1,0 +1,192 @@
+"""Where the ASV can watch a mission plan from: the places that see each point of its path.
+
+Before a dive: can the follower keep this plan in the sonar's view at all, with this mount in
+this tank, and how often must the ASV move? The plan's path (the ROV's way through its
+waypoints, from the first) is sampled every `path_step_m`; the places the ASV may be (a grid
+over the tank, kept as far from walls and keep-out boxes as the follower's stations,
+`StationPlanner.clear`) are tried, the hull turned to face each point (a steered hull watches
+by turning where it floats). A point is *seen* from a place where the follower's planner calls
+the view good (inside the aperture less its margin, in the range band, conditioning bounded);
+*clear* where, besides, no mapped fixture, floor or wall shares its range cell (`masked`: the
+detector may miss a ROV there).
+
+The fewest stops: the path cut into the fewest consecutive stretches that one place sees
+whole (a place that sees a stretch keeps the ROV in view over it by turning alone): taking
+each stretch as long as it goes is optimal for cutting a sequence this way. Each cut is a
+move of the ASV, which a steered hull makes blind unless it goes along the line of sight;
+points no place sees end a stretch and start the next after them.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from capsd.mission.plan import Waypoint
+from capsd.services.asv_follow.station import StationPlanner
+
+Floats = npt.NDArray[np.float64]
+Bools = npt.NDArray[np.bool_]
+Ints = npt.NDArray[np.int64]
+
+
+@dataclass(frozen=True)
+class Stretch:
+    """Consecutive path samples `first`..`last` (inclusive) that the place `station_xy` sees.
+
+    `masked`: how many of them a fixture, the floor or a wall hides from there.
+    """
+
+    first: int
+    last: int
+    station_xy: tuple[float, float]
+    masked: int
+    # The move here from the previous stop, the ROV waiting at `first` meanwhile: metres, and
+    # seconds the sonar is off the ROV on the way (the planner's `blind_s`; 0 for the first).
+    move_m: float = 0.0
+    blind_s: float = 0.0
+
+
+@dataclass(frozen=True)
+class Coverage:
+    """What places see which points of a plan's path; see the module docstring."""
+
+    path_m: Floats  # N x 3, the sampled path (W)
+    leg: Ints  # N: the leg each sample lies on (leg k ends at waypoint k; 0: the first point)
+    along_m: Floats  # N: the distance along its leg
+    places_xy: Floats  # M x 2, the places tried
+    seen: Bools  # N x M: the place sees the point
+    clear_any: Bools  # N: some place sees the point with nothing sharing its range cell
+    stretches: tuple[Stretch, ...]
+
+    @property
+    def seen_any(self) -> Bools:
+        """Per point: some place sees it."""
+        return np.asarray(self.seen.any(axis=1), dtype=np.bool_)
+
+
+def sample_path(points: list[Waypoint], step_m: float) -> tuple[Floats, Ints, Floats]:
+    """The path through the waypoints every `step_m` (each waypoint too): points, leg, along."""
+    corners = np.array([w.position_m for w in points], dtype=np.float64)
+    out: list[Floats] = [corners[0]]
+    legs: list[int] = [0]
+    along: list[float] = [0.0]
+    for k in range(1, len(corners)):
+        a, b = corners[k - 1], corners[k]
+        length = float(np.linalg.norm(b - a))
+        n = max(1, int(np.ceil(length / step_m - 1e-9)))
+        for i in range(1, n + 1):
+            out.append(a + (b - a) * (i / n))
+            legs.append(k)
+            along.append(length * i / n)
+    return np.array(out), np.array(legs, dtype=np.int64), np.array(along)
+
+
+def places(planner: StationPlanner, step_m: float) -> Floats:
+    """Grid points over the tank where the follower may put the ASV (clear of walls, boxes)."""
+    tank = planner.tank
+    xs = np.arange(step_m / 2.0, tank.length_m, step_m)
+    ys = np.arange(step_m / 2.0, tank.width_m, step_m)
+    grid = [np.array([x, y]) for x in xs for y in ys]
+    kept = [p for p in grid if planner.clear(p)]
+    return np.array(kept, dtype=np.float64).reshape(-1, 2)
+
+
+def ring_m(planner: StationPlanner, point: Floats) -> tuple[float, float]:
+    """Horizontal sonar-to-point distances where a faced point sits inside the margin."""
+    s = planner.settings
+    drop = planner.sonar_z - float(point[2])
+    if drop <= 0.0:
+        return math.inf, -math.inf  # at or above the sonar: no place sees it
+    shallowest = planner.pitch - planner.half_aperture + s.elevation_margin_rad
+    far = drop / math.tan(shallowest) if shallowest > 0.0 else math.inf
+    far = min(far, s.max_range_m)
+    return planner.nearest_distance(point), far
+
+
+def fewest_stops(seen: Bools) -> list[tuple[int, int, Ints]]:
+    """(first, last, places) stretches: the path cut into the fewest runs one place sees whole.
+
+    `seen` is N x M; `places` are the indices of those that see the whole stretch. Points no
+    place sees belong to no stretch.
+    """
+    out: list[tuple[int, int, Ints]] = []
+    n = seen.shape[0]
+    i = 0
+    while i < n:
+        if not seen[i].any():
+            i += 1
+            continue
+        common = seen[i].copy()
+        j = i
+        while j + 1 < n and (common & seen[j + 1]).any():
+            j += 1
+            common &= seen[j]
+        out.append((i, j, np.flatnonzero(common)))
+        i = j + 1
+    return out
+
+
+# A stretch's place: of the CHOICES most central ones, the one that has the fewest of its
+# points masked (each masking test is a ray cast through the fixtures: not for every place).
+CHOICES = 12
+
+
+def coverage(
+    planner: StationPlanner,
+    points: list[Waypoint],
+    *,
+    path_step_m: float,
+    place_step_m: float,
+    on_point: Callable[[int, int], None] | None = None,
+) -> Coverage:
+    """Which places see which points of the plan's path (the module docstring)."""
+    path, leg, along = sample_path(points, path_step_m)
+    xy = places(planner, place_step_m)
+    seen = np.zeros((len(path), len(xy)), dtype=bool)
+    # How far off the target elevation: a stretch's place keeps it most central.
+    off = np.zeros((len(path), len(xy)))
+    reach = float(np.linalg.norm(planner.mount_xy)) + 0.05
+    target = planner.settings.target_elevation_rad
+    for i, point in enumerate(path):
+        # Only places in the ring where the aperture, less its margin, meets the ROV's depth
+        # (the sonar's arm and a little slack either side) can see it: the rest need no look.
+        lo, hi = ring_m(planner, point)
+        distance = np.linalg.norm(xy - point[:2], axis=1)
+        for j in np.flatnonzero((distance >= lo - reach) & (distance <= hi + reach)):
+            view = planner.view(xy[j], planner.facing(xy[j], point), point)
+            if planner.view_is_good(view):
+                seen[i, j] = True
+                off[i, j] = abs(view.elevation_rad - target)
+        if on_point is not None:
+            on_point(i + 1, len(path))
+
+    def masked(i: int, j: int) -> bool:
+        return planner.masked(xy[j], planner.facing(xy[j], path[i]), path[i])
+
+    clear_any = np.zeros(len(path), dtype=bool)
+    for i in range(len(path)):
+        ranked = np.flatnonzero(seen[i])
+        ranked = ranked[np.argsort(off[i, ranked])]
+        clear_any[i] = any(not masked(i, int(j)) for j in ranked)
+    stretches: list[Stretch] = []
+    for first, last, common in fewest_stops(seen):
+        central = common[np.argsort(off[first : last + 1, common].sum(axis=0))][:CHOICES]
+        counts = [sum(masked(i, int(j)) for i in range(first, last + 1)) for j in central]
+        k = int(central[int(np.argmin(counts))])
+        move_m = blind_s = 0.0
+        if stretches:
+            here = np.array(stretches[-1].station_xy)
+            # The hull faced the ROV where it left the last stop's stretch; it waits at `first`.
+            heading = planner.facing(here, path[stretches[-1].last])
+            move_m = float(np.linalg.norm(xy[k] - here))
+            blind_s = planner.blind_s(
+                here, heading, xy[k], planner.facing(xy[k], path[first]), path[first]
+            )
+        station = (float(xy[k, 0]), float(xy[k, 1]))
+        stretches.append(Stretch(first, last, station, int(min(counts)), move_m, blind_s))
+    return Coverage(path, leg, along, xy, seen, clear_any, tuple(stretches))

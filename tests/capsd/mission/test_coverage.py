@@ -1,0 +1,159 @@
+"""Where the ASV can watch a plan from: the path sampled, fewest stops, `capsd mission check`."""
+
+from __future__ import annotations
+
+import itertools
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from capsd.cli import main
+from capsd.harness import follow_config
+from capsd.mission.coverage import coverage, fewest_stops, sample_path
+from capsd.mission.plan import Waypoint, load_plan
+from capsd.services.asv_follow.station import StationPlanner
+
+REPO = Path(__file__).resolve().parents[3]
+MOCKUP_PLAN = REPO / "deploy/missions/mockup-lawnmower.yaml"
+
+corner = st.tuples(st.floats(0.0, 20.0), st.floats(0.0, 20.0), st.floats(-5.0, -0.5))
+
+
+@settings(max_examples=60, deadline=None)
+@given(corners=st.lists(corner, min_size=2, max_size=6), step=st.floats(0.05, 2.0))
+def test_the_sampled_path_passes_every_waypoint_no_step_apart(
+    corners: list[tuple[float, float, float]], step: float
+) -> None:
+    points = [Waypoint(c) for c in corners]
+    path, leg, along = sample_path(points, step)
+    # Each waypoint is a sample: the last one on its leg (or the first point).
+    for k, c in enumerate(corners):
+        last = np.flatnonzero(leg == k)[-1]
+        assert np.allclose(path[last], c)
+    gaps = np.linalg.norm(np.diff(path, axis=0), axis=1)
+    assert np.all(gaps <= step + 1e-9)
+    assert np.all(np.diff(leg) >= 0)
+    for k in range(1, len(corners)):
+        on = along[leg == k]
+        assert np.all(np.diff(on) > 0)
+        assert on[-1] == pytest.approx(math.dist(corners[k - 1], corners[k]))
+
+
+def _fewest_by_search(seen: np.ndarray) -> int:
+    """The fewest runs of consecutive seen points that one place sees whole, by brute force."""
+    rows = [i for i in range(len(seen)) if seen[i].any()]
+    best = len(rows)
+    # A cut before point i (i in rows[1:]); runs never span an unseen point.
+    for cuts in itertools.product((False, True), repeat=max(len(rows) - 1, 0)):
+        runs, start = 0, 0
+        feasible = True
+        for i in range(len(rows)):
+            end = i == len(rows) - 1 or cuts[i] or rows[i + 1] != rows[i] + 1
+            if end:
+                if not np.logical_and.reduce(seen[rows[start : i + 1]], axis=0).any():
+                    feasible = False
+                    break
+                runs += 1
+                start = i + 1
+        if feasible:
+            best = min(best, runs)
+    return best
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    seen=st.integers(1, 8).flatmap(
+        lambda n: st.lists(st.lists(st.booleans(), min_size=4, max_size=4), min_size=n, max_size=n)
+    )
+)
+def test_fewest_stops_is_the_fewest_and_each_place_sees_its_whole_stretch(
+    seen: list[list[bool]],
+) -> None:
+    matrix = np.array(seen, dtype=bool)
+    stretches = fewest_stops(matrix)
+    assert len(stretches) == _fewest_by_search(matrix)
+    covered: list[int] = []
+    for first, last, places in stretches:
+        assert len(places) > 0
+        assert matrix[first : last + 1][:, places].all()
+        covered += range(first, last + 1)
+    assert covered == [i for i in range(len(matrix)) if matrix[i].any()]
+
+
+def test_fewest_stops_by_hand() -> None:
+    seen = np.array([[1, 1, 0], [0, 1, 1], [0, 0, 1], [0, 0, 0], [1, 0, 0], [1, 0, 1]], dtype=bool)
+    stretches = [(a, b, list(p)) for a, b, p in fewest_stops(seen)]
+    # Place 1 sees points 0-1; 2 sees point 2; nothing sees 3; place 0 sees 4-5.
+    assert stretches == [(0, 1, [1]), (2, 2, [2]), (4, 5, [0])]
+
+
+@pytest.fixture(scope="module")
+def mockup() -> tuple[StationPlanner, list[Waypoint]]:
+    config = follow_config("mockup")
+    planner = StationPlanner(
+        config.sonar, config.tank, config.motion.drive_settings(config.station.settings())
+    )
+    _, points = load_plan(MOCKUP_PLAN, tank=config.tank)
+    return planner, points
+
+
+def test_each_stop_of_the_mockup_plan_sees_its_stretch_and_the_middle_lane_only_from_the_east(
+    mockup: tuple[StationPlanner, list[Waypoint]],
+) -> None:
+    planner, points = mockup
+    found = coverage(planner, points, path_step_m=0.1, place_step_m=0.05)
+    assert found.seen_any.all()
+    covered: list[int] = []
+    for stretch in found.stretches:
+        place = np.array(stretch.station_xy)
+        assert planner.clear(place)
+        for point in found.path_m[stretch.first : stretch.last + 1]:
+            view = planner.view(place, planner.facing(place, point), point)
+            assert planner.view_is_good(view)
+        covered += range(stretch.first, stretch.last + 1)
+    assert covered == list(range(len(found.path_m)))
+    # The lane at x = 2.2 m, mid tank: from the west the ASV's origin stays 1.5 m off the wall
+    # and its sonar sits 0.3 m ahead of it, nearer the lane than the 0.63 m a ROV 0.8 m below
+    # it needs to be inside the aperture's lower margin (45 + 10 - 3 deg down).
+    lane = (np.abs(found.path_m[:, 0] - 2.2) < 1e-6) & (np.abs(found.path_m[:, 1] - 1.8) < 0.25)
+    assert lane.any()
+    for i in np.flatnonzero(lane):
+        assert np.all(found.places_xy[found.seen[i], 0] > 2.2)
+
+
+def test_mission_check_draws_and_passes_the_mockup_plan(tmp_path: Path) -> None:
+    png = tmp_path / "check.png"
+    assert main(["mission", "check", str(MOCKUP_PLAN), "--tank", "mockup", "--png", str(png)]) == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_mission_check_fails_a_point_no_place_sees(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    # 0.1 m deep: above the sonar (0.2 m down), which looks down only.
+    plan = tmp_path / "shallow.yaml"
+    plan.write_text(
+        "name: shallow\n"
+        "points:\n"
+        "  - {position_m: [2.4, 1.8], depth_m: 1.0}\n"
+        "  - {position_m: [2.4, 1.8], depth_m: 0.1}\n"
+        "clearance_m: 0.05\n"
+    )
+    assert main(["mission", "check", str(plan), "--tank", "mockup"]) == 1
+    out = capfd.readouterr().out
+    assert "NOT seen from any place" in out
+
+
+def test_mission_check_names_a_bad_follower_config(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    config = tmp_path / "asv_follow.yaml"
+    config.write_text("station:\n  min_range_m: -1\n")
+    assert main(["mission", "check", str(MOCKUP_PLAN), "--follow-config", str(config)]) == 2
+    err = capfd.readouterr().err
+    assert str(config) in err
+    assert "min_range_m" in err
