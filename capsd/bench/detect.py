@@ -439,14 +439,17 @@ def run(
     options: CnnOptions = CnnOptions(),
     starts_s: tuple[float, ...] = BENCH_STARTS_S,
     depth_gate: DepthGateMode = "off",
+    looks: tuple[Variety, ...] = LOOKS,
 ) -> int:
     detectors = _detectors(which, weights, options=options)
-    tallies = evaluate(detectors, duration_s=duration_s, starts_s=starts_s, depth_gate=depth_gate)
+    tallies = evaluate(
+        detectors, duration_s=duration_s, starts_s=starts_s, depth_gate=depth_gate, looks=looks
+    )
     if json_out is not None:
         json_out.parent.mkdir(parents=True, exist_ok=True)
         figures = {
             "runs": [list(r) for r in RUNS],
-            "looks": list(LOOKS),
+            "looks": list(looks),
             "duration_s_per_stretch": duration_s,
             "stretches_start_s_into_paths": list(starts_s),
             "min_confidence": MIN_CONFIDENCE,
@@ -458,7 +461,7 @@ def run(
     print(
         f"{len(RUNS)} held-out runs, {duration_s:g} s from each of "
         + ", ".join(f"{s:g}" for s in starts_s)
-        + f" s into their paths, in each look ({', '.join(LOOKS)}): "
+        + f" s into their paths, in each look ({', '.join(looks)}): "
         + ", ".join(f"{t}/{tr} ({m}) seed {s}" for t, tr, m, s in RUNS)
     )
     print(f"candidates with confidence >= {MIN_CONFIDENCE}; a match is within {MATCH_M} m")
@@ -468,7 +471,7 @@ def run(
     for name in sorted(tallies):
         print(tallies[name].row(name))
     configured = [name for name in detectors if name.startswith("cnn") and "alone" not in name]
-    for name, look in ((name, look) for name in configured for look in LOOKS):
+    for name, look in ((name, look) for name in configured for look in looks):
         s = tallies[f"{name} / {look} / all"].summary()
         print(f"\nissue 18 targets, the configured {name.upper()}, look '{look}', every ping:")
         for key, target, test in TARGETS:

@@ -78,6 +78,7 @@ def _cmd_bench_detect(args: argparse.Namespace) -> int:
         options=options,
         starts_s=starts,
         depth_gate=args.depth_gate,
+        looks=tuple(dict.fromkeys(args.looks)) if args.looks else detect.LOOKS,
     )
 
 
@@ -271,6 +272,14 @@ def register(sub: Subcommands) -> None:
         default="off",
         help="truth: the service's depth-aware search, given the true ASV pose and ROV depth "
         "(what the deployed detector finds); off: the detector alone (default: %(default)s)",
+    )
+    bdet.add_argument(
+        "--looks",
+        nargs="+",
+        choices=("off", "heldout", "outside"),
+        default=None,
+        help="the looks rendered (default: off heldout; outside: five knobs just beyond the "
+        "range trained on, docs/SONAR-VARIETY.md, a look no training run has)",
     )
     bdet.add_argument(
         "--search-refines",

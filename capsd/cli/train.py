@@ -106,6 +106,7 @@ def _cmd_train_detector(args: argparse.Namespace) -> int:
         evaluate=args.evaluate,
         range_input=args.range_input,
         coarse_beams=args.coarse_beams,
+        augment=args.augment,
     )
     try:
         train(config, args.out)
@@ -146,6 +147,13 @@ def register(sub: Subcommands) -> None:
         type=positive_int,
         default=128,
         help="the proposal grid's width in cells (default 128; 256 resolves a far ROV's beams)",
+    )
+    tdet.add_argument(
+        "--augment",
+        choices=["gain", "look"],
+        default="gain",
+        help="look: also change the display curve, speckle, noise and beam width of every "
+        "sample, beyond the renderer's variety (default gain: gain and contrast only)",
     )
     tdet.add_argument("--run-duration", type=positive_float, default=60.0, help="seconds per run")
     tdet.add_argument(

@@ -14,7 +14,8 @@ order; a fixed number of steps, never a time budget). Stages:
 5. set the operating point on validation runs (calibrate);
 6. evaluate the whole detector on held-out runs (bench/detect's scoring) and write
    `polar_net.pt` (weights) and `polar_net.json` (the training config and the evaluation).
-Augmentation: mirrored azimuth, gain and contrast changes.
+Augmentation: mirrored azimuth, gain and contrast changes (`augment: look`: also the display
+curve, speckle, noise and beam width).
 """
 
 from __future__ import annotations
@@ -49,6 +50,9 @@ from capsd.services.sonar_detect.polar_input import (
 from capsd.services.sonar_detect.polar_net import OFFSET_SCALE_M, PolarNet, save
 from capsd.simulator.sonar_look import Variety
 from capsd.train.data import Samples, plan_runs, render
+
+# How training samples are varied (_augment).
+Augment = Literal["gain", "look"]
 
 
 @dataclass(frozen=True)
@@ -86,6 +90,10 @@ class TrainConfig:
     range_input: RangeInput = "none"
     # The proposal grid's width in cells (polar_input.Inputs): 256 resolves a far ROV's beams.
     coarse_beams: int = COARSE_BEAMS
+    # "look": augmentation that also changes the display curve, speckle, noise and beam
+    # width per sample (_augment), beyond the renderer's own variety; "gain": gain and
+    # contrast only (the shipped weights).
+    augment: Augment = "gain"
     # "none" leaves the held-out evaluation to `capsd train calibrate` or `capsd bench detect`.
     evaluate: Literal["heldout", "none"] = "heldout"
 
@@ -95,17 +103,39 @@ class TrainConfig:
         return Inputs(range_input=self.range_input, coarse_beams=self.coarse_beams)
 
 
-def _augment(x: torch.Tensor, gen: torch.Generator, *, image_planes: int) -> torch.Tensor:
+def _augment(
+    x: torch.Tensor, gen: torch.Generator, *, image_planes: int, mode: Augment = "gain"
+) -> torch.Tensor:
     """Gain (offset) and contrast changes per sample, in the normalised units.
 
-    Only the first `image_planes` planes: a range plane after them is geometry, not echo.
-    In place: `x` is each batch's own fresh tensor.
+    `mode` "look" also changes what a renderer's look would (each per sample): the display
+    curve (a gamma of 0.6-1.65 on the echoes above their background), speckle that is
+    spikier or smoother (multiplicative log-normal noise up to 0.35), a noisier floor
+    (additive noise up to 0.08) and a coarser beam (a 3 x 3 blur mixed in), so that the
+    network cannot key on one renderer's texture. Only the first `image_planes` planes: a
+    range plane after them is geometry, not echo. In place: `x` is each batch's own tensor.
     """
     n = x.shape[0]
     shape = (n,) + (1,) * (x.dim() - 1)
-    scale = 0.85 + 0.3 * torch.rand(shape, generator=gen)
-    offset = -0.08 + 0.16 * torch.rand(shape, generator=gen)
-    x[:, :image_planes] = torch.clamp(x[:, :image_planes] * scale + offset, NORM_LOW, NORM_HIGH)
+    image = x[:, :image_planes]
+    if mode == "look":
+        gamma = torch.exp(-0.5 + torch.rand(shape, generator=gen))
+        above = image.clamp(min=0.0)
+        image = torch.where(image > 0.0, above.pow(gamma), image)
+        spread = 0.35 * torch.rand(shape, generator=gen)
+        image = image * torch.exp(spread * torch.randn(image.shape, generator=gen))
+        image = image + 0.08 * torch.rand(shape, generator=gen) * torch.randn(
+            image.shape, generator=gen
+        )
+        blur = functional.avg_pool2d(image, 3, stride=1, padding=1, count_include_pad=False)
+        mix = torch.rand(shape, generator=gen) * (torch.rand(shape, generator=gen) < 0.5)
+        image = image + mix * (blur - image)
+        scale = 0.6 + 0.8 * torch.rand(shape, generator=gen)
+        offset = -0.1 + 0.2 * torch.rand(shape, generator=gen)
+    else:
+        scale = 0.85 + 0.3 * torch.rand(shape, generator=gen)
+        offset = -0.08 + 0.16 * torch.rand(shape, generator=gen)
+    x[:, :image_planes] = torch.clamp(image * scale + offset, NORM_LOW, NORM_HIGH)
     return x
 
 
@@ -172,7 +202,7 @@ def _train_proposal(
                 x[torch.from_numpy(flipped)] = torch.flip(x[torch.from_numpy(flipped)], dims=[-1])
             else:
                 flipped[:] = False
-            x = _augment(x, gen, image_planes=2).to(config.device)
+            x = _augment(x, gen, image_planes=2, mode=config.augment).to(config.device)
             logits = net.proposal(x)
             target = _heat_target(targets[batch], logits.shape[1], logits.shape[2], flipped=flipped)
             loss = focal_loss(logits, target.to(config.device))
@@ -264,7 +294,9 @@ def _train_refine(
             flip = torch.rand(len(idx), generator=gen) < 0.5
             x[flip] = torch.flip(x[flip], dims=[-1])
             t[flip, 2] = -t[flip, 2]
-            x = _augment(x, gen, image_planes=net.refine_channels).to(config.device)
+            x = _augment(x, gen, image_planes=net.refine_channels, mode=config.augment).to(
+                config.device
+            )
             loss = refine_loss(net.refine(x), t.to(config.device))
             losses.append(_step(opt, sched, loss))
             bar.update(len(losses))

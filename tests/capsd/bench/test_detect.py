@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 from collections import defaultdict
 from pathlib import Path
@@ -165,3 +166,13 @@ def test_the_bench_hands_the_service_search_window_only_with_the_gate() -> None:
     assert alone.stamps == gated.stamps
     assert all(w is None for w in alone.windows)
     assert all(w is not None and 0.0 <= w[0] < w[1] for w in gated.windows)
+
+
+def test_the_looks_rendered_are_the_ones_asked_for(tmp_path: Path) -> None:
+    out = tmp_path / "detect.json"
+    args = ["bench", "detect", "--detector", "classical", "--looks", "outside"]
+    assert main([*args, "--duration", "0.5", "--start", "0", "--json", str(out)]) == 0
+    figures = json.loads(out.read_text())
+    assert figures["looks"] == ["outside"]
+    looks = {name.split(" / ")[1] for name in figures["groups"]}
+    assert looks == {"outside"}
