@@ -10,7 +10,8 @@ through the ASV bridge's rules (a heading alone at the station). The mission pau
 waits as it does in the demo (its view guard from the ASV's pose). Printed: whether the
 mission was done and when, the share of its time the ROV was in view, how much of that a
 mapped fixture shared the ROV's range cell (where a real detector may miss it), the ASV's
-nearest approach to a wall, the stations chosen, and each loss of 5 s or more (where, and the
+nearest approach to a wall, the stations chosen, the ROV's elevation in the sonar while in
+view (how near the aperture's edges it is kept), and each loss of 5 s or more (where, and the
 hull's heading off the ROV's bearing). The demo's figures (`capsd demo --mission ... --asv
 follow`) add the detector's misses and the locator's refusals to these.
 """
@@ -46,6 +47,7 @@ MAX_RANGE_M = 20.0
 HEADING_ONLY_WITHIN_M = 0.3  # the ASV bridge's `heading_only_within_m`
 LOSS_REPORTED_S = 5.0
 OFF_BINS_DEG = (15.0, 45.0)
+EDGE_DEG = 2.0  # the ROV this near the aperture's edge: in view, but barely
 
 
 @dataclass
@@ -81,6 +83,10 @@ class FollowRun:
     # The ROV's true horizontal distance from the plan's path (its nearest leg), each step
     # from the mission's start: the squares' sum, for the RMS.
     cross_track_sq_m2: float = 0.0
+    # The ROV's elevation in the sonar (deg, + above the boresight) at each step in view: how
+    # near the aperture's edges the follower keeps it (where a real detector and the locator's
+    # aperture test lose it first).
+    elevations_deg: list[float] = field(default_factory=list)
     losses: list[Loss] = field(default_factory=list)
     # Steps out of view by the hull's heading off the ROV's bearing (OFF_BINS_DEG's bins):
     # facing it (the ROV under or over the aperture), part turned (a move), turned away.
@@ -89,16 +95,22 @@ class FollowRun:
 
 def _in_view(mount: SonarMountConfig, sonar: Transform, rov_m: np.ndarray) -> bool:
     """Whether a perfect detector would see the ROV from this sonar pose."""
+    return _view_elevation(mount, sonar, rov_m) is not None
+
+
+def _view_elevation(mount: SonarMountConfig, sonar: Transform, rov_m: np.ndarray) -> float | None:
+    """The ROV's elevation in the sonar (rad) where a perfect detector would see it, else None."""
     p = sonar.inverse().apply(rov_m)
     try:
         r, azimuth, elevation = to_polar(mount.beam_model, p)
     except ValueError:
-        return False
-    return (
+        return None
+    seen = (
         abs(elevation) <= math.radians(mount.vertical_aperture_deg) / 2.0
         and abs(azimuth) <= math.radians(HALF_FAN_DEG)
         and MIN_RANGE_M <= r <= MAX_RANGE_M
     )
+    return elevation if seen else None
 
 
 def run_mission(
@@ -154,7 +166,8 @@ def run_mission(
         body = Transform(rotation, translation)
         state = rov.state(t)
         rov_m = state.position_m
-        seen = _in_view(mount, body.compose(sonar_on_asv), rov_m)
+        elevation = _view_elevation(mount, body.compose(sonar_on_asv), rov_m)
+        seen = elevation is not None
         yaw = math.atan2(float(rotation[1, 0]), float(rotation[0, 0]))
         asv_xy = np.array(translation[:2])
         follower.on_pose(asv_xy, yaw)
@@ -211,8 +224,9 @@ def run_mission(
                 bounds.length_m - float(asv_xy[0]),
                 bounds.width_m - float(asv_xy[1]),
             )
-            if seen:
+            if elevation is not None:
                 out.in_view += 1
+                out.elevations_deg.append(math.degrees(elevation))
                 if planner.masked(asv_xy, yaw, rov_m):
                     out.in_view_masked += 1
             bearing = math.atan2(float(rov_m[1] - asv_xy[1]), float(rov_m[0] - asv_xy[0]))
@@ -269,6 +283,7 @@ def run(
 ) -> int:
     """Print one line per seed and the losses; the median share in view."""
     shares = []
+    mount_half_deg = follow_config(tank, drive=drive).sonar.vertical_aperture_deg / 2.0
     for seed in range(seeds):
         progress = Progress(duration_s, label=f"bench follow seed {seed}", unit=" s")
         r = run_mission(tank, plan_path, drive=drive, duration_s=duration_s, seed=seed,
@@ -287,6 +302,14 @@ def run(
             f"({r.waits_timed_out} ran out); the ROV's true cross-track RMS "
             f"{1000 * math.sqrt(r.cross_track_sq_m2 / max(r.steps, 1)):.0f} mm"
         )
+        if r.elevations_deg:
+            e = np.array(r.elevations_deg)
+            edge = mount_half_deg - EDGE_DEG
+            print(
+                f"  the ROV's elevation in the sonar while in view: median {np.median(e):+.1f} "
+                f"deg (p10 {np.percentile(e, 10):+.1f}, p90 {np.percentile(e, 90):+.1f}), "
+                f"{100 * np.mean(np.abs(e) > edge):.1f} % within {EDGE_DEG:g} deg of an edge"
+            )
         bins = [0.0, *OFF_BINS_DEG, 180.0]
         print(
             "  out of view, by the hull's heading off the ROV's bearing: "

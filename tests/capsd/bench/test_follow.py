@@ -50,6 +50,9 @@ def test_a_mockup_mission_starts_in_view_and_is_scored() -> None:
     # and its waits are part of the mission's time.
     assert run.waits >= 1
     assert 0.0 < run.waited_s < run.mission_s
+    # Each step in view has the ROV's elevation, inside the 20 deg aperture.
+    assert len(run.elevations_deg) == run.in_view
+    assert max(abs(e) for e in run.elevations_deg) <= 10.0
 
 
 def test_an_asv_held_at_its_start_does_not_move() -> None:
