@@ -155,6 +155,20 @@ def report(
             f"{config.motion.max_speed_m_s:g} m/s); the follower itself also moves along the "
             f"line of sight, in view, and may do better"
         )
+    route = found.route
+    if route is not None:
+        lines.append(
+            f"  the least blind route (a place for every point, moving between them, the ROV "
+            f"waiting while the ASV moves; the same model): {route.moves} moves, about "
+            f"{route.blind_s:.0f} s with the sonar off the ROV"
+        )
+        for i, seconds in route.blind:
+            a = found.places_xy[route.places[i - 1]]
+            b = found.places_xy[route.places[i]]
+            lines.append(
+                f"    the ROV waiting at {_at(found, i)}: {_xy(a)} -> {_xy(b)}, about "
+                f"{seconds:.0f} s blind"
+            )
     return lines
 
 
@@ -194,6 +208,10 @@ def draw(
         ax.annotate(str(n), (sx, sy), textcoords="offset points", xytext=(5, 5), color="tab:blue")
         mid = path[(stretch.first + stretch.last) // 2]
         ax.plot([sx, mid[0]], [sy, mid[1]], ":", color="tab:blue", lw=0.8)
+    if found.route is not None:
+        way = xy[found.route.places]
+        ax.plot(way[:, 0], way[:, 1], "-", color="tab:purple", lw=1, zorder=2)
+        ax.plot([], [], "-", color="tab:purple", label="the least blind route (the ASV)")
     ax.plot([], [], "s", color="tab:blue", label="fewest stops (numbered)")
     ax.scatter([], [], s=9, color="tab:green", label="seen, nothing in its range cell")
     ax.scatter([], [], s=9, color="tab:orange", label="seen, a fixture in its range cell")

@@ -52,6 +52,25 @@ class Stretch:
 
 
 @dataclass(frozen=True)
+class Route:
+    """The ASV's place at each path sample, chosen for the least time with the sonar off the ROV.
+
+    `places` index `Coverage.places_xy`; `blind` lists the moves that take the sonar off the
+    ROV by the follower's model (`StationPlanner.blind_s`): (the sample the ROV waits at,
+    seconds). Moves along the line of sight keep it in view and cost nothing.
+    """
+
+    places: Ints
+    moves: int
+    blind: tuple[tuple[int, float], ...]
+
+    @property
+    def blind_s(self) -> float:
+        """Seconds off the ROV over the whole route."""
+        return float(sum(seconds for _, seconds in self.blind))
+
+
+@dataclass(frozen=True)
 class Coverage:
     """What places see which points of a plan's path; see the module docstring."""
 
@@ -62,6 +81,7 @@ class Coverage:
     seen: Bools  # N x M: the place sees the point
     clear_any: Bools  # N: some place sees the point with nothing sharing its range cell
     stretches: tuple[Stretch, ...]
+    route: Route | None  # None where some point no place sees
 
     @property
     def seen_any(self) -> Bools:
@@ -136,6 +156,94 @@ def fewest_stops(seen: Bools) -> list[tuple[int, int, Ints]]:
 CHOICES = 12
 
 
+# The least blind route: at each sample this many places spread over those that see it (the
+# most central first, then each the farthest from those already taken), and of the places the
+# route could be at on the sample before, as many again that still see it (the cheapest).
+ROUTE_CANDIDATES = 16
+# A metre moved costs this many seconds: of two routes equally blind, the one that moves less.
+METRE_S = 0.01
+
+
+def least_blind_route(
+    planner: StationPlanner,
+    path_m: Floats,
+    places_xy: Floats,
+    seen: Bools,
+    off: Floats,
+    *,
+    candidates: int = ROUTE_CANDIDATES,
+    extra: list[set[int]] | None = None,
+) -> Route:
+    """A place per sample, moving between samples, with the least blind time (dynamic program).
+
+    The ROV waits at a sample while the ASV moves to a place that sees it from one that saw the
+    sample before; staying costs nothing. `extra[i]`: places also tried at sample i. Needs every
+    sample seen from somewhere.
+    """
+    n = len(path_m)
+    chosen: list[Ints] = []
+    cost: dict[int, float] = {}
+    back: list[dict[int, int]] = []
+    for i in range(n):
+        sees = np.flatnonzero(seen[i])
+        pick = [int(sees[np.argmin(off[i, sees])])]
+        gap = np.linalg.norm(places_xy[sees] - places_xy[pick[0]], axis=1)
+        while len(pick) < min(candidates, len(sees)):
+            k = int(np.argmax(gap))
+            pick.append(int(sees[k]))
+            gap = np.minimum(gap, np.linalg.norm(places_xy[sees] - places_xy[sees[k]], axis=1))
+        still = sorted((c for c in cost if seen[i, c]), key=lambda c: cost[c])[:candidates]
+        here = set(pick) | set(still) | (extra[i] if extra is not None else set())
+        chosen.append(np.array(sorted(here), dtype=np.int64))
+        if i == 0:
+            cost = {int(b): 0.0 for b in chosen[0]}
+            back.append({})
+            continue
+        before, point = path_m[i - 1], path_m[i]
+        new: dict[int, float] = {}
+        links: dict[int, int] = {}
+        for b in (int(c) for c in chosen[i]):
+            heading_b = planner.facing(places_xy[b], point)
+            best, arg = math.inf, -1
+            for a, paid in cost.items():
+                if a == b:
+                    total = paid
+                else:
+                    a_xy = places_xy[a]
+                    total = paid + METRE_S * float(np.linalg.norm(places_xy[b] - a_xy))
+                    if total >= best:
+                        continue  # the blind time only adds
+                    total += planner.blind_s(
+                        a_xy, planner.facing(a_xy, before), places_xy[b], heading_b, point
+                    )
+                if total < best:
+                    best, arg = total, a
+            new[b], links[b] = best, arg
+        cost = new
+        back.append(links)
+    route = [min(cost, key=lambda c: cost[c])]
+    for i in range(n - 1, 0, -1):
+        route.append(back[i][route[-1]])
+    route.reverse()
+    blind: list[tuple[int, float]] = []
+    moves = 0
+    for i in range(1, n):
+        a, b = route[i - 1], route[i]
+        if a == b:
+            continue
+        moves += 1
+        seconds = planner.blind_s(
+            places_xy[a],
+            planner.facing(places_xy[a], path_m[i - 1]),
+            places_xy[b],
+            planner.facing(places_xy[b], path_m[i]),
+            path_m[i],
+        )
+        if seconds > 0.0:
+            blind.append((i, seconds))
+    return Route(np.array(route, dtype=np.int64), moves, tuple(blind))
+
+
 def coverage(
     planner: StationPlanner,
     points: list[Waypoint],
@@ -174,10 +282,13 @@ def coverage(
         ranked = ranked[np.argsort(off[i, ranked])]
         clear_any[i] = any(not masked(i, int(j)) for j in ranked)
     stretches: list[Stretch] = []
+    extra: list[set[int]] = [set() for _ in range(len(path))]
     for first, last, common in fewest_stops(seen):
         central = common[np.argsort(off[first : last + 1, common].sum(axis=0))][:CHOICES]
         counts = [sum(masked(i, int(j)) for i in range(first, last + 1)) for j in central]
         k = int(central[int(np.argmin(counts))])
+        for i in range(first, last + 1):
+            extra[i].add(k)  # the route may keep to the stops: it is never blinder than they
         move_m = blind_s = 0.0
         if stretches:
             here = np.array(stretches[-1].station_xy)
@@ -189,4 +300,9 @@ def coverage(
             )
         station = (float(xy[k, 0]), float(xy[k, 1]))
         stretches.append(Stretch(first, last, station, int(min(counts)), move_m, blind_s))
-    return Coverage(path, leg, along, xy, seen, clear_any, tuple(stretches))
+    route = (
+        least_blind_route(planner, path, xy, seen, off, extra=extra)
+        if bool(seen.any(axis=1).all())
+        else None
+    )
+    return Coverage(path, leg, along, xy, seen, clear_any, tuple(stretches), route)

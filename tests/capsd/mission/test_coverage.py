@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from capsd.cli import main
 from capsd.harness import follow_config
-from capsd.mission.coverage import coverage, fewest_stops, sample_path
+from capsd.mission.coverage import METRE_S, coverage, fewest_stops, sample_path
 from capsd.mission.plan import Waypoint, load_plan
 from capsd.services.asv_follow.station import StationPlanner
 
@@ -116,6 +116,18 @@ def test_each_stop_of_the_mockup_plan_sees_its_stretch_and_the_middle_lane_only_
             assert planner.view_is_good(view)
         covered += range(stretch.first, stretch.last + 1)
     assert covered == list(range(len(found.path_m)))
+    # The least blind route: a place that sees each point, never blinder than the stops (it
+    # may keep to them; only its tie-break by metres moved can trade a little), and not
+    # without a blind move: the crossing to the east side cannot be made facing the ROV.
+    route = found.route
+    assert route is not None
+    for sample, place in enumerate(route.places):
+        assert found.seen[sample, place]
+    stops_blind = sum(s.blind_s for s in found.stretches)
+    stops_moved = sum(s.move_m for s in found.stretches)
+    assert route.blind_s <= stops_blind + METRE_S * stops_moved
+    assert route.blind_s > 0.0
+    assert route.moves >= len(found.stretches) - 1
     # The lane at x = 2.2 m, mid tank: from the west the ASV's origin stays 1.5 m off the wall
     # and its sonar sits 0.3 m ahead of it, nearer the lane than the 0.63 m a ROV 0.8 m below
     # it needs to be inside the aperture's lower margin (45 + 10 - 3 deg down).
