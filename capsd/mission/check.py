@@ -115,6 +115,13 @@ def report(
         f"{clearance:.2f} m off the walls: {len(found.places_xy)} places tried",
         "  leg  from -> to                      length   seen  clear",
     ]
+    if len(found.places_xy) == 0:
+        lines.insert(
+            2,
+            f"  NO place in this {config.tank.length_m:g} x {config.tank.width_m:g} m tank is "
+            f"{clearance:.2f} m off every wall and clear of keep-out boxes: the ASV has nowhere "
+            f"to be",
+        )
     for k in range(1, len(points)):
         on = found.leg == k
         a, b = points[k - 1].position_m, points[k].position_m

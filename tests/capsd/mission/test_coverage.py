@@ -169,3 +169,19 @@ def test_mission_check_names_a_bad_follower_config(
     err = capfd.readouterr().err
     assert str(config) in err
     assert "min_range_m" in err
+
+
+def test_mission_check_says_when_the_asv_has_nowhere_to_be(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    # A 3 x 3 m tank: the default follower keeps its origin 2.1 m off every wall.
+    config = tmp_path / "asv_follow.yaml"
+    config.write_text("tank: {length_m: 3.0, width_m: 3.0, depth_m: 2.0}\n")
+    plan = tmp_path / "one.yaml"
+    plan.write_text(
+        "name: one\npoints:\n  - {position_m: [1.5, 1.5], depth_m: 1.0}\nclearance_m: 0.2\n"
+    )
+    assert main(["mission", "check", str(plan), "--follow-config", str(config)]) == 1
+    out = capfd.readouterr().out
+    assert "NO place in this 3 x 3 m tank" in out
+    assert "fewest ASV stops: 0" in out
