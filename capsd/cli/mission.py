@@ -65,7 +65,12 @@ def _cmd_mission_check(args: argparse.Namespace) -> int:
         return fail(str(exc), EXIT_CONFIG)
     return guarded(
         lambda: check.main(
-            config, plan_path=args.plan, png=args.png, stream=sys.stdout, source=source
+            config,
+            plan_path=args.plan,
+            png=args.png,
+            stream=sys.stdout,
+            source=source,
+            json_out=args.json,
         )
     )
 
@@ -134,4 +139,11 @@ def register(sub: Subcommands) -> None:
         help="try the sonar pitched this far down instead of the config's",
     )
     check.add_argument("--png", type=Path, default=None, help="also draw the check (PNG)")
+    check.add_argument(
+        "--json",
+        type=Path,
+        default=None,
+        help="also write the check as JSON (the path, what sees each point, the stops, the "
+        "least blind route's station for every point)",
+    )
     check.set_defaults(func=_cmd_mission_check)

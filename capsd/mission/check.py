@@ -3,15 +3,17 @@
 Reads the plan and the follower's config (the site's `asv_follow.yaml`: tank, sonar mount,
 station rules) or a simulated tank's demo settings, and prints, per leg, the share of the
 ROV's path some ASV place sees (and sees with no fixture in the ROV's range cell), the points
-no place sees, and the fewest stops the ASV needs (capsd.mission.coverage); `--png` draws them.
+no place sees, the fewest stops the ASV needs and the least blind route (capsd.mission.coverage);
+`--png` draws them, `--json` writes them (the route's station for every point of the path).
 Exit 0 when every point of the path is seen from somewhere, 1 when some is not.
 """
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
-from typing import TextIO
+from typing import Any, TextIO
 
 import numpy as np
 
@@ -36,6 +38,7 @@ def main(
     png: Path | None,
     stream: TextIO,
     source: str,
+    json_out: Path | None = None,
 ) -> int:
     """Check the plan against the follower's config; see the module docstring."""
     plan, points = load_plan(plan_path, tank=config.tank)
@@ -55,14 +58,54 @@ def main(
     )
     for bar in bars:
         bar.close()
-    bar.close()
     title = f"{plan.name} ({plan_path})"
     for line in report(found, points, config, title=title, source=source, path_step_m=path_step):
         print(line, file=stream)
     if png is not None:
         draw(found, points, planner, png, title=f"{plan.name}: where the ASV can watch from")
         print(f"figure: {png}", file=stream)
+    if json_out is not None:
+        json_out.write_text(json.dumps(figures(found, plan.name, source=source), indent=1) + "\n")
+        print(f"figures: {json_out}", file=stream)
     return EXIT_OK if bool(found.seen_any.all()) else EXIT_FAILURE
+
+
+def _rounded(a: np.ndarray) -> list[Any]:
+    return np.round(a, 3).tolist()  # type: ignore[no-any-return]
+
+
+def figures(found: Coverage, name: str, *, source: str) -> dict[str, Any]:
+    """The check as JSON: the sampled path, per point what sees it, the stops, the route."""
+    route = found.route
+    return {
+        "plan": name,
+        "follower_settings": source,
+        "path_m": _rounded(found.path_m),
+        "leg": found.leg.tolist(),
+        "along_m": _rounded(found.along_m),
+        "places_tried": len(found.places_xy),
+        "seen": found.seen_any.tolist(),
+        "clear": found.clear_any.tolist(),
+        "stops": [
+            {
+                "first": s.first,
+                "last": s.last,
+                "station_xy_m": list(s.station_xy),
+                "masked": s.masked,
+                "move_m": round(s.move_m, 3),
+                "blind_s": round(s.blind_s, 2),
+            }
+            for s in found.stretches
+        ],
+        "route": None
+        if route is None
+        else {
+            "station_xy_m": _rounded(found.places_xy[route.places]),
+            "moves": route.moves,
+            "blind_s": round(route.blind_s, 2),
+            "blind_moves": [{"at": i, "blind_s": round(t, 2)} for i, t in route.blind],
+        },
+    }
 
 
 def _xy(p: np.ndarray | tuple[float, ...]) -> str:

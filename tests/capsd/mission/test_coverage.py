@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import json
 import math
 from pathlib import Path
 
@@ -137,10 +138,21 @@ def test_each_stop_of_the_mockup_plan_sees_its_stretch_and_the_middle_lane_only_
         assert np.all(found.places_xy[found.seen[i], 0] > 2.2)
 
 
-def test_mission_check_draws_and_passes_the_mockup_plan(tmp_path: Path) -> None:
-    png = tmp_path / "check.png"
-    assert main(["mission", "check", str(MOCKUP_PLAN), "--tank", "mockup", "--png", str(png)]) == 0
+def test_mission_check_draws_writes_and_passes_the_mockup_plan(tmp_path: Path) -> None:
+    png, out = tmp_path / "check.png", tmp_path / "check.json"
+    args = ["mission", "check", str(MOCKUP_PLAN), "--tank", "mockup"]
+    assert main([*args, "--png", str(png), "--json", str(out)]) == 0
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    figures = json.loads(out.read_text())
+    n = len(figures["path_m"])
+    assert len(figures["leg"]) == len(figures["seen"]) == n
+    assert all(figures["seen"])
+    assert len(figures["route"]["station_xy_m"]) == n
+    # The stops cover the path in order, one after another.
+    stops = figures["stops"]
+    assert stops[0]["first"] == 0
+    assert stops[-1]["last"] == n - 1
+    assert all(b["first"] == a["last"] + 1 for a, b in itertools.pairwise(stops))
 
 
 def test_mission_check_fails_a_point_no_place_sees(
