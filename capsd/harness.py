@@ -28,7 +28,7 @@ from capsd.codec import Codec
 from capsd.errors import PayloadError
 from capsd.health import query_health
 from capsd.keys import is_concrete
-from capsd.mounts import AsvDrive
+from capsd.mounts import AsvDrive, SonarMountConfig
 from capsd.payloads import GroundTruth, Health, RovFix, SonarLabel
 from capsd.simulator.world import TankName, TrajectoryName
 
@@ -172,7 +172,7 @@ def follow_config(tank: TankName, *, drive: AsvDrive = "steered") -> FollowConfi
 
     return Config(
         tank=tank_bounds(make_tank(tank)),
-        sonar=msgspec.convert(sonar_mount(tank), type(Config().sonar)),
+        sonar=msgspec.convert(sonar_mount(tank), SonarMountConfig),
         station=StationConfig(**FOLLOW_STATION.get(tank, {})),  # type: ignore[arg-type]
         motion=MotionConfig(drive=drive),
         fix_auth="off",

@@ -118,13 +118,9 @@ def places(planner: StationPlanner, step_m: float) -> Floats:
 
 def ring_m(planner: StationPlanner, point: Floats) -> tuple[float, float]:
     """Horizontal sonar-to-point distances where a faced point sits inside the margin."""
-    s = planner.settings
-    drop = planner.sonar_z - float(point[2])
-    if drop <= 0.0:
+    if planner.sonar_z - float(point[2]) <= 0.0:
         return math.inf, -math.inf  # at or above the sonar: no place sees it
-    shallowest = planner.pitch - planner.half_aperture + s.elevation_margin_rad
-    far = drop / math.tan(shallowest) if shallowest > 0.0 else math.inf
-    far = min(far, s.max_range_m)
+    far = min(planner.farthest_distance(point), planner.settings.max_range_m)
     return planner.nearest_distance(point), far
 
 
@@ -202,6 +198,8 @@ def least_blind_route(
         before, point = path_m[i - 1], path_m[i]
         new: dict[int, float] = {}
         links: dict[int, int] = {}
+        # Each place the route may leave faces where the ROV was: once per place, not per way.
+        leaving = {a: planner.facing(places_xy[a], before) for a in cost}
         for b in (int(c) for c in chosen[i]):
             heading_b = planner.facing(places_xy[b], point)
             best, arg = math.inf, -1
@@ -213,9 +211,7 @@ def least_blind_route(
                     total = paid + METRE_S * float(np.linalg.norm(places_xy[b] - a_xy))
                     if total >= best:
                         continue  # the blind time only adds
-                    total += planner.blind_s(
-                        a_xy, planner.facing(a_xy, before), places_xy[b], heading_b, point
-                    )
+                    total += planner.blind_s(a_xy, leaving[a], places_xy[b], heading_b, point)
                 if total < best:
                     best, arg = total, a
             new[b], links[b] = best, arg

@@ -462,6 +462,16 @@ class StationPlanner:
             return 0.0
         return drop / math.tan(steepest)
 
+    def farthest_distance(self, rov_m: Array) -> float:
+        """The horizontal sonar-to-ROV distance at the aperture's upper edge, less the margin.
+
+        Further, a level sonar facing the ROV sees it less than `elevation_margin` inside the
+        upper edge, or above it (inf where the upper edge, less the margin, looks up).
+        """
+        drop = max(self.sonar_z - float(rov_m[2]), 0.0)
+        shallowest = self.pitch - self.half_aperture + self.settings.elevation_margin_rad
+        return drop / math.tan(shallowest) if shallowest > 0.0 else math.inf
+
     def ideal_distance(self, rov_m: Array) -> float:
         """The horizontal sonar-to-ROV distance that puts the ROV at the target elevation."""
         drop = max(self.sonar_z - float(rov_m[2]), 0.0)
