@@ -19,7 +19,7 @@ from capsd.codec import Codec
 from capsd.geometry import Transform, euler_zyx_to_matrix, matrix_to_euler_zyx, quat_to_matrix
 from capsd.health import query_health
 from capsd.keys import is_concrete
-from capsd.payloads import AsvPose, LidarScan, ReferencePose
+from capsd.payloads import AsvPose, Health, LidarScan, ReferencePose
 from capsd.ros_messages import scan_payload
 from capsd.services.asv_pose.ros_input import ROS_TYPES, ros_key
 from capsd.simulator.lidar import LidarModel, scan
@@ -249,7 +249,18 @@ def test_a_mocap_pose_becomes_a_reference_no_service_reads(
     assert got[5].position_m == pytest.approx((0.5, 1.0, -1.5))
     assert got[5].stamp_ns == start + 50_000_000
     assert got[5].frame_id == "laser"  # the header's frame, as sent
-    health = query_health(client, site="tank", vehicle="asv", service="ros_input", timeout_s=2)
+
+    def health_now() -> Health | None:
+        return query_health(client, site="tank", vehicle="asv", service="ros_input", timeout_s=2)
+
+    # The garbage goes out after the 20 poses that were waited for: its rejection may come
+    # after them (a CI run queried Health first and found no such counter yet).
+    wait_for(
+        lambda: (h := health_now()) is not None and "reference_poses_rejected" in h.counters,
+        timeout_s=10,
+        what="the garbage payload counted",
+    )
+    health = health_now()
     assert health is not None
     assert health.counters["reference_poses"] == 20
     assert health.counters["reference_poses_rejected"] == 1
