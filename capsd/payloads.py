@@ -399,6 +399,9 @@ class VehicleCommand(Payload, frozen=True, kw_only=True):
     # A ROV mission's engage and goto: the waypoint the leg ends at, also while the ROV waits
     # for the ASV at `position_m` (the follower re-stations for the leg, not for the wait).
     leg_end_m: Vec3 | None = None
+    # ... and the waypoint after it (None: the last one): the follower's stations are also to
+    # see the start of the next leg as the ROV nears the end of this one.
+    next_leg_end_m: Vec3 | None = None
     # The ASV's goto: which way its hull drives to `position_m` (ArduRover's GUIDED steers the
     # hull to its way, or its stern with MAV_CMD_DO_SET_REVERSE: backing off a ROV keeps the
     # sonar on it). The ROV's bridge ignores it.

@@ -191,8 +191,12 @@ def run_mission(
                 rov.set_mode("GUIDED")
             assert command.position_m is not None
             rov.set_target(np.array(command.position_m))
-            leg_end = mission.leg_end(command)
-            follower.on_leg_end(t, None if leg_end is None else np.array(leg_end))
+            leg_end, after = mission.leg_end(command), mission.next_leg_end(command)
+            follower.on_leg_end(
+                t,
+                None if leg_end is None else np.array(leg_end),
+                None if after is None else np.array(after),
+            )
         if asv_mode == "follow" and k % FOLLOW_EVERY == 0:
             target = follower.step(t)
             if target is not None:

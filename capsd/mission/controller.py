@@ -213,6 +213,12 @@ class MissionController:
             return None
         return self.points[command.waypoint].position_m
 
+    def next_leg_end(self, command: Command) -> tuple[float, float, float] | None:
+        """The waypoint after `leg_end(command)`; None: a hold, or the plan's last waypoint."""
+        if command.kind == "hold" or not 0 <= command.waypoint + 1 < len(self.points):
+            return None
+        return self.points[command.waypoint + 1].position_m
+
     def _target(self) -> tuple[float, float, float]:
         """Where the ROV is sent now: on its leg, CARROT_LEAD_S at the plan's speed ahead.
 

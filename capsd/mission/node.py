@@ -178,6 +178,7 @@ class MissionNode:
                 position_m=command.position_m,
                 reason=command.reason,
                 leg_end_m=self.controller.leg_end(command),
+                next_leg_end_m=self.controller.next_leg_end(command),
             )
         )
         self.sent[command.kind] += 1

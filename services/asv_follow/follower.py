@@ -143,6 +143,18 @@ class Target:
     direction: DriveDirection = "forward"  # steered: the hull ahead or astern to the position
 
 
+def _along(start_m: Array, end_m: Array, reach_m: float) -> Array | None:
+    """Points every PATH_STEP_M from `start_m` (excluded) towards `end_m`, at most `reach_m` on."""
+    way = end_m - start_m
+    length = float(np.linalg.norm(way[:2]))
+    reach = min(length, reach_m)
+    if reach < PATH_STEP_M:
+        return None
+    steps = np.arange(1, int(reach / PATH_STEP_M) + 1) * PATH_STEP_M
+    out: Array = start_m + np.outer(steps / length, way)
+    return out
+
+
 class Follower:
     """Feed `on_pose`, `on_fix` and `on_mode`; `step(now_s)` gives the target (or None)."""
 
@@ -174,9 +186,17 @@ class Follower:
         self._sight_only = False  # steered: this station's way goes along the sight only
         self._sight_for: Array | None = None  # ... decided for this station
         self._leg_end_s = -math.inf
+        self.next_leg_end: Array | None = None  # the waypoint after `leg_end`, where told
 
-    def on_leg_end(self, now_s: float, position_m: Array | None) -> None:
+    def on_leg_end(
+        self, now_s: float, position_m: Array | None, next_m: Array | None = None
+    ) -> None:
         """The waypoint the ROV's mission sent it to (None: it holds, the leg kept).
+
+        `next_m`: the waypoint after it (None: the last, or not told). Where the rest of the
+        leg is shorter than `path_ahead_m`, stations are also to see the start of the next leg:
+        a station that sees a lane to its end but not the turn after it is driven into a wall
+        there (`capsd bench follow`, README session 38).
 
         A hold pauses the leg, it does not end it: the mission resumes the same waypoint. (The
         leg dropped at each hold made the stations alternate between one chosen for the leg
@@ -185,6 +205,7 @@ class Follower:
         """
         if position_m is not None:
             self.leg_end = np.asarray(position_m, dtype=np.float64)
+            self.next_leg_end = None if next_m is None else np.asarray(next_m, dtype=np.float64)
         self._leg_end_s = now_s
 
     def on_pose(self, xy: Array, heading_rad: float) -> None:
@@ -209,6 +230,7 @@ class Follower:
         self._last_step_s = now_s
         if now_s - self._leg_end_s > LEG_END_VALID_S:
             self.leg_end = None
+            self.next_leg_end = None
         if self.mode != "GUIDED" or self.asv_xy is None:
             return None
         if self._carrot is None:
@@ -361,17 +383,18 @@ class Follower:
     def _leg_path(self) -> Array | None:
         """Points (every PATH_STEP_M) along the ROV's mission leg, up to `path_ahead_m` on.
 
-        None without a leg (no mission, or it ended) or at its end; a hold keeps the leg.
+        Then, within what is left of `path_ahead_m`, along the next leg (where told). None
+        without a leg (no mission, or it ended) or at its end; a hold keeps the leg.
         """
         if self.leg_end is None or self.rov_m is None:
             return None
-        way = self.leg_end - self.rov_m
-        left = float(np.linalg.norm(way[:2]))
-        reach = min(left, self.settings.path_ahead_m)
-        if reach < PATH_STEP_M:
-            return None
-        steps = np.arange(1, int(reach / PATH_STEP_M) + 1) * PATH_STEP_M
-        return self.rov_m + np.outer(steps / left, way)
+        rest = _along(self.rov_m, self.leg_end, self.settings.path_ahead_m)
+        if self.next_leg_end is not None:
+            left = float(np.linalg.norm((self.leg_end - self.rov_m)[:2]))
+            after = _along(self.leg_end, self.next_leg_end, self.settings.path_ahead_m - left)
+            if after is not None:
+                rest = after if rest is None else np.vstack([rest, after])
+        return rest
 
     def _horizontal_velocity(self) -> Array | None:
         """The ROV's tracked horizontal velocity; None while it hovers (or it is noise)."""

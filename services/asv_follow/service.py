@@ -202,13 +202,14 @@ class FollowNode:
         if command.kind in ("engage", "goto") and command.position_m is not None:
             # Where the leg ends, not where the ROV waits for the ASV meanwhile.
             position = np.array(command.leg_end_m or command.position_m)
+            after = None if command.next_leg_end_m is None else np.array(command.next_leg_end_m)
         elif command.kind == "hold":
-            position = None
+            position, after = None, None
         else:
             return
         with self.lock:
             self.mission_commands += 1
-            self.follower.on_leg_end(time.monotonic(), position)
+            self.follower.on_leg_end(time.monotonic(), position, after)
 
     def on_fix(self, fix: RovFix) -> None:
         if fix.quality != "good":

@@ -18,8 +18,9 @@ station looking from another bearing than the current one costs by the degree, s
 equal stations on either side of the ROV do not take turns. Path: where the ROV's mission leg
 is known, the points it flies through next (`path_m`) are looked at from each station moved as
 far the same way (the ASV keeps pace with the ROV, but not nearer the walls than a station may
-be), and (a steered hull: from the station itself, turned to face each) each degree one of them
-would sit beyond the aperture's margin costs `path_cost_per_deg`: a ROV waiting at a lane's
+be; a steered hull pursues the ROV from the station along the line of sight only, the one
+move it makes in view, `_pursued_beyond_deg`), and each degree one of them would sit beyond
+the aperture's margin costs `path_cost_per_deg`: a ROV waiting at a lane's
 start has no velocity to tell the drift cost which way it goes, and where the walls stop the
 ASV from backing off (a small tank), a station on the lane ahead sees it fly under the sonar
 within seconds.
@@ -58,6 +59,9 @@ STAY_M = 0.05
 # the ROV at a time.
 AROUND_WITHIN = 0.8
 AROUND_STEP_RAD = math.radians(30.0)
+# Steered path cost: a point leaving the distances that keep the margin is pursued to this
+# share inside them (a move to the very edge would be made again at the next point).
+PURSUIT_INSIDE = 0.02
 
 
 def round_turn(
@@ -361,30 +365,63 @@ class StationPlanner:
 
         Lateral drive: each point is seen from the station moved as the ROV moved from
         `rov_m` to it, then into the walls' clearance box (the hull's own; keep-out boxes are
-        not looked at). Steered: from the station itself, the hull turned to face the point (a
-        steered hull that moves turns the sonar to its way: it watches by turning in place).
+        not looked at). Steered: `_pursued_beyond_deg`.
         """
+        if self.settings.drive == "steered":
+            return self._pursued_beyond_deg(asv_xy, path_m)
         limit = self.half_aperture - self.settings.elevation_margin_rad
         total = 0.0
-        sight = math.atan2(float(rov_m[1] - asv_xy[1]), float(rov_m[0] - asv_xy[0]))
         for point in path_m:
-            if self.settings.drive == "steered":
-                view = self.view(asv_xy[:2], self.facing(asv_xy, point), point)
-                beyond = max(0.0, abs(view.elevation_rad) - limit)
-                offset = point[:2] - rov_m[:2]
-                off_sight = abs(wrap_angle(math.atan2(float(offset[1]), float(offset[0])) - sight))
-                if beyond > 0.0 and min(off_sight, math.pi - off_sight) <= BLIND_OFF_RAD:
-                    # The ROV's way lies along the line of sight: the hull keeps pace ahead or
-                    # astern, facing it (backing away from a ROV flying at the station).
-                    moved = self.within_walls(asv_xy[:2] + offset)
-                    paced = self.view(moved, self.facing(moved, point), point)
-                    beyond = min(beyond, max(0.0, abs(paced.elevation_rad) - limit))
-                total += beyond
-                continue
             moved = self.within_walls(asv_xy[:2] + point[:2] - rov_m[:2])
             view = self.view(moved, heading_rad, point)
             total += max(0.0, abs(view.elevation_rad) - limit)
         return math.degrees(total)
+
+    def _pursued_beyond_deg(self, asv_xy: Array, path_m: Array) -> float:
+        """A steered hull after the ROV along its path, from `asv_xy`: degrees unseen, summed.
+
+        The hull watches by turning where it stands; when a point would leave the distances
+        whose elevation keeps the margin (`nearest_distance`, `farthest_distance`) it moves
+        only along the line of sight (ahead at the ROV or astern away from it, the sonar on
+        it), to the nearer of those distances. That is the one move a steered hull makes in
+        view, and it carries the bearing round as the ROV goes on: a ROV flying at the ASV
+        from slightly off its axis ends up seen from well off it, so that a station on one
+        side of a lane's end sees the next leg and one on the other side is driven into a
+        wall. Where a wall stops the move, the hull slides along the wall instead: across the
+        sight, blind; each such second costs `blind_cost_per_s` (in the path cost's degrees),
+        and the point is judged from where the hull got to.
+        """
+        s = self.settings
+        limit = self.half_aperture - s.elevation_margin_rad
+        total = 0.0
+        blind_s = 0.0
+        sliding = False
+        here = np.asarray(asv_xy[:2], dtype=np.float64).copy()
+        for point in path_m:
+            sonar = self.sonar_xy(here, self.facing(here, point))
+            off = sonar - point[:2]
+            distance = float(np.linalg.norm(off))
+            near, far = self.nearest_distance(point), self.farthest_distance(point)
+            slid = False
+            if distance > 1e-6 and not near <= distance <= far:
+                wanted = min(
+                    max(distance, near * (1.0 + PURSUIT_INSIDE)), far * (1.0 - PURSUIT_INSIDE)
+                )
+                moved = here + off * ((wanted - distance) / distance)
+                kept = self.within_walls(moved)
+                slide = float(np.linalg.norm(kept - moved))
+                if slide > STAY_M:
+                    # The turn to the wall's way once per slide, then the way along it.
+                    blind_s += slide / s.transit_speed_m_s
+                    if not sliding:
+                        blind_s += math.pi / s.turn_rate_rad_s
+                    slid = True
+                here = kept
+            sliding = slid
+            view = self.view(here, self.facing(here, point), point)
+            total += max(0.0, abs(view.elevation_rad) - limit)
+        # Blind seconds in the path cost's unit (its weight is applied by `choose`).
+        return math.degrees(total) + s.blind_cost_per_s * blind_s / max(s.path_cost_per_deg, 1e-9)
 
     def facing(self, asv_xy: Array, rov_m: Array) -> float:
         """The hull's heading at `asv_xy` that points the sonar's boresight at the ROV."""

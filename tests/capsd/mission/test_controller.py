@@ -7,7 +7,7 @@ import math
 import msgspec
 import pytest
 
-from capsd.mission.controller import CARROT_LEAD_S, GUIDED, POSHOLD, MissionController
+from capsd.mission.controller import CARROT_LEAD_S, GUIDED, POSHOLD, Command, MissionController
 from capsd.mission.plan import Plan, Waypoint
 
 POINTS = [Waypoint((5.0, 4.0, -3.0)), Waypoint((9.0, 4.0, -3.0), dwell_s=2.0)]
@@ -201,7 +201,11 @@ def test_the_rov_waits_where_it_is_near_the_views_edge_until_the_asv_has_it_agai
 
 
 def test_every_command_of_a_leg_names_its_end_even_while_the_rov_waits_at_its_place() -> None:
-    """The follower re-stations for where the leg goes, not for where the ROV waits."""
+    """The follower re-stations for where the leg goes, not for where the ROV waits.
+
+    And for the waypoint after it: its stations are to see the turn after a lane too (README
+    session 38); the plan's last leg has none.
+    """
     ctl = _guarded()
     here = (4.0, 4.0, -3.0)
     ctl.on_fix(good=True, position_m=here, now=0.0)
@@ -214,7 +218,13 @@ def test_every_command_of_a_leg_names_its_end_even_while_the_rov_waits_at_its_pl
     (wait,) = ctl.step(0.1)
     assert wait.position_m == here
     assert ctl.leg_end(wait) == POINTS[0].position_m
-    assert ctl.leg_end(ctl.stop(0.2)[0]) is None  # a hold ends no leg
+    assert ctl.next_leg_end(engage) == ctl.next_leg_end(wait) == POINTS[1].position_m
+    last = Command(kind="goto", waypoint=len(POINTS) - 1, position_m=here, reason="")
+    assert ctl.leg_end(last) == POINTS[-1].position_m
+    assert ctl.next_leg_end(last) is None
+    hold = ctl.stop(0.2)[0]
+    assert ctl.leg_end(hold) is None  # a hold ends no leg
+    assert ctl.next_leg_end(hold) is None
 
 
 def test_a_wait_ends_after_max_wait_s_and_is_not_repeated_until_the_view_was_good() -> None:

@@ -763,3 +763,40 @@ def test_a_rov_holding_on_a_leg_along_the_sight_is_led_at_the_plans_speed() -> N
     follower.on_leg_end(0.2, np.array([16.0, 12.0, -3.5]))
     follower.on_fix(0.2, rov, np.zeros(3))
     assert np.allclose(follower._ahead(), rov)
+
+
+def test_the_path_a_station_is_to_see_runs_on_into_the_next_leg() -> None:
+    """The rest of the leg, then the next leg's start within `path_ahead_m` (README session 38).
+
+    A station that sees a lane to its end but not the turn after it is driven into a wall
+    there: `capsd bench follow` (nfp) lost the ROV at the lanes' west ends without it.
+    """
+    follower = _follower(path_ahead_m=3.0)
+    rov = np.array([10.0, 8.0, -3.5])
+    follower.on_fix(0.0, rov, np.array([0.25, 0.0, 0.0]))
+    end, after = np.array([12.0, 8.0, -3.5]), np.array([12.0, 10.0, -3.5])
+    follower.on_leg_end(0.0, end)
+    alone = follower._leg_path()
+    assert alone is not None
+    assert len(alone) == 8  # 2 m at 0.25 m
+    assert np.allclose(alone[-1], end)
+    follower.on_leg_end(0.0, end, after)
+    path = follower._leg_path()
+    assert path is not None
+    assert len(path) == 12  # and 1 m of the next leg
+    assert np.allclose(path[:8], alone)
+    assert np.allclose(path[-1], [12.0, 9.0, -3.5])
+    # At the leg's end the path is the next leg's; a hold keeps both.
+    follower.on_fix(0.1, end)
+    follower.on_leg_end(0.1, None)
+    at_end = follower._leg_path()
+    assert at_end is not None
+    assert np.allclose(at_end[0], [12.0, 8.25, -3.5])
+    assert np.allclose(at_end[-1], [12.0, 10.0, -3.5])
+    # The next waypoint is told with each leg: a leg without one has none.
+    follower.on_leg_end(0.2, after)
+    follower.on_fix(0.2, rov)
+    tail = follower._leg_path()
+    assert tail is not None
+    assert len(tail) == 11  # 2.83 m to it, nothing after
+    assert float(np.linalg.norm(tail[-1] - after)) < 0.25

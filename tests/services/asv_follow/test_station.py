@@ -423,13 +423,12 @@ def test_a_steered_hull_takes_a_station_that_sees_the_rest_of_the_lane() -> None
     North of this lane the walls leave the ASV 4 m at most: stations abeam look at the ROV from
     40-60 deg off the lane, and each move after it along the lane is across the line of sight,
     blind for a steered hull (ArduRover SITL, README session 33). With the rest of the lane as
-    its path (the steered default) the planner takes a station from which the lane stays inside
-    the aperture's margin (but for a few degrees: 2 against 274 degrees summed over its
-    points): ahead of the ROV, about along the lane, so that the hull backs away before it
-    along the line of sight, facing it; not across the lane (a blind crossing: session 33's
-    planner took the south side, 16 degrees unseen from there, and `capsd bench follow` lost
-    the ROV for 10-50 s at each such crossing). With the next 1.5 m (the lateral default) a
-    station the ROV soon flies out of the view of.
+    its path (the steered default) the planner takes a station from which the hull, pursuing
+    the ROV along the line of sight alone, keeps the whole lane inside the aperture's margin:
+    ahead of the ROV, about along the lane, backing away before it facing it (since session
+    38 on whichever side of the lane's line that pursuit works out; one move there, against
+    727 degrees unseen staying). With the next 1.5 m (the lateral default) a station the ROV
+    soon flies out of the view of.
     """
     from capsd.services.asv_follow.service import MotionConfig, StationConfig
 
@@ -447,9 +446,51 @@ def test_a_steered_hull_takes_a_station_that_sees_the_rest_of_the_lane() -> None
     unseen_whole = planner._beyond_margin_deg(whole.position_xy, whole.heading_rad, rov, lane)
     unseen_near = planner._beyond_margin_deg(near.position_xy, near.heading_rad, rov, lane)
     assert unseen_whole < 0.02 * unseen_near
-    assert float(whole.position_xy[1]) > 10.0  # no crossing
+    assert unseen_whole < 1.0
+    stay = planner._beyond_margin_deg(asv, planner.facing(asv, rov), rov, lane)
+    assert stay > 100.0 * max(unseen_whole, 1.0)
     assert float(near.position_xy[1]) > 10.0
     sight = whole.view.azimuth_rad + whole.heading_rad + planner.mount_yaw
     assert abs(wrap_angle(sight)) < math.radians(25.0)  # looking along the lane, east
     lateral = msgspec.convert({"drive": "lateral"}, MotionConfig).settings()
     assert lateral.path_ahead_m == pytest.approx(1.5)
+
+
+def test_a_steered_hull_pursues_along_the_sight_and_a_wall_that_stops_it_costs_blind_time() -> None:
+    """A ROV flying west at the west wall, then north (the nfp lawnmower's lane end).
+
+    The hull watches by turning and moves only along the line of sight, which carries the
+    bearing round as the ROV goes on (README session 38). From ahead of the ROV on its lane
+    it backs into the wall's clearance and must slide along the wall, blind; from 20-40 deg
+    north of the lane the lane stays in view but the leg after it comes at the hull; from as
+    far south nothing leaves the aperture's margin.
+    """
+    planner = _planner(drive="steered")
+    rov = np.array([12.0, 8.0, -4.0])
+    lane = rov + np.outer(np.arange(1, 25) * 0.25, [-1.0, 0.0, 0.0])  # to x = 6 m
+    turn = np.array([6.0, 8.0, -4.0]) + np.outer(np.arange(1, 9) * 0.25, [0.0, 1.0, 0.0])
+    path = np.vstack([lane, turn])
+    distance = planner.ideal_distance(rov) + MOUNT.position_m[0]
+
+    def station(off_lane_deg: float) -> np.ndarray:
+        bearing = math.radians(180.0 - off_lane_deg)
+        here = rov[:2] + distance * np.array([math.cos(bearing), math.sin(bearing)])
+        assert planner.clear(here)
+        return here
+
+    s = planner.settings
+    one_slide_deg = s.blind_cost_per_s / s.path_cost_per_deg * math.pi / s.turn_rate_rad_s
+    ahead = planner._beyond_margin_deg(station(0.0), 0.0, rov, path)
+    assert ahead > one_slide_deg  # into the wall, then along it
+    for north in (20.0, 40.0):
+        assert planner._beyond_margin_deg(station(north), 0.0, rov, lane) == 0.0
+        assert planner._beyond_margin_deg(station(north), 0.0, rov, path) > 100.0
+    for south in (-20.0, -40.0):
+        assert planner._beyond_margin_deg(station(south), 0.0, rov, path) == 0.0
+    # Without the pursuit (the hull turning where it stands) the south station would not see
+    # the lane's end: it is the move along the sight that keeps it.
+    here = station(-20.0)
+    limit = planner.half_aperture - s.elevation_margin_rad
+    assert any(
+        abs(planner.view(here, planner.facing(here, p), p).elevation_rad) > limit for p in path
+    )
