@@ -65,6 +65,9 @@ from capsd.services.asv_follow.station import (
 from capsd.services.asv_follow.station import AROUND_WITHIN as STATION_AROUND_WITHIN
 
 FollowState = Literal["standby", "holding", "following", "no_station"]
+# This near its station a hull has settled there (an autopilot stops short by its arrival
+# radius): a holding ROV's view is judged from the hull then.
+SETTLED_M = 0.5
 ARRIVED_M = 1.0  # this near its station the hull faces the ROV itself, not where it will be
 # At its station the hull turns to face the ROV once it is this far off the boresight.
 FACE_WITHIN_RAD = math.radians(3.0)
@@ -602,11 +605,30 @@ class Follower:
         return self.planner.view_is_good(self._station_view(rov_m))
 
     def _needs_station(self) -> bool:
-        """No station yet, or the ROV seen from it is outside the dead band."""
+        """No station yet, or the ROV seen from it is outside the dead band.
+
+        Or a ROV holding still (it waits for the ASV: the mission's view guard) is outside the
+        aperture's margin seen from where the hull settled: an autopilot stops short of its
+        target (ArduRover's WP_RADIUS, 0.2 m), and from there the guard waits for a view the
+        station promised and the hull never reaches (ArduRover SITL, README session 38: 130 s).
+        """
         if self.station is None:
             return True
         assert self.rov_m is not None
         s = self.settings
+        if (
+            self.asv_xy is not None
+            and self._horizontal_velocity() is None
+            and not self.planner.view_is_good(
+                self.planner.view(
+                    self.asv_xy, self.planner.facing(self.asv_xy, self.rov_m), self.rov_m
+                )
+                if self.planner.settings.drive == "steered"
+                else self.planner.view(self.asv_xy, self.asv_heading, self.rov_m)
+            )
+            and float(np.linalg.norm(self.station.position_xy - self.asv_xy)) <= SETTLED_M
+        ):
+            return True
         view = self._station_view(self.rov_m)
         # The dead band is round the elevation the station was chosen for, not the target: a
         # station chosen steeper than the target (the target's view masked by a rack) would

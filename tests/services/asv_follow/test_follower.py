@@ -800,3 +800,41 @@ def test_the_path_a_station_is_to_see_runs_on_into_the_next_leg() -> None:
     assert tail is not None
     assert len(tail) == 11  # 2.83 m to it, nothing after
     assert float(np.linalg.norm(tail[-1] - after)) < 0.25
+
+
+def test_a_holding_rov_out_of_the_margin_seen_from_where_the_hull_settled_gets_a_station() -> None:
+    """ArduRover stops short of a target (WP_RADIUS 0.2 m): the view is judged from the hull.
+
+    A station whose view keeps the ROV just inside the aperture's margin, the hull settled
+    0.3 m nearer the ROV, from where it is beyond the margin: while the ROV holds still (the
+    mission's view guard waits for the ASV) a new station is chosen; while the ROV flies on,
+    or with the hull at its station, the dead band rules as before (ArduRover SITL, README
+    session 38: 130 s of waiting without it).
+    """
+    planner = StationPlanner(SonarMountConfig(), TankBounds(), StationSettings(drive="steered"))
+    follower = Follower(planner, FollowSettings())
+    rov = np.array([20.0, 8.0, -3.5])
+    limit = planner.half_aperture - planner.settings.elevation_margin_rad
+
+    def west(distance: float) -> np.ndarray:
+        return np.array([rov[0] - distance, rov[1]])
+
+    def elevation(xy: np.ndarray) -> float:
+        return planner.view(xy, planner.facing(xy, rov), rov).elevation_rad
+
+    # The station: the ROV 0.2 deg inside the margin's lower edge.
+    distance = next(
+        d for d in np.arange(3.0, 12.0, 0.01) if elevation(west(d)) > -limit + math.radians(0.2)
+    )
+    station_xy = west(float(distance))
+    view = planner.view(station_xy, 0.0, rov)
+    follower.station = Station(station_xy, 0.0, view)
+    settled = west(float(distance) - 0.3)
+    assert not planner.view_is_good(planner.view(settled, planner.facing(settled, rov), rov))
+    follower.on_fix(0.0, rov, np.zeros(3))
+    follower.on_pose(station_xy, 0.0)
+    assert not follower._needs_station()
+    follower.on_pose(settled, 0.0)
+    assert follower._needs_station()
+    follower.on_fix(0.0, rov, np.array([0.0, 0.25, 0.0]))  # flying on: the dead band decides
+    assert not follower._needs_station()
