@@ -593,13 +593,13 @@ class Follower:
     def _station_view(self, rov_m: Array) -> View:
         """The ROV seen from the station: with its heading, or (steered) the hull facing it."""
         assert self.station is not None
-        xy = self.station.position_xy
-        heading = (
-            self.planner.facing(xy, rov_m)
-            if self.planner.settings.drive == "steered"
-            else self.station.heading_rad
-        )
-        return self.planner.view(xy, heading, rov_m)
+        return self._view_from(self.station.position_xy, self.station.heading_rad, rov_m)
+
+    def _view_from(self, xy: Array, heading_rad: float, rov_m: Array) -> View:
+        """The ROV seen from `xy`: with `heading_rad`, or (steered) the hull facing it."""
+        if self.planner.settings.drive == "steered":
+            heading_rad = self.planner.facing(xy, rov_m)
+        return self.planner.view(xy, heading_rad, rov_m)
 
     def _in_view_of_station(self, rov_m: Array) -> bool:
         return self.planner.view_is_good(self._station_view(rov_m))
@@ -620,11 +620,7 @@ class Follower:
             self.asv_xy is not None
             and self._horizontal_velocity() is None
             and not self.planner.view_is_good(
-                self.planner.view(
-                    self.asv_xy, self.planner.facing(self.asv_xy, self.rov_m), self.rov_m
-                )
-                if self.planner.settings.drive == "steered"
-                else self.planner.view(self.asv_xy, self.asv_heading, self.rov_m)
+                self._view_from(self.asv_xy, self.asv_heading, self.rov_m)
             )
             and float(np.linalg.norm(self.station.position_xy - self.asv_xy)) <= SETTLED_M
         ):
