@@ -26,6 +26,7 @@ class ClutterSettings:
     static_after_s: float = 5.0  # seen in one cell over at least this long: static
     min_sightings: int = 10
     forget_after_s: float = 60.0
+    radius_m: float = 0.5  # an echo this near a static cell's centre of sightings is its echo
 
 
 @dataclass
@@ -33,6 +34,8 @@ class _Cell:
     first_ns: int
     last_ns: int
     sightings: int
+    sum_x: float  # of the sightings' positions: their centre
+    sum_y: float
 
 
 class ClutterMap:
@@ -57,19 +60,27 @@ class ClutterMap:
                 self._forget(stamp_ns)
                 if len(self._cells) >= self._cap:
                     return
-            self._cells[key] = _Cell(stamp_ns, stamp_ns, 1)
+            x, y = float(position_m[0]), float(position_m[1])
+            self._cells[key] = _Cell(stamp_ns, stamp_ns, 1, x, y)
             return
         cell.last_ns = max(cell.last_ns, stamp_ns)
         cell.sightings += 1
+        cell.sum_x += float(position_m[0])
+        cell.sum_y += float(position_m[1])
 
     def is_static(self, stamp_ns: int, position_m: Array) -> bool:
-        """Whether `position_m` is in or next to a cell of static clutter."""
+        """Whether `position_m` lies within `radius_m` of a static cell's centre of sightings."""
         cx, cy = self._key(position_m)
-        return any(
-            self._static(stamp_ns, self._cells.get((cx + dx, cy + dy)))
-            for dx in (-1, 0, 1)
-            for dy in (-1, 0, 1)
-        )
+        reach = math.ceil(self.settings.radius_m / self.settings.cell_m)
+        x, y = float(position_m[0]), float(position_m[1])
+        for dx in range(-reach, reach + 1):
+            for dy in range(-reach, reach + 1):
+                cell = self._cells.get((cx + dx, cy + dy))
+                if cell is not None and self._static(stamp_ns, cell):
+                    centre_x, centre_y = cell.sum_x / cell.sightings, cell.sum_y / cell.sightings
+                    if math.hypot(x - centre_x, y - centre_y) <= self.settings.radius_m:
+                        return True
+        return False
 
     def _static(self, stamp_ns: int, cell: _Cell | None) -> bool:
         s = self.settings

@@ -128,6 +128,8 @@ class TrackingConfig(ConfigSection, frozen=True, kw_only=True):
     manoeuvre_accel_density_xy: NonNeg = 0.5
     manoeuvre_accel_density_z: NonNeg = 0.1
     manoeuvre_window_s: Positive = 1.0
+    # Coasting this long, the track takes no echo of learned static clutter (the tracker).
+    static_coast_s: Annotated[float, msgspec.Meta(ge=0.0, le=60.0)] = 0.5
     # Where the ROV could be since its last confirmed fix: within reach_radius_m +
     # reach_drift_m_s x elapsed of where its velocity then carried it for up to reach_carry_s.
     reach_radius_m: Annotated[float, msgspec.Meta(ge=0.0, le=20.0)] = 0.5
@@ -158,6 +160,7 @@ class TrackingConfig(ConfigSection, frozen=True, kw_only=True):
             manoeuvre_accel_density_xy=self.manoeuvre_accel_density_xy,
             manoeuvre_accel_density_z=self.manoeuvre_accel_density_z,
             manoeuvre_window_s=self.manoeuvre_window_s,
+            static_coast_s=self.static_coast_s,
         )
 
 
@@ -191,6 +194,8 @@ class ClutterConfig(ConfigSection, frozen=True, kw_only=True):
     static_after_s: Annotated[float, msgspec.Meta(gt=0.0, le=600.0)] = 5.0
     min_sightings: Annotated[int, msgspec.Meta(ge=1)] = 10
     forget_after_s: Annotated[float, msgspec.Meta(gt=0.0, le=3600.0)] = 60.0
+    # An echo this near the centre of a static cell's sightings is that clutter's.
+    static_radius_m: Annotated[float, msgspec.Meta(gt=0.0, le=5.0)] = 0.5
     # Candidates nearer the tracked ROV than this are not learned (its own echo's spread).
     clear_of_track_m: Annotated[float, msgspec.Meta(gt=0.0, le=10.0)] = 1.0
 
@@ -207,6 +212,7 @@ class ClutterConfig(ConfigSection, frozen=True, kw_only=True):
             static_after_s=self.static_after_s,
             min_sightings=self.min_sightings,
             forget_after_s=self.forget_after_s,
+            radius_m=self.static_radius_m,
         )
 
 
@@ -486,12 +492,16 @@ class Locator:
         return self.relocation.reachable(stamp, position, self._last_confirmed)
 
     def _track(
-        self, stamp: int, usable: list[tuple[Array, Array]], may_start: list[bool]
+        self,
+        stamp: int,
+        usable: list[tuple[Array, Array]],
+        may_start: list[bool],
+        static: list[bool],
     ) -> Association:
         """The tracker's update, under the relocation rule (capsd.services.locator.relocation)."""
         last = self._last_confirmed
         if self.config.tracking.relocation == "off":
-            return self.tracker.update(stamp, usable, may_start=may_start)
+            return self.tracker.update(stamp, usable, may_start=may_start, static=static)
         if self.relocation.active:
             # The ROV reappearing where it could be wins over an unproven far track; not the
             # track's own echo, which the reach, growing with the time since, may come to hold.
@@ -506,7 +516,7 @@ class Locator:
                 self.tracker.restart(stamp, *usable[best])
                 self.relocation.take_over()
                 return Association(best, None, reinitialised=True)
-        association = self.tracker.update(stamp, usable, may_start=may_start)
+        association = self.tracker.update(stamp, usable, may_start=may_start, static=static)
         if association.reinitialised and association.index is not None:
             if self.relocation.reachable(stamp, usable[association.index][0], last):
                 self.relocation.end()
@@ -746,12 +756,12 @@ class Locator:
         by_install = [i for (_, c, _), i in zip(fixes, installed, strict=True) if c is not None]
         self._fuse_velocities_until(stamp)
         learning = self.config.clutter.mode == "learn"
+        static = [learning and self.clutter.is_static(stamp, p) for p, _ in usable]
         may_start = [
-            not (learning and self.clutter.is_static(stamp, p))
-            and (not mapped or self._reacquires(stamp, p))
-            for (p, _), mapped in zip(usable, by_map, strict=True)
+            not learned and (not mapped or self._reacquires(stamp, p))
+            for (p, _), learned, mapped in zip(usable, static, by_map, strict=True)
         ]
-        association = self._track(stamp, usable, may_start)
+        association = self._track(stamp, usable, may_start, static)
         if association.index is not None and sonar is not None:
             echo = echoes[association.index]
             self.relocation.observe(

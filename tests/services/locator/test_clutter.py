@@ -18,6 +18,8 @@ def test_an_echo_that_stays_put_becomes_static_and_is_forgotten_later() -> None:
         clutter.observe(k * SECOND // 10, sandbag + np.array([0.1 * np.sin(k), 0.05, 0.0]))
     assert clutter.is_static(6 * SECOND, sandbag)
     assert clutter.is_static(6 * SECOND, sandbag + np.array([0.4, 0.0, 0.0]))  # a neighbour
+    # Beside it, as a ROV that lost its fix there holds: not the sandbag's echo.
+    assert not clutter.is_static(6 * SECOND, sandbag + np.array([0.0, 0.7, 0.0]))
     assert not clutter.is_static(6 * SECOND, sandbag + np.array([2.0, 0.0, 0.0]))
     assert clutter.static_cells(6 * SECOND) >= 1
     assert not clutter.is_static(6 * SECOND + 61 * SECOND, sandbag)

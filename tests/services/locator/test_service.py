@@ -297,6 +297,44 @@ def test_a_static_echo_learned_while_tracking_never_restarts_the_track() -> None
     assert any(q.startswith("good") for q in _ghost_then_loss(blind))
 
 
+def _rov_stops_beside_a_sandbag(locator: Locator) -> list[tuple[float, str, float | None]]:
+    """The ROV stops 0.6 m from a sandbag; its echo is missed for 1.5 s as it arrives.
+
+    It flies 3 m along y at 0.25 m/s; the sandbag is seen from the second second on, its echo
+    not missed; the ROV's is seen again, held, after the 1.5 s. Each ping from the arrival:
+    (time, quality:reason, the fix's distance from the ROV).
+    """
+    stop = ROV
+    sandbag = stop + np.array([0.25, 0.55, 0.0])
+    out = []
+    for k in range(250):  # 10 Hz, 25 s
+        t = k / 10
+        stamp = k * SECOND // 10
+        rov = stop + np.array([0.0, -3.0 + min(0.25 * t, 3.0), 0.0])
+        _feed_inputs(locator, from_s=t, until_s=t + 0.1)
+        seen = [_detection_of(locator, sandbag, confidence=0.6)] if t >= 1.0 else []
+        if not 12.0 <= t < 13.5:
+            seen.append(_detection_of(locator, rov))
+        fix = locator.locate(_ping(stamp, *seen), seq=k)
+        if t >= 12.0:
+            where = fix.position_m or fix.raw_position_m
+            off = None if where is None else float(np.linalg.norm(np.array(where) - rov))
+            out.append((t, f"{fix.quality}:{fix.no_fix_reason}", off))
+    return out
+
+
+def test_a_rov_held_beside_learned_clutter_is_not_taken_for_it_and_is_found_again() -> None:
+    """Its mission pauses as the fix goes: the ROV holds just where the clutter hid it."""
+    pings = _rov_stops_beside_a_sandbag(_locator())
+    good = [(t, off) for t, q, off in pings if q.startswith("good")]
+    # Never the sandbag's echo called the ROV while its own was missed ...
+    assert all(off is not None and off < 0.1 for _, off in good), good
+    # ... and its own echo, seen again beside the sandbag, is the ROV again within 1 s.
+    assert good, pings[:40]
+    assert good[0][0] <= 14.5, pings[:40]
+    assert all(q.startswith("good") for t, q, _ in pings if t >= 14.5)
+
+
 def test_an_echo_a_mapped_fixture_explains_never_starts_a_track() -> None:
     """A rack top in the echo's range cell (same range and bearing, lower): it may be the rack."""
     rack = TankFixture(name="rack", lo_m=(7.5, 4.5, -3.5), hi_m=(8.8, 5.5, -3.0))

@@ -144,6 +144,25 @@ def test_candidates_that_may_not_start_are_still_associated() -> None:
     assert tracker.update(2 * SECOND, [near], may_start=[False]).index == 0
 
 
+def test_a_track_that_coasted_takes_no_static_clutter_echo() -> None:
+    """The ROV's echo missed for a while: the sandbag in the growing gate does not take it."""
+    sandbag = (np.array([5.15, 5.0, -2.0]), np.eye(3) * 1e-4)
+    for static, taken in ((True, False), (False, True)):
+        tracker = _tracking(np.array([5.0, 5.0, -2.0]))
+        start = SECOND
+        for k in range(1, 11):  # 0.5 s with nothing: coasting
+            tracker.update(start + k * SECOND // 20, [])
+        for k in range(11, 40):
+            association = tracker.update(start + k * SECOND // 20, [sandbag], static=[static])
+            if association.index is not None:
+                break
+        assert (association.index is not None) == taken
+    # A track fused on the ping before still follows an echo inside a static cell.
+    tracker = _tracking(np.array([5.0, 5.0, -2.0]))
+    near = (np.array([5.02, 5.0, -2.0]), np.eye(3) * 1e-4)
+    assert tracker.update(SECOND + SECOND // 20, [near], static=[True]).index == 0
+
+
 def test_only_fixes_that_could_start_a_track_confirm_a_tentative_one() -> None:
     """Mapped clutter after one stray start moves the tentative track but never confirms it."""
     tracker = Tracker(TrackerSettings(confirm_after=3))
