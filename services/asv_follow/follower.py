@@ -158,6 +158,24 @@ def _along(start_m: Array, end_m: Array, reach_m: float) -> Array | None:
     return out
 
 
+def _closing_direction(
+    hull_xy: Array, hull_heading_rad: float, target_xy: Array, *, current: DriveDirection
+) -> DriveDirection:
+    """The way done, how a steered hull closes what is left to its target: the end facing it.
+
+    The autopilot steers the driving end at a target beyond its arrival radius; the way's
+    direction kept there turned a hull that had overshot a station (chosen where it was, while
+    it backed off the ROV at speed) half round to back the last 0.6 m, its sonar off the ROV
+    for 20 s (nfp demo, session 38, at the first lane's start). On its target (within STAY_M)
+    the `current` direction is kept.
+    """
+    rest = target_xy - hull_xy
+    if float(np.linalg.norm(rest)) <= STAY_M:
+        return current
+    bearing = math.atan2(float(rest[1]), float(rest[0]))
+    return "forward" if math.cos(bearing - hull_heading_rad) >= 0.0 else "reverse"
+
+
 class Follower:
     """Feed `on_pose`, `on_fix` and `on_mode`; `step(now_s)` gives the target (or None)."""
 
@@ -703,6 +721,10 @@ class Follower:
                 heading = wrap_angle(way_heading + (math.pi if self._direction == "reverse" else 0))
         else:
             heading = self._wanted_heading(fresh=fresh)
+            if self.planner.settings.drive == "steered" and self.asv_xy is not None:
+                self._direction = _closing_direction(
+                    self.asv_xy, self.asv_heading, goal, current=self._direction
+                )
         turn = wrap_angle(heading - self._carrot_heading)
         max_turn = s.max_yaw_rate_rad_s * dt
         # Wrapped: turn after turn it would wind up past what a command may carry (+-7 rad;

@@ -838,3 +838,41 @@ def test_a_holding_rov_out_of_the_margin_seen_from_where_the_hull_settled_gets_a
     assert follower._needs_station()
     follower.on_fix(0.0, rov, np.array([0.0, 0.25, 0.0]))  # flying on: the dead band decides
     assert not follower._needs_station()
+
+
+def test_a_hull_past_its_station_closes_the_rest_with_the_end_that_faces_it() -> None:
+    """Backing off the ROV, the hull overshot its station (chosen where it then was, 0.6 m).
+
+    The carrot waits at the station, the way done; "astern" kept from the way before had the
+    autopilot turn the stern to the station ahead of the bow: half round, the sonar off the
+    ROV for 20 s (nfp demo, session 38, at the first lane's start).
+    """
+    planner = StationPlanner(SonarMountConfig(), TankBounds(), StationSettings(drive="steered"))
+    follower = Follower(planner, FollowSettings())
+    rov = np.array([16.0, 8.0, -3.5])
+    station_xy = np.array([10.0, 8.0])
+    follower.on_pose(station_xy, 0.0)
+    follower.on_mode("GUIDED")
+    follower.on_fix(0.0, rov, None)
+    assert follower.step(0.0) is not None
+    view = planner.view(station_xy, 0.0, rov)
+    follower.station = Station(position_xy=station_xy, heading_rad=0.0, view=view)
+    follower._last_plan_s = math.inf  # keep this station
+    follower._carrot = station_xy.copy()
+    follower._direction = "reverse"  # the way here backed off the ROV
+    follower._direction_for = station_xy.copy()
+    for k in range(1, 4):
+        now = 0.1 * k
+        follower.on_pose(np.array([9.4, 8.0]), 0.0)  # 0.6 m past it, facing the ROV
+        follower.on_fix(now, rov, None)
+        target = follower.step(now)
+        assert target is not None
+        assert target.direction == "forward", k
+        assert float(np.linalg.norm(target.position_xy - station_xy)) < 0.05
+        assert abs(wrap_angle(target.heading_rad)) < math.radians(5.0)
+    # Past it the other way (nearer the ROV than its station): astern.
+    follower.on_pose(np.array([10.6, 8.0]), 0.0)
+    follower.on_fix(0.4, rov, None)
+    target = follower.step(0.4)
+    assert target is not None
+    assert target.direction == "reverse"
