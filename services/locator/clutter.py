@@ -82,11 +82,10 @@ class ClutterMap:
                         return True
         return False
 
-    def _static(self, stamp_ns: int, cell: _Cell | None) -> bool:
+    def _static(self, stamp_ns: int, cell: _Cell) -> bool:
         s = self.settings
         return (
-            cell is not None
-            and stamp_ns - cell.last_ns <= s.forget_after_s * 1e9
+            stamp_ns - cell.last_ns <= s.forget_after_s * 1e9
             and cell.sightings >= s.min_sightings
             and cell.last_ns - cell.first_ns >= s.static_after_s * 1e9
         )
