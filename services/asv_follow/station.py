@@ -23,7 +23,9 @@ move it makes in view, `_pursued_beyond_deg`), and each degree one of them would
 the aperture's margin costs `path_cost_per_deg`: a ROV waiting at a lane's
 start has no velocity to tell the drift cost which way it goes, and where the walls stop the
 ASV from backing off (a small tank), a station on the lane ahead sees it fly under the sonar
-within seconds.
+within seconds. A point counts less the further along the path it lies (by exp(-distance /
+`path_discount_m`)): stations are chosen again every second, and a loss a lane's length ahead
+is not worth a certain blind turn now.
 Masking: a 2D sonar image cannot tell echoes apart
 that share a range and bearing at any elevation, so a ROV whose range cell (at its bearing,
 over the whole vertical aperture) also holds a mapped fixture, the floor or a wall is hidden
@@ -140,8 +142,10 @@ class StationSettings:
     # degree of bearing away from the current station's.
     drift_cost_per_deg_s: float = 4.0
     switch_cost_per_deg: float = 0.03
-    # Per degree a point of the ROV's path would sit beyond the aperture's margin.
+    # Per degree a point of the ROV's path would sit beyond the aperture's margin; a point this
+    # far along the path counts 1/e as much as the next (0: every point alike).
     path_cost_per_deg: float = 0.5
+    path_discount_m: float = 10.0
     # How the ASV's autopilot moves it (AsvDrive) and, for a steered hull, what a second with
     # the sonar turned off the ROV costs, and how fast it drives and turns.
     drive: AsvDrive = "lateral"
@@ -371,11 +375,28 @@ class StationPlanner:
             return self._pursued_beyond_deg(asv_xy, path_m)
         limit = self.half_aperture - self.settings.elevation_margin_rad
         total = 0.0
-        for point in path_m:
+        for point, weight in zip(path_m, self._path_weights(path_m), strict=True):
             moved = self.within_walls(asv_xy[:2] + point[:2] - rov_m[:2])
             view = self.view(moved, heading_rad, point)
-            total += max(0.0, abs(view.elevation_rad) - limit)
+            total += weight * max(0.0, abs(view.elevation_rad) - limit)
         return math.degrees(total)
+
+    def _path_weights(self, path_m: Array) -> Array:
+        """Each path point's weight: exp(-(distance along the path) / `path_discount_m`).
+
+        The follower chooses again every second, as the ROV goes on: a view lost near a leg's
+        end 40 s ahead is not yet a blind second, and paying for it now with a certain one (a
+        steered hull turned across the line of sight, off the ROV) loses the ROV for nothing
+        (session 40's nfp demo, seed 1: 6 s).
+        """
+        n = len(path_m)
+        discount = self.settings.path_discount_m
+        if discount <= 0.0 or n == 0:
+            return np.ones(n)
+        steps = np.linalg.norm(np.diff(np.asarray(path_m)[:, :2], axis=0), axis=1)
+        along = np.concatenate(([0.0], np.cumsum(steps)))
+        out: Array = np.exp(-along / discount)
+        return out
 
     def _pursued_beyond_deg(self, asv_xy: Array, path_m: Array) -> float:
         """A steered hull after the ROV along its path, from `asv_xy`: degrees unseen, summed.
@@ -397,7 +418,7 @@ class StationPlanner:
         blind_s = 0.0
         sliding = False
         here = np.asarray(asv_xy[:2], dtype=np.float64).copy()
-        for point in path_m:
+        for point, weight in zip(path_m, self._path_weights(path_m), strict=True):
             sonar = self.sonar_xy(here, self.facing(here, point))
             off = sonar - point[:2]
             distance = float(np.linalg.norm(off))
@@ -412,14 +433,14 @@ class StationPlanner:
                 slide = float(np.linalg.norm(kept - moved))
                 if slide > STAY_M:
                     # The turn to the wall's way once per slide, then the way along it.
-                    blind_s += slide / s.transit_speed_m_s
+                    blind_s += weight * slide / s.transit_speed_m_s
                     if not sliding:
-                        blind_s += math.pi / s.turn_rate_rad_s
+                        blind_s += weight * math.pi / s.turn_rate_rad_s
                     slid = True
                 here = kept
             sliding = slid
             view = self.view(here, self.facing(here, point), point)
-            total += max(0.0, abs(view.elevation_rad) - limit)
+            total += weight * max(0.0, abs(view.elevation_rad) - limit)
         # Blind seconds in the path cost's unit (its weight is applied by `choose`).
         return math.degrees(total) + s.blind_cost_per_s * blind_s / max(s.path_cost_per_deg, 1e-9)
 

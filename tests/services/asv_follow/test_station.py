@@ -463,9 +463,10 @@ def test_a_steered_hull_pursues_along_the_sight_and_a_wall_that_stops_it_costs_b
     bearing round as the ROV goes on (README session 38). From ahead of the ROV on its lane
     it backs into the wall's clearance and must slide along the wall, blind; from 20-40 deg
     north of the lane the lane stays in view but the leg after it comes at the hull; from as
-    far south nothing leaves the aperture's margin.
+    far south nothing leaves the aperture's margin. (Every point weighed alike: the pursuit's
+    geometry alone.)
     """
-    planner = _planner(drive="steered")
+    planner = _planner(drive="steered", path_discount_m=0.0)
     rov = np.array([12.0, 8.0, -4.0])
     lane = rov + np.outer(np.arange(1, 25) * 0.25, [-1.0, 0.0, 0.0])  # to x = 6 m
     turn = np.array([6.0, 8.0, -4.0]) + np.outer(np.arange(1, 9) * 0.25, [0.0, 1.0, 0.0])
@@ -494,3 +495,53 @@ def test_a_steered_hull_pursues_along_the_sight_and_a_wall_that_stops_it_costs_b
     assert any(
         abs(planner.view(here, planner.facing(here, p), p).elevation_rad) > limit for p in path
     )
+
+
+def test_a_steered_hull_does_not_turn_off_the_rov_now_for_the_legs_far_end() -> None:
+    """Session 40's nfp demo, seed 1, t = 101 s (its recorded fix, pose and leg).
+
+    The ROV flies at the hull along the lane y = 6 m, 6 m off; the lane ends 12 m on, near the
+    west wall, where backing away along the line of sight runs into the wall's clearance. With
+    every point of the leg weighed alike, that far end's cost outweighed 10 s blind now: the
+    hull turned to a station 1.5 m across the line of sight and lost the ROV for 6 s. Weighed
+    down with the distance along the leg, the hull stays on the line of sight.
+    """
+    rov = np.array([17.78, 6.01, -3.99])
+    here, heading = np.array([11.43, 5.72]), 0.0437
+    lane = np.array(
+        [[x, 6.0, -4.0] for x in np.arange(18.336, 6.0, -0.25)]
+        + [[6.0, y, -4.0] for y in np.arange(6.25, 8.01, 0.25)]
+    )
+    blind = {}
+    for discount in (0.0, 10.0):
+        planner = StationPlanner(
+            MOUNT,
+            TANK,
+            StationSettings(
+                drive="steered",
+                target_elevation_rad=math.radians(-3.0),
+                transit_speed_m_s=0.5,
+                path_discount_m=discount,
+            ),
+        )
+        chosen = planner.choose(
+            rov,
+            here,
+            heading,
+            rov_velocity_m_s=np.array([-0.267, 0.028]),
+            current_bearing_rad=0.0873,
+            path_m=lane,
+        )
+        assert chosen is not None
+        blind[discount] = planner.blind_s(
+            here, heading, chosen.position_xy, chosen.heading_rad, rov
+        )
+    assert blind[0.0] > 5.0
+    assert blind[10.0] == 0.0
+
+
+def test_the_path_weights_fall_with_the_distance_along_the_path() -> None:
+    path = np.array([[0.0, 0.0, -4.0], [3.0, 4.0, -4.0], [3.0, 14.0, -4.0]])
+    weights = _planner(path_discount_m=5.0)._path_weights(path)
+    assert weights == pytest.approx([1.0, math.exp(-1.0), math.exp(-3.0)])
+    assert _planner(path_discount_m=0.0)._path_weights(path) == pytest.approx([1.0, 1.0, 1.0])
