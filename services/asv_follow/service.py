@@ -55,7 +55,7 @@ class StationConfig(ConfigSection, frozen=True, kw_only=True):
     # Per degree a point of the ROV's mission leg ahead would sit beyond the aperture's margin
     # (0: stations for where the ROV is alone).
     path_cost_per_deg: Annotated[float, msgspec.Meta(ge=0.0, le=100.0)] = 0.5
-    # A point of that leg this far along it counts 1/e as much as the next one (0: all alike).
+    # A point of that leg this far along it counts 1/e as much as its first (0: all alike).
     path_discount_m: Annotated[float, msgspec.Meta(ge=0.0, le=1000.0)] = 10.0
     # Where the ASV must not go, besides fixtures of the tank that reach the surface.
     keep_out: Annotated[tuple[TankFixture, ...], msgspec.Meta(max_length=100)] = ()

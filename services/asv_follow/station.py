@@ -143,7 +143,7 @@ class StationSettings:
     drift_cost_per_deg_s: float = 4.0
     switch_cost_per_deg: float = 0.03
     # Per degree a point of the ROV's path would sit beyond the aperture's margin; a point this
-    # far along the path counts 1/e as much as the next (0: every point alike).
+    # far along the path counts 1/e as much as its first (0: every point alike).
     path_cost_per_deg: float = 0.5
     path_discount_m: float = 10.0
     # How the ASV's autopilot moves it (AsvDrive) and, for a steered hull, what a second with
