@@ -481,6 +481,18 @@ class SonarLabel(Payload, frozen=True, kw_only=True):
     ghosts: tuple[GhostEcho, ...] = ()
     rov_position_m: Vec3
 
+    def footprint(self) -> tuple[float, float, float, float] | None:
+        """(range min, range max, azimuth min, azimuth max) of a ROV in view, else None."""
+        if (
+            not self.visible
+            or self.range_min_m is None
+            or self.range_max_m is None
+            or self.azimuth_min_rad is None
+            or self.azimuth_max_rad is None
+        ):
+            return None
+        return (self.range_min_m, self.range_max_m, self.azimuth_min_rad, self.azimuth_max_rad)
+
 
 class SimControl(Payload, frozen=True, kw_only=True):
     """Fault injection: the simulator stops publishing these streams for `for_s` seconds.

@@ -220,6 +220,8 @@ def _err(g: dict[str, Any], key: str, unit: str, digits: int) -> str:
 _BANDS = ("0.5-1.5 m", "1.5-4 m", "4-8 m", "8-14 m", "14-20 m")
 # The ROV's place in the vertical aperture (capsd.bench.detect.APERTURE_PLACES), under 4 m.
 _PLACES = ("lower third", "middle third", "upper third", "beyond an edge")
+# The bench's row that is no detector (capsd.bench.detect.BRIGHTEST).
+_BRIGHTEST = "(no detector) the ROV brightest in its band"
 
 
 def detect_table(figures: dict[str, Any]) -> list[str]:
@@ -263,6 +265,15 @@ def detect_table(figures: dict[str, Any]) -> list[str]:
                                [f"cnn / {look} / clear", f"cnn / {look} / overlap"]))  # fmt: skip
         lines.append(split("... " + " / ".join(b.removesuffix(" m") for b in _BANDS) + " m",
                            [f"cnn / {look} / {b}" for b in _BANDS]))  # fmt: skip
+        brightest = [f"{_BRIGHTEST} / {look} / {b}" for b in _BANDS]
+        if all(name in groups for name in brightest):
+            rates = " / ".join(
+                _pct(groups[n].get("detection_rate")).removesuffix(" %") for n in brightest
+            )
+            lines.append(
+                "| ... no detector: the ROV's echo the brightest of its range band, same bands "
+                f"| {rates} % | | | |"
+            )
         places = [f"cnn / {look} / under 4 m, {p}" for p in _PLACES]
         if all(name in groups for name in places):
             lines.append(by_place(places))

@@ -16,7 +16,7 @@ from capsd.simulator.imu import ImuModel
 from capsd.simulator.install_errors import InstallErrorsConfig
 from capsd.simulator.lidar import LidarModel
 from capsd.simulator.sonar import SonarModel
-from capsd.simulator.sonar_look import Look, Variety
+from capsd.simulator.sonar_look import Look, OutsideKnob, Variety
 from capsd.simulator.world import Tank, TankName, TrajectoryName, Waves, make_tank
 
 Rate = Annotated[float, msgspec.Meta(gt=0.0, le=400.0)]
@@ -64,6 +64,16 @@ class SonarImageConfig(ConfigSection, frozen=True, kw_only=True):
     # The look drawn from this seed instead of the run's: one site's sonar and tank (its
     # settings, floor and floating clutter) under other motions.
     look_seed: int | None = None
+    # With variety: outside, the knobs drawn beyond the range trained on (null: all five with
+    # an outside band; [] none: the others' whole ranges from the same draw).
+    outside_knobs: tuple[OutsideKnob, ...] | None = None
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.outside_knobs is not None and self.variety != "outside":
+            raise ValueError(
+                f"`outside_knobs` needs `variety: outside` (variety is {self.variety!r})"
+            )
 
 
 class LidarConfig(ConfigSection, frozen=True, kw_only=True):
@@ -257,7 +267,13 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
         tank = make_tank(self.tank, clutter="off")
         reach = math.hypot(tank.length_m, tank.width_m)
         seed = self.seed if self.sonar_image.look_seed is None else self.sonar_image.look_seed
-        return sonar_look.draw(sonar_look.look_rng(seed), variety, tank_reach_m=reach)
+        knobs = self.sonar_image.outside_knobs
+        return sonar_look.draw(
+            sonar_look.look_rng(seed),
+            variety,
+            tank_reach_m=reach,
+            outside_knobs=None if knobs is None else frozenset(knobs),
+        )
 
     def sonar_model(self) -> SonarModel:
         img = self.sonar_image

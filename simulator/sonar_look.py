@@ -25,6 +25,8 @@ import numpy as np
 
 Region = Literal["train", "heldout", "outside"]
 Variety = Literal["off", "train", "heldout", "outside"]
+# The knobs `region="outside"` can put beyond the range trained on (those with an outside band).
+OutsideKnob = Literal["water_db", "dynamic_range_db", "gamma", "rov_reflectivity", "speckle_shape"]
 
 
 @dataclass(frozen=True)
@@ -37,14 +39,17 @@ class Knob:
     log: bool = False
     outside: tuple[float, float] | None = None  # beyond the physical range trained on
 
-    def draw(self, rng: np.random.Generator, region: Region) -> float:
+    def draw(self, rng: np.random.Generator, region: Region, *, beyond: bool = True) -> float:
+        """One value; in the outside region past the trained range only if `beyond`."""
         if region == "heldout":
             lo, hi = self.heldout
             return self._uniform(rng, lo, hi)
         if region == "outside":
             # Past the training range on the side where a real sonar could still be: the
-            # fine-tune demonstration's "a look the network never saw".
-            lo, hi = self.outside if self.outside is not None else (self.low, self.high)
+            # fine-tune demonstration's "a look the network never saw". One uniform draw
+            # either way, so that looks differing in `beyond` alone share every other value.
+            outside = self.outside if beyond else None
+            lo, hi = outside if outside is not None else (self.low, self.high)
             return self._uniform(rng, lo, hi)
         # Training: the range less the held-out band, drawn by rejection (the band is narrow).
         for _ in range(1000):
@@ -114,9 +119,23 @@ class Look:
     range_max_m: float
 
 
-def draw(rng: np.random.Generator, region: Region, *, tank_reach_m: float) -> Look:
-    """Every knob for one run; `tank_reach_m` bounds the range setting (5 m .. 30 m)."""
-    v = {name: knob.draw(rng, region) for name, knob in KNOBS.items()}
+def draw(
+    rng: np.random.Generator,
+    region: Region,
+    *,
+    tank_reach_m: float,
+    outside_knobs: frozenset[OutsideKnob] | None = None,
+) -> Look:
+    """Every knob for one run; `tank_reach_m` bounds the range setting (5 m .. 30 m).
+
+    In the outside region, `outside_knobs` (default: all five) are the knobs drawn beyond the
+    range trained on; the others are drawn from their whole range, from the same values
+    (which knob breaks a detector: `capsd bench detect --looks outside --outside-knobs K`).
+    """
+    v = {
+        name: knob.draw(rng, region, beyond=outside_knobs is None or name in outside_knobs)
+        for name, knob in KNOBS.items()
+    }
     shape = v["speckle_shape"]
     if region == "train" and rng.random() < RAYLEIGH_SHARE:
         shape = math.inf

@@ -17,6 +17,13 @@ plane rejected), given the true ASV pose and the ROV's true depth: what the depl
 finds when the ASV pose and the depth sensor are right. Without it (the default), the detector
 alone, every frame searched whole, as a detector without pose or depth works.
 
+Beside the detectors, a row that is none: "the ROV's echo the brightest of its range band"
+(`brightest_in_band`), the share of pings on which the ROV's footprint is brighter than any
+window of its size elsewhere at its ranges: where that share is low, the ROV is no brighter
+than the floor, walls or clutter at its range, and a detector must tell it by shape alone.
+`--looks outside --outside-knobs K ...` puts only those knobs beyond the range trained on
+(which knob breaks a detector).
+
 Throughput (`--throughput`): per-frame latency of each detector on 512-beam x 1000-bin frames,
 pinned to one CPU core (one torch and one OpenCV thread), median and p99; the CNN both with
 the service's tracking (frames 25 ms apart) and searching every frame alone (the worst case).
@@ -35,6 +42,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, Protocol
 
+import cv2
 import msgspec
 import numpy as np
 
@@ -47,8 +55,9 @@ from capsd.services.sonar_detect.service import CnnConfig, DepthGateConfig, dete
 from capsd.simulator.config import OFFLINE_START_NS, Config, SonarImageConfig, Streams
 from capsd.simulator.install_errors import InstallErrorsConfig
 from capsd.simulator.sim import Simulation
-from capsd.simulator.sonar_look import Variety
+from capsd.simulator.sonar_look import OutsideKnob, Variety
 from capsd.simulator.world import TankName, TrajectoryName
+from capsd.sonar_image import unit_image
 
 # follow_far: the far band (14-20 m). With the sonar 30 deg down, a ROV 14-20 m off is inside
 # the 20 deg aperture only 5-10 m below it; a team surveying a pond's far end mounts the sonar
@@ -163,6 +172,8 @@ HEADER = (
     f"{'detector / look / pings':<42} {'pings':>5} {'detect':>7} {'FA/frm':>7} {'ghost':>6} "
     f"{'r cm50':>7} {'r cm90':>7} {'az50 deg':>8} {'az90':>7}"
 )
+# The row that is no detector: the share of pings with the ROV the brightest of its range band.
+BRIGHTEST = "(no detector) the ROV brightest in its band"
 # The shipped weights as `_detectors` names them: the range table was measured for them.
 SHIPPED_CNN = ("cnn", "cnn, every frame alone")
 # Range bands of issue 18 (truth range of the ROV), metres, after a closer one for small tanks
@@ -201,6 +212,45 @@ def band_of(range_m: float) -> str | None:
     return None
 
 
+def brightest_in_band(frame: SonarFrame, label: SonarLabel) -> bool:
+    """Whether the ROV's footprint is the brightest window of its size at its ranges.
+
+    The footprint (the label's range and azimuth extent) is slid across every beam of its
+    range rows; the ROV's best window mean must beat every window that does not overlap it
+    (one window's width either side kept out). Gain, TVG and the display curve do not change
+    the answer (one monotonic map per frame, the same rows). False for a ROV not in view.
+    """
+    footprint = label.footprint()
+    if footprint is None:
+        return False
+    range_min, range_max, azimuth_min, azimuth_max = footprint
+    image = unit_image(frame)
+    res, start = frame.range_resolution_m, frame.range_start_m
+    r0 = max(0, int((range_min - start) / res))
+    r1 = min(frame.n_ranges, max(int((range_max - start) / res) + 1, r0 + 2))
+    if r1 - r0 < 2:
+        return False
+    table = np.asarray(frame.azimuths_rad, dtype=np.float64)
+    order = np.argsort(table)
+    ends = np.interp([azimuth_min, azimuth_max], table[order], order)
+    c0, c1 = math.floor(min(ends)), math.ceil(max(ends)) + 1
+    width = max(c1 - c0, 2)
+    rows = np.ascontiguousarray(image[r0:r1], dtype=np.float32)
+    # Each beam's window mean over the footprint's rows and `width` beams around it.
+    means = cv2.blur(rows, (width, r1 - r0), borderType=cv2.BORDER_REFLECT)[(r1 - r0) // 2]
+    lo, hi = max(c0, 0), min(c1, len(means))
+    if lo >= hi:
+        return False
+    others = np.ones(len(means), dtype=bool)
+    others[max(0, c0 - width) : c1 + width] = False
+    return bool(not others.any() or means[lo:hi].max() > means[others].max())
+
+
+def _at_truth(label: SonarLabel) -> list[Detection]:
+    return [Detection(range_m=label.range_m, azimuth_rad=label.azimuth_rad, range_sigma_m=0.0,
+                      azimuth_sigma_rad=0.0, confidence=1.0)]  # fmt: skip
+
+
 def sonar_only(
     tank: TankName,
     trajectory: TrajectoryName,
@@ -209,8 +259,12 @@ def sonar_only(
     *,
     variety: Variety = "off",
     look_seed: int | None = None,
+    outside_knobs: tuple[OutsideKnob, ...] | None = None,
 ) -> Config:
-    """A simulator config that renders sonar pings and labels only (no LiDAR, IMU, stand-ins)."""
+    """A simulator config that renders sonar pings and labels only (no LiDAR, IMU, stand-ins).
+
+    `outside_knobs` (with variety "outside"): the knobs beyond the range trained on.
+    """
     far = asv_mode == "follow_far"
     mode: Literal["follow", "stationary"] = "stationary" if asv_mode == "stationary" else "follow"
     sonar = SonarMountConfig()
@@ -221,7 +275,11 @@ def sonar_only(
         asv_mode=mode,
         asv_standoff_m=FAR_STANDOFF_M if far else None,
         sonar=msgspec.structs.replace(sonar, pitch_deg=FAR_PITCH_DEG) if far else sonar,
-        sonar_image=SonarImageConfig(variety=variety, look_seed=look_seed),
+        sonar_image=SonarImageConfig(
+            variety=variety,
+            look_seed=look_seed,
+            outside_knobs=outside_knobs if variety == "outside" else None,
+        ),
         # The detector against its labels: a perfect installation (the sound speed's 0.3 %
         # would only stretch image and labels alike).
         install_errors=InstallErrorsConfig(mode="off"),
@@ -240,6 +298,7 @@ def evaluate(
     look_seed: int | None = None,
     starts_s: tuple[float, ...] = (0.0,),
     depth_gate: DepthGateMode = "off",
+    outside_knobs: tuple[OutsideKnob, ...] | None = None,
 ) -> dict[str, Tally]:
     """Every detector on every held-out run in every look (drawn from `look_seed` if given).
 
@@ -257,7 +316,10 @@ def evaluate(
     done = 0.0
     for look in looks:
         for tank, trajectory, asv_mode, seed in runs:
-            config = sonar_only(tank, trajectory, asv_mode, seed, variety=look, look_seed=look_seed)
+            config = sonar_only(
+                tank, trajectory, asv_mode, seed, variety=look, look_seed=look_seed,
+                outside_knobs=outside_knobs,
+            )  # fmt: skip
             half_aperture = math.radians(config.sonar.vertical_aperture_deg) / 2.0
             for start_s in starts_s:
                 # A fresh simulation per stretch: each is the same run from its own start
@@ -277,6 +339,8 @@ def evaluate(
                               half_aperture_rad=half_aperture)  # fmt: skip
                     score(tallies, f"paper: box centre / {look}", label, box_centre(label),
                           half_aperture_rad=half_aperture)  # fmt: skip
+                    score(tallies, f"{BRIGHTEST} / {look}", label,
+                          _at_truth(label) if brightest_in_band(frame, label) else [])  # fmt: skip
                     bar.update(done + t_s - start_s)
                 done += duration_s
     bar.close()
@@ -440,10 +504,16 @@ def run(
     starts_s: tuple[float, ...] = BENCH_STARTS_S,
     depth_gate: DepthGateMode = "off",
     looks: tuple[Variety, ...] = LOOKS,
+    outside_knobs: tuple[OutsideKnob, ...] | None = None,
 ) -> int:
     detectors = _detectors(which, weights, options=options)
     tallies = evaluate(
-        detectors, duration_s=duration_s, starts_s=starts_s, depth_gate=depth_gate, looks=looks
+        detectors,
+        duration_s=duration_s,
+        starts_s=starts_s,
+        depth_gate=depth_gate,
+        looks=looks,
+        outside_knobs=outside_knobs,
     )
     if json_out is not None:
         json_out.parent.mkdir(parents=True, exist_ok=True)
@@ -454,6 +524,7 @@ def run(
             "stretches_start_s_into_paths": list(starts_s),
             "min_confidence": MIN_CONFIDENCE,
             "depth_gate": depth_gate,
+            "outside_knobs": None if outside_knobs is None else list(outside_knobs),
             "groups": {name: tally.summary() for name, tally in sorted(tallies.items())},
         }
         json_out.write_text(json.dumps(figures, indent=1) + "\n")
@@ -467,6 +538,9 @@ def run(
     print(f"candidates with confidence >= {MIN_CONFIDENCE}; a match is within {MATCH_M} m")
     if depth_gate == "truth":
         print("depth-aware search as the service runs it, from the true ASV pose and ROV depth")
+    if "outside" in looks and outside_knobs is not None:
+        knobs = ", ".join(outside_knobs) or "none"
+        print(f"look 'outside': beyond the range trained on only {knobs} (the rest: whole range)")
     print(HEADER)
     for name in sorted(tallies):
         print(tallies[name].row(name))

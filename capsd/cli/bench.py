@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import itertools
 from pathlib import Path
+from typing import get_args
 
 from capsd.cli.common import Subcommands, fail
 from capsd.launch import (
@@ -36,6 +37,7 @@ def _cmd_bench_finetune(args: argparse.Namespace) -> int:
 
 def _cmd_bench_detect(args: argparse.Namespace) -> int:
     from capsd.bench import detect
+    from capsd.simulator.sonar_look import OutsideKnob
 
     for weights in args.weights or []:
         if not weights.is_file():
@@ -65,6 +67,20 @@ def _cmd_bench_detect(args: argparse.Namespace) -> int:
             f"{duration_s:g} s overlap",
             EXIT_CONFIG,
         )
+    knobs = args.outside_knobs
+    named = ("none", *get_args(OutsideKnob))
+    for knob in knobs or ():
+        if knob not in named:
+            return fail(
+                f"bench detect: --outside-knobs {knob}: one of {', '.join(named)}", EXIT_CONFIG
+            )
+    if knobs is not None and "outside" not in (args.looks or ()):
+        return fail("bench detect: --outside-knobs needs --looks ... outside", EXIT_CONFIG)
+    if knobs is not None and "none" in knobs and len(knobs) > 1:
+        return fail(
+            f"bench detect: --outside-knobs {' '.join(knobs)}: 'none' stands alone", EXIT_CONFIG
+        )
+    outside_knobs = None if knobs is None else tuple(k for k in knobs if k != "none")
     if args.prior_sweep:
         return detect.sweep_prior(
             args.prior_sweep, duration_s=duration_s, options=options, starts_s=starts
@@ -79,6 +95,7 @@ def _cmd_bench_detect(args: argparse.Namespace) -> int:
         starts_s=starts,
         depth_gate=args.depth_gate,
         looks=tuple(dict.fromkeys(args.looks)) if args.looks else detect.LOOKS,
+        outside_knobs=outside_knobs,
     )
 
 
@@ -280,6 +297,15 @@ def register(sub: Subcommands) -> None:
         default=None,
         help="the looks rendered (default: off heldout; outside: five knobs just beyond the "
         "range trained on, docs/SONAR-VARIETY.md, a look no training run has)",
+    )
+    bdet.add_argument(
+        "--outside-knobs",
+        nargs="+",
+        default=None,
+        metavar="KNOB",
+        help="with --looks outside: only these knobs beyond the range trained on, the rest "
+        "from their whole range and the same draws ('none': no knob beyond; default: all "
+        "five with an outside band, docs/SONAR-VARIETY.md)",
     )
     bdet.add_argument(
         "--search-refines",

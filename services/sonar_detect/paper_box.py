@@ -22,17 +22,13 @@ def box_centre(label: SonarLabel, *, range_bias_m: float = 0.0) -> list[Detectio
     its centre is short by a roughly constant amount that training runs can measure
     (capsd.bench.baseline); 0 is the method as published.
     """
-    if (
-        not label.visible
-        or label.range_min_m is None
-        or label.range_max_m is None
-        or label.azimuth_min_rad is None
-        or label.azimuth_max_rad is None
-    ):
+    footprint = label.footprint()
+    if footprint is None:
         return []
+    range_min, range_max, azimuth_min, azimuth_max = footprint
     xs, ys = [], []
-    for r in (label.range_min_m, label.range_max_m):
-        for a in np.linspace(label.azimuth_min_rad, label.azimuth_max_rad, 9):
+    for r in (range_min, range_max):
+        for a in np.linspace(azimuth_min, azimuth_max, 9):
             xs.append(r * math.cos(a))
             ys.append(r * math.sin(a))
     x, y = (min(xs) + max(xs)) / 2, (min(ys) + max(ys)) / 2

@@ -57,3 +57,12 @@ def test_a_short_bench_through_the_generator(tmp_path: Path) -> None:
     refused = _capsd("docs", "figures", "--file", str(doc))
     assert refused.returncode == 2
     assert "field 'runs'" in refused.stderr
+
+
+def test_the_detect_table_names_the_benchs_groups() -> None:
+    from capsd import readme_figures
+    from capsd.bench import detect
+
+    assert readme_figures._BRIGHTEST == detect.BRIGHTEST
+    assert tuple(f"{lo:g}-{hi:g} m" for lo, hi in detect.BANDS) == readme_figures._BANDS
+    assert readme_figures._PLACES == detect.APERTURE_PLACES

@@ -7,6 +7,7 @@ import math
 from collections import defaultdict
 from pathlib import Path
 
+import msgspec
 import pytest
 
 from capsd.bench.detect import (
@@ -176,3 +177,70 @@ def test_the_looks_rendered_are_the_ones_asked_for(tmp_path: Path) -> None:
     assert figures["looks"] == ["outside"]
     looks = {name.split(" / ")[1] for name in figures["groups"]}
     assert looks == {"outside"}
+
+
+def _band_frame(patches: list[tuple[int, int, int]]) -> SonarFrame:
+    """100 bins x 64 beams of speckle-free water (level 20), bright patches (bin, beam, level)."""
+    import numpy as np
+
+    image = np.full((100, 64), 20, dtype=np.uint8)
+    for row, beam, level in patches:
+        image[row : row + 6, beam : beam + 4] = level
+    return SonarFrame(
+        stamp_ns=1, seq=0, ping_id=0, n_ranges=100, n_beams=64, sample_bits=8,
+        image=memoryview(image.tobytes()),
+        azimuths_rad=tuple(float(a) for a in np.linspace(-0.5, 0.5, 64)),
+        range_start_m=0.0, range_resolution_m=0.05, sound_speed_m_s=1480.0, gain_percent=50.0,
+        frequency_hz=1.2e6, vertical_aperture_rad=math.radians(20.0),
+    )  # fmt: skip
+
+
+def _footprint(frame: SonarFrame) -> SonarLabel:
+    """The ROV over bins 40-46, beams 30-34."""
+    az = frame.azimuths_rad
+    return SonarLabel(
+        stamp_ns=1, seq=0, ping_id=0, visible=True, range_m=2.15, azimuth_rad=az[32],
+        elevation_rad=0.0, range_min_m=2.0, range_max_m=2.3, azimuth_min_rad=az[30],
+        azimuth_max_rad=az[33], rov_position_m=(1.0, 2.0, -1.0),
+    )  # fmt: skip
+
+
+def test_the_rov_is_the_brightest_of_its_band_unless_something_there_outshines_it() -> None:
+    from capsd.bench.detect import brightest_in_band
+
+    alone = _band_frame([(40, 30, 120)])
+    assert brightest_in_band(alone, _footprint(alone))
+    # Brighter, but at other ranges: still the brightest of its band.
+    floor = _band_frame([(40, 30, 120), (80, 5, 250), (10, 50, 250)])
+    assert brightest_in_band(floor, _footprint(floor))
+    # A wall at its ranges, brighter: a detector must tell the ROV by shape.
+    wall = _band_frame([(40, 30, 120), (40, 5, 160)])
+    assert not brightest_in_band(wall, _footprint(wall))
+    hidden = msgspec.structs.replace(_footprint(alone), visible=False)
+    assert not brightest_in_band(alone, hidden)
+
+
+@pytest.mark.parametrize(
+    "extra",
+    [
+        ["--outside-knobs", "gamma"],  # without the outside look
+        ["--looks", "outside", "--outside-knobs", "colour"],
+        ["--looks", "outside", "--outside-knobs", "none", "gamma"],
+    ],
+)
+def test_outside_knobs_are_checked_before_any_frame(
+    extra: list[str], capfd: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["bench", "detect", "--detector", "classical", *extra]) == 2
+    assert "--outside-knobs" in capfd.readouterr().err
+
+
+def test_one_knob_outside_is_rendered_and_recorded(tmp_path: Path) -> None:
+    out = tmp_path / "detect.json"
+    args = ["bench", "detect", "--detector", "classical", "--looks", "outside"]
+    args += ["--outside-knobs", "water_db", "--duration", "0.5", "--start", "0"]
+    assert main([*args, "--json", str(out)]) == 0
+    figures = json.loads(out.read_text())
+    assert figures["outside_knobs"] == ["water_db"]
+    brightest = figures["groups"]["(no detector) the ROV brightest in its band / outside / all"]
+    assert brightest["false_alarms_per_frame"] == 0.0
