@@ -294,6 +294,9 @@ def _plateau(params: Floats, elevation: Floats) -> Floats:
     return out
 
 
+MIN_EDGE_DEG = 0.2  # the softest edge the fit may call sharp (logistic scale)
+
+
 def fit_pitch(samples: EchoSamples) -> PitchFit:
     """The plateau's centre (the elevation offset) and its 1-sigma, by robust least squares."""
     n = len(samples.strength)
@@ -315,9 +318,14 @@ def fit_pitch(samples: EchoSamples) -> PitchFit:
         out: Floats = _plateau(params, e) - s
         return out
 
+    # The edges' softness is bounded below: a step has no slope to pull the centre with, and
+    # a fit whose edges collapsed to one stopped up to 0.3 deg off a sharp plateau (session 41,
+    # the property test). No real edge is that sharp: the ROV itself spans a degree or more.
+    lower = np.array([-np.inf, -np.inf, -np.inf, -np.inf, math.radians(MIN_EDGE_DEG), -np.inf])
     result = least_squares(
         misfit, start, loss="soft_l1", f_scale=0.1 * scale,
         x_scale=np.array([scale, scale, 0.01, 0.01, 0.01, scale]),
+        bounds=(lower, np.full(6, np.inf)),
     )  # fmt: skip
     inside, outside, centre, half, soft, _ = (float(v) for v in result.x)
     residual = result.fun
