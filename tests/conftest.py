@@ -14,9 +14,17 @@ from pathlib import Path
 
 import pytest
 import zenoh
+from hypothesis import settings
 
 from capsd.bus import open_session
 from capsd.config import BusConfig
+
+# Property tests draw the same examples on every run (derandomized: CI gates on this suite, and
+# a rare counterexample must not turn one run red by chance, as one did in session 41 before it
+# was fixed); CAPSD_HYPOTHESIS=explore draws new ones, to look for more.
+settings.register_profile("gate", derandomize=True)
+settings.register_profile("explore", derandomize=False)
+settings.load_profile(os.environ.get("CAPSD_HYPOTHESIS", "gate"))
 
 REPO = Path(__file__).resolve().parents[1]
 # Real Oculus captures (with their licence), kept inside the repository.
