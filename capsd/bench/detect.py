@@ -51,6 +51,7 @@ from capsd.payloads import Detection, SonarFrame, SonarLabel
 from capsd.progress import Progress
 from capsd.services.sonar_detect.depth_gate import DepthGate
 from capsd.services.sonar_detect.paper_box import box_centre
+from capsd.services.sonar_detect.polar_input import BeamTable
 from capsd.services.sonar_detect.service import CnnConfig, DepthGateConfig, detect_gated
 from capsd.simulator.config import OFFLINE_START_NS, Config, SonarImageConfig, Streams
 from capsd.simulator.install_errors import InstallErrorsConfig
@@ -230,9 +231,7 @@ def brightest_in_band(frame: SonarFrame, label: SonarLabel) -> bool:
     r1 = min(frame.n_ranges, max(int((range_max - start) / res) + 1, r0 + 2))
     if r1 - r0 < 2:
         return False
-    table = np.asarray(frame.azimuths_rad, dtype=np.float64)
-    order = np.argsort(table)
-    ends = np.interp([azimuth_min, azimuth_max], table[order], order)
+    ends = BeamTable(frame.azimuths_rad).index(np.array([azimuth_min, azimuth_max]))
     c0, c1 = math.floor(min(ends)), math.ceil(max(ends)) + 1
     width = max(c1 - c0, 2)
     rows = np.ascontiguousarray(image[r0:r1], dtype=np.float32)
