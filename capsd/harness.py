@@ -158,13 +158,22 @@ FOLLOW_STATION: dict[str, dict[str, float]] = {
 # walls; pitched 45 deg down, 0.8 m.
 SONAR_PITCH_DEG: dict[str, float] = {"mockup": 45.0}
 
+# fixed: the sonar bolted to the hull; servo: on a tilt servo the follower drives (the mount's
+# `tilt`, its default range and rate: capsd.mounts.SonarTiltConfig).
+SonarTilt = Literal["fixed", "servo"]
 
-def sonar_mount(tank: TankName) -> dict[str, float]:
+
+def sonar_mount(tank: TankName, *, tilt: SonarTilt = "fixed") -> dict[str, Any]:
     """The demo's sonar mount changes for this tank (simulator and services alike)."""
-    return {"pitch_deg": SONAR_PITCH_DEG[tank]} if tank in SONAR_PITCH_DEG else {}
+    out: dict[str, Any] = {"pitch_deg": SONAR_PITCH_DEG[tank]} if tank in SONAR_PITCH_DEG else {}
+    if tilt == "servo":
+        out["tilt"] = {}
+    return out
 
 
-def follow_config(tank: TankName, *, drive: AsvDrive = "steered") -> FollowConfig:
+def follow_config(
+    tank: TankName, *, drive: AsvDrive = "steered", tilt: SonarTilt = "fixed"
+) -> FollowConfig:
     """The follower's config as the demo runs it in a simulated tank (fix signing off).
 
     (An `asv_follow` service Config: the tank with its fixtures, the demo's sonar mount and
@@ -177,7 +186,7 @@ def follow_config(tank: TankName, *, drive: AsvDrive = "steered") -> FollowConfi
 
     return Config(
         tank=tank_bounds(make_tank(tank)),
-        sonar=msgspec.convert(sonar_mount(tank), SonarMountConfig),
+        sonar=msgspec.convert(sonar_mount(tank, tilt=tilt), SonarMountConfig),
         station=StationConfig(**FOLLOW_STATION.get(tank, {})),  # type: ignore[arg-type]
         motion=MotionConfig(drive=drive),
         fix_auth="off",
@@ -185,7 +194,7 @@ def follow_config(tank: TankName, *, drive: AsvDrive = "steered") -> FollowConfi
 
 
 def start_station(
-    tank: TankName, rov_m: tuple[float, float, float]
+    tank: TankName, rov_m: tuple[float, float, float], *, tilt: SonarTilt = "fixed"
 ) -> tuple[tuple[float, float], float] | None:
     """Where the pilot would put the ASV to see the ROV at `rov_m`: the follower's own choice.
 
@@ -195,7 +204,7 @@ def start_station(
 
     from capsd.services.asv_follow.station import StationPlanner
 
-    config = follow_config(tank)
+    config = follow_config(tank, tilt=tilt)
     planner = StationPlanner(config.sonar, config.tank, config.station.settings())
     centre = np.array([config.tank.length_m / 2.0, config.tank.width_m / 2.0])
     chosen = planner.choose(np.array(rov_m), centre, 0.0)

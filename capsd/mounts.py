@@ -18,6 +18,29 @@ from capsd.sonar_geometry import BeamModel
 AsvDrive = Literal["steered", "lateral"]
 
 
+class SonarTiltConfig(ConfigSection, frozen=True, kw_only=True):
+    """A tilt servo under the sonar: the angle it adds to the mount's pitch (down +), its limits.
+
+    The mount's `pitch_deg` is the pitch at the servo's zero (what `capsd calibrate` measures);
+    the servo's reported angle is added to it ping by ping (docs/CONVENTIONS.md).
+    """
+
+    min_deg: Annotated[float, msgspec.Meta(ge=-90.0, le=90.0)] = -15.0
+    max_deg: Annotated[float, msgspec.Meta(ge=-90.0, le=90.0)] = 40.0
+    rate_deg_s: Annotated[float, msgspec.Meta(gt=0.0, le=720.0)] = 30.0
+    # The locator fixes a ping only with a reported angle at most this old (the servo moves).
+    max_age_s: Annotated[float, msgspec.Meta(gt=0.0, le=10.0)] = 0.5
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.min_deg >= self.max_deg:
+            raise ValueError(f"`min_deg` ({self.min_deg}) must be below `max_deg` ({self.max_deg})")
+
+    def clamp_rad(self, tilt_rad: float) -> float:
+        """`tilt_rad` within the servo's range."""
+        return min(max(tilt_rad, math.radians(self.min_deg)), math.radians(self.max_deg))
+
+
 class SonarMountConfig(ConfigSection, frozen=True, kw_only=True):
     """H_B_S: where the sonar sits on the ASV, and its beam geometry."""
 
@@ -32,13 +55,18 @@ class SonarMountConfig(ConfigSection, frozen=True, kw_only=True):
     # (which bin edge a range stands for). `capsd calibrate --what range` measures it; the
     # simulator's sonar has none of its own (its range errors are the drawn sound speed's).
     range_offset_m: Annotated[float, msgspec.Meta(ge=-0.5, le=0.5)] = 0.0
+    # None: the sonar is fixed to the hull. A servo: its angle is added to `pitch_deg`.
+    tilt: SonarTiltConfig | None = None
 
-    def transform(self) -> Transform:
-        """H_B_S in radians (the one place its degrees are converted)."""
+    def transform(self, *, tilt_rad: float = 0.0) -> Transform:
+        """H_B_S in radians (the one place its degrees are converted), the servo at `tilt_rad`.
+
+        The servo turns the sonar about its own y axis: the pitch is the mount's plus the tilt.
+        """
         return Transform.from_euler_zyx(
             self.position_m,
             yaw_rad=math.radians(self.yaw_deg),
-            pitch_rad=math.radians(self.pitch_deg),
+            pitch_rad=math.radians(self.pitch_deg) + tilt_rad,
             roll_rad=math.radians(self.roll_deg),
         )
 

@@ -406,6 +406,9 @@ class VehicleCommand(Payload, frozen=True, kw_only=True):
     # hull to its way, or its stern with MAV_CMD_DO_SET_REVERSE: backing off a ROV keeps the
     # sonar on it). The ROV's bridge ignores it.
     direction: DriveDirection = "forward"
+    # The ASV's goto, where its sonar sits on a tilt servo: the angle to tilt it to, added to
+    # the mount's pitch (down +; the mount's `tilt`). None: leave the servo where it is.
+    sonar_tilt_rad: Annotated[float, msgspec.Meta(ge=-math.pi / 2, le=math.pi / 2)] | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()

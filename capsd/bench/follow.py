@@ -23,10 +23,11 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import msgspec
 import numpy as np
 
 from capsd.geometry import Transform, distance_to_segment, wrap_angle
-from capsd.harness import AsvMode, follow_config, start_station
+from capsd.harness import AsvMode, SonarTilt, follow_config, start_station
 from capsd.mission.controller import MissionController
 from capsd.mission.plan import load_plan
 from capsd.mission.view_guard import view_margin_rad
@@ -93,6 +94,27 @@ class FollowRun:
     out_by_off: list[int] = field(default_factory=lambda: [0] * (len(OFF_BINS_DEG) + 1))
 
 
+@dataclass
+class TiltServo:
+    """The sonar's tilt servo: slews to the follower's angle at its rate, within its range."""
+
+    mount: SonarMountConfig
+    angle_rad: float = 0.0
+    wanted_rad: float = 0.0
+
+    def step(self, dt_s: float) -> None:
+        assert self.mount.tilt is not None
+        most = math.radians(self.mount.tilt.rate_deg_s) * dt_s
+        wanted = self.mount.tilt.clamp_rad(self.wanted_rad)
+        self.angle_rad += max(-most, min(most, wanted - self.angle_rad))
+
+    def tilted(self) -> SonarMountConfig:
+        """The mount as the sonar now sits: its pitch plus the servo's angle."""
+        return msgspec.structs.replace(
+            self.mount, pitch_deg=self.mount.pitch_deg + math.degrees(self.angle_rad)
+        )
+
+
 def _in_view(mount: SonarMountConfig, sonar: Transform, rov_m: np.ndarray) -> bool:
     """Whether a perfect detector would see the ROV from this sonar pose."""
     return _view_elevation(mount, sonar, rov_m) is not None
@@ -121,11 +143,12 @@ def run_mission(
     duration_s: float,
     seed: int = 0,
     asv_mode: AsvMode = "follow",
+    tilt: SonarTilt = "fixed",
     progress: Progress | None = None,
 ) -> FollowRun:
     """Fly the plan once with the follower (or the ASV held at its start); see the module."""
     rng = np.random.default_rng(seed)
-    config = follow_config(tank_name, drive=drive)
+    config = follow_config(tank_name, drive=drive, tilt=tilt)
     bounds = config.tank
     plan, points = load_plan(plan_path, tank=bounds)
     mount = config.sonar
@@ -134,7 +157,7 @@ def run_mission(
     )
     follower = Follower(planner, config.motion.settings())
     start = np.array(points[0].position_m)
-    chosen = start_station(tank_name, points[0].position_m)
+    chosen = start_station(tank_name, points[0].position_m, tilt=tilt)
     if chosen is None:
         raise ValueError(f"no ASV station in the {tank_name} tank sees the plan's start")
     (sx, sy), heading_deg = chosen
@@ -149,7 +172,12 @@ def run_mission(
     rov.set_mode("POSHOLD")
     mission = MissionController(plan, points)
     follower.on_mode("GUIDED")
-    sonar_on_asv = mount.transform()
+    servo = None if mount.tilt is None else TiltServo(mount)
+    if servo is not None:
+        # The pilot tilts the sonar onto the ROV at the start, as they turn the hull to it.
+        servo.angle_rad = servo.wanted_rad = follower.planner.tilt_rad(
+            np.array([sx, sy]), math.radians(heading_deg), start
+        )
     out = FollowRun(tank_name, drive, "waiting", (0, len(points)), 0.0)
     legs = [
         (np.array(p.position_m[:2]), np.array(q.position_m[:2]))
@@ -166,7 +194,10 @@ def run_mission(
         body = Transform(rotation, translation)
         state = rov.state(t)
         rov_m = state.position_m
-        elevation = _view_elevation(mount, body.compose(sonar_on_asv), rov_m)
+        if servo is not None:
+            servo.step(STEP_S)
+            mount = servo.tilted()
+        elevation = _view_elevation(mount, body.compose(mount.transform()), rov_m)
         seen = elevation is not None
         yaw = math.atan2(float(rotation[1, 0]), float(rotation[0, 0]))
         asv_xy = np.array(translation[:2])
@@ -178,7 +209,12 @@ def run_mission(
             follower.on_fix(t, fix, state.velocity_m_s)
             mission.on_fix(good=True, position_m=(fix[0], fix[1], fix[2]), now=t)
         margin = view_margin_rad(
-            asv=body, mount=mount, rov_m=rov_m, velocity_m_s=state.velocity_m_s, lookahead_s=1.5
+            asv=body,
+            mount=config.sonar,
+            rov_m=rov_m,
+            velocity_m_s=state.velocity_m_s,
+            lookahead_s=1.5,
+            tilt_rad=None if servo is None else servo.angle_rad,
         )
         mission.on_view(margin, now=t)
         mission.on_mode(rov.mode, now=t)
@@ -199,6 +235,8 @@ def run_mission(
             )
         if asv_mode == "follow" and k % FOLLOW_EVERY == 0:
             target = follower.step(t)
+            if servo is not None and target is not None and target.sonar_tilt_rad is not None:
+                servo.wanted_rad = target.sonar_tilt_rad
             if target is not None:
                 at_goal = float(np.linalg.norm(asv_xy - target.position_xy))
                 steady = (
@@ -284,6 +322,7 @@ def run(
     duration_s: float,
     seeds: int,
     asv_mode: AsvMode = "follow",
+    tilt: SonarTilt = "fixed",
 ) -> int:
     """Print one line per seed and the losses; the median share in view."""
     shares = []
@@ -291,12 +330,14 @@ def run(
     for seed in range(seeds):
         progress = Progress(duration_s, label=f"bench follow seed {seed}", unit=" s")
         r = run_mission(tank, plan_path, drive=drive, duration_s=duration_s, seed=seed,
-                        asv_mode=asv_mode, progress=progress)  # fmt: skip
+                        asv_mode=asv_mode, tilt=tilt, progress=progress)  # fmt: skip
         progress.close()
         share = r.in_view / r.steps if r.steps else 0.0
         shares.append(share)
         masked = r.in_view_masked / r.steps if r.steps else 0.0
-        asv = "held" if asv_mode == "station" else drive
+        asv: str = "held" if asv_mode == "station" else drive
+        if tilt == "servo":
+            asv += ", sonar on a tilt servo"
         print(
             f"{tank} {plan_path.name} (ASV {asv}) seed {seed}: mission {r.state}, waypoint "
             f"{r.waypoints[0]} of {r.waypoints[1]}, {r.mission_s:.0f} s; ROV in view "

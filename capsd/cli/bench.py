@@ -185,6 +185,7 @@ def _cmd_bench_follow(args: argparse.Namespace) -> int:
         duration_s=args.duration,
         seeds=args.seeds,
         asv_mode=args.asv,
+        tilt=args.sonar_tilt,
     )
 
 
@@ -465,6 +466,13 @@ def register(sub: Subcommands) -> None:
         default="follow",
         help="station: the ASV held where it starts (the pilot's station for the plan's start), "
         "to compare with following",
+    )
+    bfollow.add_argument(
+        "--sonar-tilt",
+        choices=("fixed", "servo"),
+        default="fixed",
+        help="servo: the sonar on a tilt servo the follower drives (30 deg/s, -15 to +40 deg "
+        "about the mount's pitch)",
     )
     bfollow.add_argument("--duration", type=positive_float, default=900.0,
                          help="seconds at most per run")  # fmt: skip

@@ -144,6 +144,9 @@ class Target:
     state: FollowState
     replanned: bool  # a new station was chosen on this step
     direction: DriveDirection = "forward"  # steered: the hull ahead or astern to the position
+    # A sonar on a tilt servo: the angle it is to take (added to the mount's pitch, down +),
+    # for the ROV where it is (or is looked for) from where the ASV is now; None: no servo.
+    sonar_tilt_rad: float | None = None
 
 
 def _along(start_m: Array, end_m: Array, reach_m: float) -> Array | None:
@@ -329,7 +332,29 @@ class Follower:
         else:
             state = "following" if fresh else "holding"
         self._walk(dt, fresh=fresh)
-        return Target(self._carrot.copy(), self._carrot_heading, state, replanned, self._direction)
+        return Target(
+            self._carrot.copy(),
+            self._carrot_heading,
+            state,
+            replanned,
+            self._direction,
+            self._sonar_tilt(fresh=fresh),
+        )
+
+    def _sonar_tilt(self, *, fresh: bool) -> float | None:
+        """The servo's angle for the ROV now (or where it is looked for), seen from the ASV now.
+
+        Where the ROV is, not where the station was chosen for (its lead): the servo is fast
+        and the fix is what must stay in the aperture. Held (None) with nothing to look at.
+        """
+        if self.planner.tilt is None or self.asv_xy is None:
+            return None
+        look = self.rov_m if fresh else self._aim
+        if look is None:
+            look = self.rov_m
+        if look is None:
+            return None
+        return self.planner.tilt_rad(self.asv_xy, self.asv_heading, look)
 
     def _look_point(self, *, fresh: bool) -> Array | None:
         """Where the ROV is (ahead, with a fresh fix) or is looked for (the station's aim)."""

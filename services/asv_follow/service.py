@@ -251,6 +251,7 @@ class FollowNode:
                 heading_rad=float(target.heading_rad),
                 reason="station" if target.replanned else "repeat",
                 direction=target.direction,
+                sonar_tilt_rad=target.sonar_tilt_rad,
             )
         )
         self.put_count += 1

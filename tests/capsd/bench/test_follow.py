@@ -61,3 +61,14 @@ def test_an_asv_held_at_its_start_does_not_move() -> None:
     assert held.stations == 0
     assert held.steps > 0
     assert held.in_view > 0  # it starts where the pilot's station sees it
+
+
+def test_a_sonar_on_a_tilt_servo_keeps_the_rov_centred() -> None:
+    """The follower drives the servo: the ROV sits nearer the boresight than on a fixed mount."""
+    fixed = _fly("mockup", 40.0)
+    servo = _fly("mockup", 40.0, tilt="servo")
+    assert servo.steps > 300
+    assert servo.in_view > 0
+    spread = [float(np.percentile(np.abs(r.elevations_deg), 90)) for r in (fixed, servo)]
+    assert spread[1] < spread[0]
+    assert spread[1] < 4.0

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import msgspec
 import numpy as np
 import pytest
 from hypothesis import given
@@ -52,3 +53,27 @@ def test_the_margin_ahead_counts_when_the_rov_flies_towards_the_sonar() -> None:
     # 0.3 m nearer: the depression is atan(1 / 0.7) = 55 deg, 10 deg off the boresight.
     assert ahead == pytest.approx(HALF - (math.atan2(1.0, 0.7) - math.radians(45.0)))
     assert ahead < 0.01
+
+
+def test_a_servo_is_judged_at_its_reported_angle_or_else_at_its_best() -> None:
+    servo = msgspec.convert(
+        {"position_m": [0.0, 0.0, 0.0], "pitch_deg": 45.0, "tilt": {"min_deg": -15, "max_deg": 40}},
+        SonarMountConfig,
+    )
+    d = math.radians(60.0)  # 15 deg below the boresight at the servo's zero: outside
+    rov = 3.0 * np.array([math.cos(d), 0.0, -math.sin(d)])
+    fixed = elevation_margin_rad(asv=ASV, mount=MOUNT, rov_m=rov)
+    assert fixed == pytest.approx(HALF - math.radians(15.0))
+    # At its zero the servo sees what the fixed sonar sees; tilted 10 deg down, 5 deg off.
+    assert elevation_margin_rad(asv=ASV, mount=servo, rov_m=rov, tilt_rad=0.0) == pytest.approx(
+        fixed
+    )
+    tilted = elevation_margin_rad(asv=ASV, mount=servo, rov_m=rov, tilt_rad=math.radians(10.0))
+    assert tilted == pytest.approx(HALF - math.radians(5.0))
+    # No report yet: the angle that centres it (15 deg, within the range).
+    assert elevation_margin_rad(asv=ASV, mount=servo, rov_m=rov) == pytest.approx(HALF)
+    # Beyond the range (50 deg below the boresight, the servo stops at 40): 10 deg off.
+    steep = 3.0 * np.array([math.cos(math.radians(95.0)), 0.0, -math.sin(math.radians(95.0))])
+    assert elevation_margin_rad(asv=ASV, mount=servo, rov_m=steep) == pytest.approx(
+        HALF - math.radians(10.0)
+    )

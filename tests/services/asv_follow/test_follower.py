@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
+import msgspec
 import numpy as np
 import pytest
 
@@ -876,3 +877,26 @@ def test_a_hull_past_its_station_closes_the_rest_with_the_end_that_faces_it() ->
     target = follower.step(0.4)
     assert target is not None
     assert target.direction == "reverse"
+
+
+def test_a_servo_is_told_the_angle_for_the_rov_now_from_where_the_asv_is() -> None:
+    """Not the station's, not the lead's: the fix, from the hull's pose this step."""
+    servo = msgspec.convert({"tilt": {}}, SonarMountConfig)
+    planner = StationPlanner(servo, TankBounds(), StationSettings())
+    follower = Follower(planner, FollowSettings())
+    follower.on_pose(START, 0.3)
+    follower.on_mode("GUIDED")
+    rov = np.array([14.0, 9.0, -3.5])
+    follower.on_fix(0.0, rov, np.array([0.2, 0.0, 0.0]))
+    target = follower.step(0.0)
+    assert target is not None
+    assert target.sonar_tilt_rad is not None
+    assert target.sonar_tilt_rad == pytest.approx(planner.tilt_rad(START, 0.3, rov))
+    assert target.sonar_tilt_rad != pytest.approx(0.0, abs=1e-3)  # 4.5 m off: steeper than 30
+    # Without a servo: nothing to tell.
+    plain = _follower()
+    plain.on_mode("GUIDED")
+    plain.on_fix(0.0, rov)
+    told = plain.step(0.0)
+    assert told is not None
+    assert told.sonar_tilt_rad is None

@@ -545,3 +545,62 @@ def test_the_path_weights_fall_with_the_distance_along_the_path() -> None:
     weights = _planner(path_discount_m=5.0)._path_weights(path)
     assert weights == pytest.approx([1.0, math.exp(-1.0), math.exp(-3.0)])
     assert _planner(path_discount_m=0.0)._path_weights(path) == pytest.approx([1.0, 1.0, 1.0])
+
+
+SERVO = msgspec.convert(
+    {"pitch_deg": 45.0, "tilt": {"min_deg": -15.0, "max_deg": 40.0}}, SonarMountConfig
+)
+
+
+@given(
+    asv=st.tuples(st.floats(2.0, 26.0), st.floats(2.0, 14.0)),
+    heading=st.floats(-math.pi, math.pi),
+    rov=st.tuples(st.floats(1.0, 27.0), st.floats(1.0, 15.0), st.floats(-7.5, -1.0)),
+    target_deg=st.floats(-5.0, 5.0),
+)
+def test_the_servo_angle_puts_the_rov_at_the_target_elevation_or_is_at_a_limit(
+    asv: tuple[float, float], heading: float, rov: tuple[float, float, float], target_deg: float
+) -> None:
+    """What the follower tilts the sonar to, checked through the beam model (conical)."""
+    planner = StationPlanner(
+        SERVO, TANK, StationSettings(target_elevation_rad=math.radians(target_deg))
+    )
+    tilt = planner.tilt_rad(np.array(asv), heading, np.array(rov))
+    lo, hi = math.radians(-15.0), math.radians(40.0)
+    assert lo - 1e-12 <= tilt <= hi + 1e-12
+    body = Transform.from_euler_zyx(
+        (asv[0], asv[1], 0.0), yaw_rad=heading, pitch_rad=0.0, roll_rad=0.0
+    )
+    sonar = body.compose(SERVO.transform(tilt_rad=tilt))
+    _, _, elevation = to_polar("conical", sonar.inverse().apply(np.array(rov)))
+    if lo + 1e-9 < tilt < hi - 1e-9:
+        assert elevation == pytest.approx(math.radians(target_deg), abs=1e-9)
+    elif tilt >= hi - 1e-9:
+        assert elevation < math.radians(target_deg) + 1e-9  # too steep below: tilted fully down
+    else:
+        assert elevation > math.radians(target_deg) - 1e-9  # too shallow: tilted fully up
+
+
+def test_no_servo_no_tilt_and_the_stations_are_chosen_for_its_zero() -> None:
+    """Stations are the fixed sonar's: the servo only keeps the ROV centred between them."""
+    rov, asv = np.array([10.0, 8.0, -4.0]), np.array([4.0, 8.0])
+    assert _planner().tilt_rad(asv, 0.0, rov) == 0.0
+    below = StationSettings(target_elevation_rad=math.radians(-3.0))
+    fixed = StationPlanner(msgspec.structs.replace(SERVO, tilt=None), TANK, below)
+    tilted = StationPlanner(SERVO, TANK, below)
+    a, b = fixed.choose(rov, asv, 0.0), tilted.choose(rov, asv, 0.0)
+    assert a is not None
+    assert b is not None
+    assert np.allclose(a.position_xy, b.position_xy)
+    assert a.heading_rad == b.heading_rad
+    # ... where the servo's zero sees it at the target, the servo stays at its zero; moved
+    # nearer, it tilts down by the depression gained.
+    assert b.view.elevation_rad == pytest.approx(math.radians(-3.0), abs=1e-6)
+    assert tilted.tilt_rad(b.position_xy, b.heading_rad, rov) == pytest.approx(0.0, abs=1e-6)
+    way = rov[:2] - b.position_xy
+    nearer = b.position_xy + 0.5 * way / np.linalg.norm(way)
+    steeper = tilted.view(nearer, b.heading_rad, rov).elevation_rad
+    assert steeper < b.view.elevation_rad
+    assert tilted.tilt_rad(nearer, b.heading_rad, rov) == pytest.approx(
+        b.view.elevation_rad - steeper, abs=1e-6
+    )
