@@ -30,6 +30,7 @@ from capsd.harness import (
     SERVICES,
     AsvMode,
     Processes,
+    SonarTilt,
     Watch,
     free_port,
     sigterm_as_interrupt,
@@ -85,6 +86,7 @@ def main(
     mission: Path | None = None,
     asv: AsvMode = "station",
     asv_drive: AsvDrive = "steered",
+    sonar_tilt: SonarTilt = "fixed",
     install_errors: Literal["realistic", "off"] = "realistic",
     calibration: Literal["off", "dive"] = "off",
     stream: TextIO = sys.stdout,
@@ -95,8 +97,9 @@ def main(
     waypoint and is flown by the ArduSub stand-in the simulator hosts, `capsd mission run`
     commands it through the bridge, and the demo ends when the mission does. With `asv`
     "follow" the ASV is driven too: the follower's targets through the ASV's bridge to the
-    ArduRover stand-in the simulator hosts (`asv_drive`: how it moves, AsvDrive); "station"
-    keeps it where it starts. With
+    ArduRover stand-in the simulator hosts (`asv_drive`: how it moves, AsvDrive; `sonar_tilt`
+    "servo": the sonar on a tilt servo the follower drives through it); "station" keeps it
+    where it starts. With
     `install_errors` "realistic" (the default) the simulated installation is what a tape
     measured (docs/INSTALL-ERRORS.md), uncalibrated unless `calibration` is "dive" (first a
     simulated calibration dive fitted by capsd calibrate's code, as a field team starts);
@@ -111,6 +114,8 @@ def main(
     router_port = port or free_port()
     mav_port = free_port()
     endpoint = f"tcp/127.0.0.1:{router_port}"
+    if sonar_tilt == "servo" and asv != "follow":
+        raise CapsdError("--sonar-tilt servo needs --asv follow: the follower drives the servo")
     if asv == "follow" and mission is None:
         raise CapsdError("--asv follow needs --mission: the ASV follows a ROV flown live")
     if calibration == "dive" and install_errors != "realistic":
@@ -134,6 +139,7 @@ def main(
         asv=asv,
         asv_mav_port=free_port() if asv == "follow" else None,
         asv_drive=asv_drive,
+        sonar_tilt=sonar_tilt,
         install_errors=install_errors,
         calibration=calibration,
     )

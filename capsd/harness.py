@@ -229,6 +229,7 @@ def write_configs(
     asv: AsvMode = "station",
     asv_mav_port: int | None = None,
     asv_drive: AsvDrive = "steered",
+    sonar_tilt: SonarTilt = "fixed",
     install_errors: Literal["realistic", "off"] = "realistic",
     calibration: Literal["off", "dive"] = "off",
     calibration_s: float = 120.0,
@@ -272,7 +273,8 @@ def write_configs(
         # What the tape got wrong, drawn from the seed; the services keep the nominal mounts.
         "install_errors": {"mode": install_errors},
     }
-    mount = sonar_mount(tank)  # the same sonar for the simulator and the services
+    # The same sonar for the simulator and the services (on a servo: the stand-in drives it).
+    mount = sonar_mount(tank, tilt=sonar_tilt)
     if mount:
         sim["sonar"] = mount
     if rov_start_m is not None:
@@ -301,6 +303,8 @@ def write_configs(
     mounts = _calibrated(run, folder, duration_s=calibration_s) if calibration == "dive" else {}
     # What every service that looks through the sonar is told: the tape's, or the dive's fit.
     told = {"sonar": mounts.get("sonar", mount)} if mount or mounts else {}
+    if "tilt" in mount:  # the dive calibrates the servo's zero; the servo itself is the site's
+        told["sonar"] = {**told["sonar"], "tilt": mount["tilt"]}
     start = Simulation(run, horizon_s=10)
     # The person putting the ASV in the water knows roughly which way it points: 20 deg off.
     heading = math.degrees(matrix_to_euler_zyx(start.asv_pose(0.0).rotation)[0]) + 20.0
@@ -363,6 +367,10 @@ def write_configs(
             # asv_pose runs at the IMU's rate; ArduRover's EKF takes 20 Hz of poses at most.
             "gate": {"max_rate_hz": 20.0},
         }
+        if "tilt" in mount:
+            # The stand-in's mount reports the sonar's nominal pitch at the servo's zero.
+            nominal = msgspec.convert(mount, SonarMountConfig).pitch_deg
+            configs["asv_bridge"]["sonar_tilt"] = {"zero_pitch_deg": -nominal}
         configs["asv_follow"] = {
             "bus": bus,
             "tank": msgspec.to_builtins(tank_bounds(t)),
@@ -394,8 +402,15 @@ def _calibrated(run: Any, folder: Path, *, duration_s: float) -> dict[str, Any]:
     from capsd.bench.calibrate import profile_standoffs_m
     from capsd.progress import Progress
 
-    # The dive is its own run: no live autopilots (the demo's ports), the ASV turns on the spot.
-    offline = msgspec.structs.replace(run, guided=None, asv_guided=None, asv_mode="spin")
+    # The dive is its own run: no live autopilots (the demo's ports), the ASV turns on the spot,
+    # a tilt servo held at its zero (no one drives it: the sonar is then a fixed one).
+    offline = msgspec.structs.replace(
+        run,
+        guided=None,
+        asv_guided=None,
+        asv_mode="spin",
+        sonar=msgspec.structs.replace(run.sonar, tilt=None),
+    )
     manoeuvres = 2 + len(profile_standoffs_m(offline, offline.sonar))
     print(
         f"calibrating the installation: a simulated calibration dive ({manoeuvres} x "

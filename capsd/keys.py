@@ -21,6 +21,7 @@ class Subject(StrEnum):
     ASV_SCAN = "asv/scan"
     SONAR_FRAME = "sonar/frame"
     SONAR_DETECTIONS = "sonar/detections"
+    SONAR_TILT = "sonar/tilt"  # the sonar's tilt servo, from the ASV's bridge
     ROV_DEPTH = "rov/depth"
     ROV_ATTITUDE = "rov/attitude"
     ROV_VELOCITY = "rov/velocity"

@@ -289,6 +289,17 @@ class SonarDetections(Payload, frozen=True, kw_only=True):
 # ---------------------------------------------------------------- ROV
 
 
+class SonarTilt(Payload, frozen=True, kw_only=True):
+    """The angle of the tilt servo under the sonar at `stamp_ns` (the ASV's clock).
+
+    Added to the sonar mount's pitch (down +): H_B_S of a ping is the mount's with this pitch
+    added (docs/CONVENTIONS.md). Published by the ASV's bridge from its autopilot's mount
+    (GIMBAL_DEVICE_ATTITUDE_STATUS), which reports the angle it drives the servo to.
+    """
+
+    tilt_rad: Annotated[float, msgspec.Meta(ge=-math.pi / 2, le=math.pi / 2)]
+
+
 class RovDepth(Payload, frozen=True, kw_only=True):
     """Depth of the ROV's pressure sensor (positive down, metres below the still surface)."""
 
@@ -515,6 +526,7 @@ ALL_PAYLOADS: tuple[type[Payload], ...] = (
     LidarScan,
     SonarFrame,
     SonarDetections,
+    SonarTilt,
     RovDepth,
     RovAttitude,
     RovVelocity,

@@ -27,6 +27,7 @@ from typing import Self
 from capsd.errors import CapsdError
 from capsd.payloads import DriveDirection
 from capsd.protocols.mavlink import (
+    MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW,
     MAV_CMD_DO_SET_MODE,
     MAV_CMD_DO_SET_REVERSE,
     MAV_CMD_PREFLIGHT_CALIBRATION,
@@ -166,6 +167,8 @@ class AutopilotStandIn:
         on_target: Callable[[PositionTarget], None] | None = None,
         on_estimate: Callable[[VisionPositionEstimate], None] | None = None,
         on_direction: Callable[[DriveDirection], None] | None = None,
+        on_gimbal_pitch: Callable[[float], None] | None = None,
+        gimbal_pitch_rad: Callable[[], float] | None = None,
         gcs_port: int | None = None,
     ):
         self.port = port
@@ -176,6 +179,9 @@ class AutopilotStandIn:
         self.on_target = on_target
         self.on_estimate = on_estimate
         self.on_direction = on_direction  # ArduRover's MAV_CMD_DO_SET_REVERSE
+        # A mount (the sonar's tilt servo): told a pitch (deg, up +), reporting one (rad).
+        self.on_gimbal_pitch = on_gimbal_pitch
+        self.gimbal_pitch_rad = gimbal_pitch_rad
         self.state = state
         self.heartbeat_sent_s = -math.inf
         self.params = dict(DEFAULT_PARAMS if params is None else params)
@@ -325,6 +331,8 @@ class AutopilotStandIn:
             )
         elif msg == message_id("SYSTEM_TIME"):
             link.send_system_time(time_unix_usec=0, time_boot_ms=boot_ms)
+        elif msg == message_id("GIMBAL_DEVICE_ATTITUDE_STATUS") and self.gimbal_pitch_rad:
+            link.send_gimbal_attitude(time_boot_ms=boot_ms, pitch_rad=self.gimbal_pitch_rad())
         elif msg == message_id("SYS_STATUS"):
             link.send_sys_status(self.sys_status())
         elif msg == message_id("EKF_STATUS_REPORT"):
@@ -421,6 +429,15 @@ class AutopilotStandIn:
             link.send_command_ack(
                 command=message.command,
                 result=MAV_RESULT_ACCEPTED if rover else MAV_RESULT_UNSUPPORTED,
+            )
+        elif isinstance(message, CommandLong) and command == MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW:
+            # ArduPilot's mount takes it in any mode (the bridge sends it in GUIDED only).
+            mounted = self.on_gimbal_pitch is not None
+            if self.on_gimbal_pitch is not None:
+                self.on_gimbal_pitch(message.params[0])
+            link.send_command_ack(
+                command=message.command,
+                result=MAV_RESULT_ACCEPTED if mounted else MAV_RESULT_UNSUPPORTED,
             )
         elif isinstance(message, CommandLong) and command == MAV_CMD_REQUEST_MESSAGE:
             if int(message.params[0]) == message_id("GPS_GLOBAL_ORIGIN") and self.origin:

@@ -38,6 +38,7 @@ from capsd.simulator.autopilot import (
 from capsd.simulator.config import Config
 from capsd.simulator.guided import GuidedAsv, GuidedRov
 from capsd.simulator.sim import Event, Simulation
+from capsd.simulator.tilt_servo import TiltServo
 
 __all__ = ["Config", "main"]
 
@@ -152,8 +153,13 @@ def hosted_autopilot(config: Config, rov: GuidedRov, start_ns: int) -> Autopilot
     )
 
 
-def hosted_asv_autopilot(config: Config, asv: GuidedAsv, start_ns: int) -> AutopilotStandIn:
-    """The ArduRover stand-in that drives `asv` (sim time 0 is wall time `start_ns`)."""
+def hosted_asv_autopilot(
+    config: Config, asv: GuidedAsv, start_ns: int, *, servo: TiltServo | None = None
+) -> AutopilotStandIn:
+    """The ArduRover stand-in that drives `asv` and the sonar's tilt `servo` (if any).
+
+    Sim time 0 is wall time `start_ns`.
+    """
     assert config.asv_guided is not None
     g = config.asv_guided
     ned = TankToNed(math.radians(g.ned_heading_deg), np.array(g.ned_origin_m))
@@ -190,6 +196,10 @@ def hosted_asv_autopilot(config: Config, asv: GuidedAsv, start_ns: int) -> Autop
         on_target=on_target,
         on_estimate=on_estimate,
         on_direction=asv.set_direction,
+        on_gimbal_pitch=(
+            None if servo is None else lambda deg: servo.command(sim_time(time.time()), deg)
+        ),
+        gimbal_pitch_rad=None if servo is None else servo.reported_pitch_rad,
     )
 
 
@@ -229,7 +239,9 @@ def main(config: Config) -> int:
             runner.add_counters(lambda: {"rov_in_guided": int(guided.mode == "GUIDED")})
         guided_asv = simulation.guided_asv
         if guided_asv is not None:
-            autopilot.enter_context(hosted_asv_autopilot(config, guided_asv, start_ns))
+            autopilot.enter_context(
+                hosted_asv_autopilot(config, guided_asv, start_ns, servo=simulation.tilt_servo)
+            )
             runner.add_counters(lambda: {"asv_in_guided": int(guided_asv.mode == "GUIDED")})
         muted_until: dict[str, float] = {}  # stream -> monotonic time its dropout ends
 

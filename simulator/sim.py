@@ -46,6 +46,7 @@ from capsd.simulator.install_errors import InstallErrors
 from capsd.simulator.lidar import scan
 from capsd.simulator.scene import BLUEROV2_SEMI_AXES, Ellipsoid
 from capsd.simulator.sonar import Label, SonarRenderer
+from capsd.simulator.tilt_servo import TiltServo
 from capsd.simulator.world import (
     AsvMotion,
     RovMotion,
@@ -134,6 +135,13 @@ class Simulation:
             np.random.default_rng([config.seed if install_seed is None else install_seed, 0xE7]),
         )
         self.mount = config.sonar.transform().compose(self.errors.sonar)
+        # A sonar on a tilt servo: the ArduRover stand-in drives it (the mount's pitch it
+        # reports at the servo's zero is the nominal pitch's, MAVLink's sign).
+        self.tilt_servo = (
+            None
+            if config.sonar.tilt is None
+            else TiltServo(config.sonar.tilt, zero_pitch_deg=-config.sonar.pitch_deg)
+        )
         if config.rov_mode == "parked":
             self.rov = planned = hovering(self.rov.track.p[0], duration_s=self.horizon_s)
         elif config.rov_mode == "profile":
@@ -255,6 +263,13 @@ class Simulation:
     def asv_pose(self, t_s: float) -> Transform:
         rotation, translation = self.asv.pose(self._asv_time(t_s))
         return Transform(rotation, translation)
+
+    def sonar_mount(self, t_s: float) -> Transform:
+        """H_B_S as it truly is at `t_s`: the mount, its servo's angle, this run's error."""
+        if self.tilt_servo is None:
+            return self.mount
+        tilted = self.config.sonar.transform(tilt_rad=self.tilt_servo.tilt_rad(t_s))
+        return tilted.compose(self.errors.sonar)
 
     def _rov_ellipsoid(self, rov: RovState) -> Ellipsoid:
         return Ellipsoid(rov.position_m, rov.rotation, BLUEROV2_SEMI_AXES)
@@ -469,7 +484,7 @@ class Simulation:
             return
         rov = self.rov_state(t)
         asv = self.asv_pose(t)
-        sonar_pose = asv.compose(self.mount)
+        sonar_pose = asv.compose(self.sonar_mount(t))
         stamp = clocks["asv"].stamp(true_ns)
         ping = self._next_seq("sonar")
         dropped = any(start <= t < end for start, end in cfg.sonar_dropouts_s)

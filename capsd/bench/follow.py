@@ -214,7 +214,6 @@ def run_mission(
             rov_m=rov_m,
             velocity_m_s=state.velocity_m_s,
             lookahead_s=1.5,
-            tilt_rad=None if servo is None else servo.angle_rad,
         )
         mission.on_view(margin, now=t)
         mission.on_mode(rov.mode, now=t)

@@ -27,6 +27,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         mission=args.mission,
         asv=args.asv,
         asv_drive=args.asv_drive,
+        sonar_tilt=args.sonar_tilt,
         install_errors=args.install_errors,
         calibration=args.calibration,
     )
@@ -88,6 +89,14 @@ def register(sub: Subcommands) -> None:
         "(default), as ArduRover's GUIDED drives a boat or an omni frame, the hull turned "
         "towards its way; lateral: an omni frame moving any way with its heading kept (a "
         "controller that uses its lateral thrust, not ArduRover's GUIDED)",
+    )
+    dem.add_argument(
+        "--sonar-tilt",
+        default="fixed",
+        choices=["fixed", "servo"],
+        help="with --asv follow: the sonar fixed to the hull (default) or on a tilt servo "
+        "(-15 to +40 deg about its pitch, 30 deg/s) the follower drives through the ASV's "
+        "autopilot mount; the services take its reported angle ping by ping",
     )
     dem.add_argument(
         "--install-errors",

@@ -10,6 +10,7 @@ PARAM_VALUE, COMMAND_ACK...). Connection strings: `tcp:HOST:PORT`, `tcpin:HOST:P
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import re
 import time
@@ -30,6 +31,10 @@ MAV_CMD_DO_SET_MODE = 176
 MAV_CMD_DO_SET_REVERSE = 194
 MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN = 246
 MAV_CMD_REQUEST_MESSAGE = 512
+# A gimbal's pitch and yaw (ArduPilot 4.3 on: its mount library, a servo mount included).
+MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW = 1000
+# GIMBAL_DEVICE_ATTITUDE_STATUS flags: pitch relative to the horizon (else to the vehicle).
+GIMBAL_DEVICE_FLAGS_PITCH_LOCK = int(mavutil.mavlink.GIMBAL_DEVICE_FLAGS_PITCH_LOCK)
 # SYS_STATUS sensor bit of external position (ArduPilot: VISO_TYPE set; healthy once the
 # visual-odometry backend made at boot has had an estimate within 300 ms).
 MAV_SYS_STATUS_SENSOR_VISION_POSITION = int(mavutil.mavlink.MAV_SYS_STATUS_SENSOR_VISION_POSITION)
@@ -180,6 +185,18 @@ class VisionPositionEstimate:
 
 
 @dataclass(frozen=True)
+class GimbalAttitude:
+    """GIMBAL_DEVICE_ATTITUDE_STATUS: a mount's pitch (rad, up +) and whether it is the horizon's.
+
+    `horizon_relative`: the PITCH_LOCK flag (a stabilised gimbal); else relative to the vehicle.
+    """
+
+    time_boot_ms: int
+    pitch_rad: float
+    horizon_relative: bool
+
+
+@dataclass(frozen=True)
 class GpsInput:
     time_usec: int
     lat_e7: int
@@ -235,7 +252,7 @@ class PositionTarget:
 Message = (
     Heartbeat | Attitude | ScaledPressure | SystemTime | EkfStatus | SysStatus | ParamValue
     | CommandAck | CommandLong | StatusText | VisionPositionEstimate | GpsInput | GlobalOrigin
-    | OriginReport | ParamSet | ParamRequest | PositionTarget
+    | OriginReport | ParamSet | ParamRequest | PositionTarget | GimbalAttitude
 )  # fmt: skip
 
 
@@ -319,6 +336,11 @@ def _convert(msg: Any) -> Message | None:
             tuple(float(c) for c in msg.covariance),
             msg.reset_counter,
         )
+    if kind == "GIMBAL_DEVICE_ATTITUDE_STATUS":
+        w, x, y, z = (float(c) for c in msg.q)
+        pitch = math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
+        locked = bool(msg.flags & GIMBAL_DEVICE_FLAGS_PITCH_LOCK)
+        return GimbalAttitude(msg.time_boot_ms, pitch, locked)
     if kind == "GPS_INPUT":
         return GpsInput(msg.time_usec, msg.lat, msg.lon, msg.alt, msg.horiz_accuracy, msg.fix_type)
     if kind == "SET_GPS_GLOBAL_ORIGIN":
@@ -609,6 +631,17 @@ class MavLink:
             1.0 if direction == "reverse" else 0.0, 0, 0, 0, 0, 0, 0,
         )  # fmt: skip
 
+    def send_gimbal_pitch(self, *, target_system: int, pitch_deg: float) -> None:
+        """MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW: every gimbal to `pitch_deg` (up +), yaw ahead.
+
+        In the vehicle's frame (no lock flag); the rates unused (NaN).
+        """
+        nan = float("nan")
+        self._mav.command_long_send(
+            target_system, 1, MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW, 0,
+            float(pitch_deg), 0.0, nan, nan, 0, 0, 0,
+        )  # fmt: skip
+
     def send_set_gps_global_origin(
         self, *, target_system: int, lat_e7: int, lon_e7: int, alt_mm: int
     ) -> None:
@@ -644,6 +677,12 @@ class MavLink:
         self._mav.attitude_send(
             a.time_boot_ms, a.roll, a.pitch, a.yaw, a.rollspeed, a.pitchspeed, a.yawspeed
         )
+
+    def send_gimbal_attitude(self, *, time_boot_ms: int, pitch_rad: float) -> None:
+        """GIMBAL_DEVICE_ATTITUDE_STATUS of a mount pitched `pitch_rad` (up +) on the vehicle."""
+        q = (math.cos(pitch_rad / 2.0), 0.0, math.sin(pitch_rad / 2.0), 0.0)  # w, x, y, z
+        nan = float("nan")
+        self._mav.gimbal_device_attitude_status_send(0, 0, time_boot_ms, 0, q, nan, nan, nan, 0)
 
     def send_scaled_pressure2(
         self, *, time_boot_ms: int, press_abs_hpa: float, temperature_c: float

@@ -133,6 +133,9 @@ class FollowSettings:
     # targets), so a carrot that walks while the hull faces the old way keeps the sonar looking
     # away from the ROV for the whole trip.
     turn_first_rad: float = math.radians(30.0)
+    # A tilt servo is aimed where the ROV will be this far ahead, at its tracked velocity: the
+    # fix's age, the command's way through the ASV's bridge and autopilot, the servo's slew.
+    tilt_lead_s: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -354,6 +357,8 @@ class Follower:
             look = self.rov_m
         if look is None:
             return None
+        if fresh and look is self.rov_m:
+            look = look + self.rov_velocity * self.settings.tilt_lead_s
         return self.planner.tilt_rad(self.asv_xy, self.asv_heading, look)
 
     def _look_point(self, *, fresh: bool) -> Array | None:

@@ -123,6 +123,9 @@ class MotionConfig(ConfigSection, frozen=True, kw_only=True):
     # then looks for it (`capsd bench follow`, nfp lawnmower, 10 seeds: median in view 80 %
     # at 2, 85 % at 4, 99 % at 8, 98.5 % at 16 and 32; the mockup 71-74 % at any of them).
     blind_cost_per_s: Annotated[float, msgspec.Meta(ge=0.0, le=100.0)] = 8.0
+    # A sonar on a tilt servo is aimed where the ROV will be this far ahead (its tracked
+    # velocity): the fix's age, the way through the bridge and autopilot, the servo's slew.
+    tilt_lead_s: Annotated[float, msgspec.Meta(ge=0.0, le=5.0)] = 0.5
 
     def settings(self) -> FollowSettings:
         return FollowSettings(
@@ -141,6 +144,7 @@ class MotionConfig(ConfigSection, frozen=True, kw_only=True):
             turn_first_rad=math.radians(self.turn_first_deg),
             stop_within_s=self.stop_within_s,
             lost_drift_m_s=self.lost_drift_m_s,
+            tilt_lead_s=self.tilt_lead_s,
         )
 
     def drive_settings(self, station: StationSettings) -> StationSettings:

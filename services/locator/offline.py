@@ -14,6 +14,7 @@ from capsd.payloads import (
     RovVelocity,
     SonarDetections,
     SonarLabel,
+    SonarTilt,
 )
 from capsd.services.locator.service import Config, Locator
 
@@ -49,6 +50,8 @@ def run_offline(config: Config, payloads: Iterable[Payload]) -> Iterator[Scored]
             locator.on_attitude(payload)
         elif isinstance(payload, RovVelocity):
             locator.on_velocity(payload)
+        elif isinstance(payload, SonarTilt):
+            locator.on_tilt(payload)
         elif isinstance(payload, SonarDetections):
             fixes.append(locator.locate(payload, seq=seq))
             seq += 1

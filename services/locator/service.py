@@ -15,7 +15,7 @@ import math
 import threading
 import time
 from pathlib import Path
-from typing import Annotated, Literal, TypeVar
+from typing import Annotated, Any, Literal, TypeVar
 
 import msgspec
 import numpy as np
@@ -36,6 +36,7 @@ from capsd.payloads import (
     RovFix,
     RovVelocity,
     SonarDetections,
+    SonarTilt,
 )
 from capsd.runner import Publisher, ServiceRunner
 from capsd.services.locator.clutter import ClutterMap, ClutterSettings
@@ -307,6 +308,12 @@ def _lerp_depth(a: DepthSample, b: DepthSample, f: float) -> DepthSample:
     return a[0] + f * (b[0] - a[0]), b[1], a[2] + f * (b[2] - a[2])
 
 
+def _hold_tilt(a: float, b: float, f: float) -> float:
+    # Between two reports the servo moved from one to the other; past the newest it holds
+    # (the autopilot reports the angle it drives the servo to, which stays until told again).
+    return b if f >= 1.0 else a + f * (b - a)
+
+
 def _vec3(v: Array) -> tuple[float, float, float]:
     return (float(v[0]), float(v[1]), float(v[2]))
 
@@ -324,7 +331,18 @@ class Locator:
         self.label: LocatorMethod = (
             "ablation" if self.method.preset == "custom" else self.method.preset
         )
+        # H_B_S; on a tilt servo, each ping's (the servo's reported angle added to the pitch).
         self.mount = config.sonar.transform()
+        tilt = config.sonar.tilt
+        self.tilts: Timeline[float] | None = (
+            None
+            if tilt is None
+            else Timeline(
+                _hold_tilt,
+                capacity=int(config.inputs.buffer_s * 100),
+                max_extrapolation_ns=int(tilt.max_age_s * 1e9),
+            )
+        )
         self.aperture_rad = math.radians(config.sonar.vertical_aperture_deg)
         self.lever_arm = (
             np.array(config.rov.pressure_sensor_m)
@@ -403,6 +421,13 @@ class Locator:
                 np.array(pose.covariance).reshape(6, 6),
             ),
         )
+
+    def on_tilt(self, tilt: SonarTilt) -> None:
+        """The sonar's tilt servo (taken only where the mount has one)."""
+        if self.tilts is None:
+            return
+        self._note_arrival(tilt.stamp_ns)
+        self.tilts.add(tilt.stamp_ns, tilt.tilt_rad)
 
     def on_depth(self, depth: RovDepth) -> None:
         self._note_arrival(depth.stamp_ns)
@@ -594,10 +619,28 @@ class Locator:
         sonar: Transform | None = None
         if not candidates:
             reasons.append("no_detection")
-        for name, lookup in (("asv_pose", pose), ("depth", depth), ("attitude", attitude)):
+        inputs: list[tuple[str, Lookup[Any]]] = [
+            ("asv_pose", pose),
+            ("depth", depth),
+            ("attitude", attitude),
+        ]
+        tilted = True
+        if self.tilts is not None:
+            # A ping without the servo's angle is no fix (its elevation would be a guess).
+            tilt = self._lookup(self.tilts, stamp)
+            inputs.append(("sonar_tilt", tilt))
+            tilted = tilt.value is not None
+            if tilt.value is not None:
+                self.mount = self.config.sonar.transform(tilt_rad=tilt.value)
+        for name, lookup in inputs:
             if lookup.failure is not None:
                 reasons.append(f"{name}_{lookup.failure}")
-        if pose.value is not None and depth.value is not None and attitude.value is not None:
+        if (
+            tilted
+            and pose.value is not None
+            and depth.value is not None
+            and attitude.value is not None
+        ):
             asv = Transform(quat_to_matrix(pose.value[1]), pose.value[0])
             sonar = asv.compose(self.mount)
             # A depth extrapolated from its last two readings carries their noise amplified
@@ -863,6 +906,8 @@ def main(config: Config) -> int:
         runner.subscribe(topics.ROV_ATTITUDE, locator.on_attitude, vehicle=rov)
         runner.subscribe(topics.ROV_VELOCITY, locator.on_velocity, vehicle=rov)
         runner.subscribe(topics.SONAR_DETECTIONS, on_detections, vehicle=asv)
+        if config.sonar.tilt is not None:
+            runner.subscribe(topics.SONAR_TILT, locator.on_tilt, vehicle=asv)
         logger.info("locator ready", extra={"fields": {"method": locator.label}})
         runner.run(lambda: wait.poll(time.monotonic()), period_s=0.02)
     return 0

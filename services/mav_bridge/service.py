@@ -48,6 +48,7 @@ from capsd.payloads import (
     DriveDirection,
     RovAttitude,
     RovDepth,
+    SonarTilt,
     VehicleCommand,
 )
 from capsd.protocols.mavlink import (
@@ -59,6 +60,7 @@ from capsd.protocols.mavlink import (
     Autopilot,
     CommandAck,
     EkfStatus,
+    GimbalAttitude,
     Heartbeat,
     MavLink,
     OriginReport,
@@ -162,6 +164,23 @@ class RatesConfig(ConfigSection, frozen=True, kw_only=True):
     sys_status_hz: Annotated[float, msgspec.Meta(gt=0.0, le=10.0)] = 1.0
 
 
+class SonarTiltBridgeConfig(ConfigSection, frozen=True, kw_only=True):
+    """Role asv: the sonar's tilt servo on the autopilot's mount (ArduPilot MNT1_*, a servo).
+
+    The follower's angle goes out as MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW (in GUIDED only, with
+    its goto), and each GIMBAL_DEVICE_ATTITUDE_STATUS comes back as a `sonar/tilt` payload.
+    """
+
+    # The mount pitch the autopilot reports (MAVLink's: up +, degrees) with the sonar at the
+    # servo's zero: where the sonar mount's `pitch_deg` was measured. The tilt is the angle
+    # down from there.
+    zero_pitch_deg: Annotated[float, msgspec.Meta(ge=-180.0, le=180.0)]
+    status_hz: Annotated[float, msgspec.Meta(gt=0.0, le=100.0)] = 20.0
+    # A new angle goes out when it moved this far from the last sent, or after resend_s.
+    deadband_deg: Annotated[float, msgspec.Meta(ge=0.0, le=10.0)] = 0.25
+    resend_s: Annotated[float, msgspec.Meta(gt=0.0, le=60.0)] = 1.0
+
+
 Role = Literal["rov", "asv"]
 _AUTOPILOT: dict[Role, Autopilot] = {"rov": "ardusub", "asv": "ardurover"}
 # The autopilot's own position hold, which a "hold" command switches to (from GUIDED only).
@@ -210,6 +229,8 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     heading_only_within_m: Annotated[float, msgspec.Meta(ge=0.0, le=10.0)] = 0.3
     # A command older than this on arrival is refused (a stalled link replays nothing).
     max_command_age_s: Annotated[float, msgspec.Meta(gt=0.0, le=10.0)] = 1.0
+    # Role asv: the sonar on a tilt servo the autopilot drives (None: the sonar is fixed).
+    sonar_tilt: SonarTiltBridgeConfig | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -226,6 +247,8 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
             )
         if self.mission_commands == "accept" and self.tank is None:
             raise ValueError("`mission_commands: accept` needs `tank`: the geofence for targets")
+        if self.sonar_tilt is not None and self.role != "asv":
+            raise ValueError("`sonar_tilt`: the sonar's servo is on the ASV (role asv)")
         if self.role == "asv" and self.output == "gps_input":
             raise ValueError("`output`: the ASV's bridge sends VISION_POSITION_ESTIMATE (its pose)")
 
@@ -294,6 +317,9 @@ class Bridge:
         # The drive direction ArduRover was last told (None: not since it took GUIDED, whose
         # entry sets forward, or since the link came back).
         self._asv_direction: DriveDirection | None = None
+        # Role asv with a tilt servo: the last angle sent (deg, MAVLink's) and when.
+        self._tilt_sent: tuple[float, float] | None = None
+        self._tilt_refusal_logged = False
         self._outage_reasons: Counter[str] = Counter()
         self._announced: str | None = None
         self._last_statustext: dict[str, float] = {}
@@ -303,6 +329,9 @@ class Bridge:
         if config.role == "rov":
             self.depth_pub = runner.publisher(topics.ROV_DEPTH, vehicle=rov)
             self.attitude_pub = runner.publisher(topics.ROV_ATTITUDE, vehicle=rov)
+        self.tilt_pub: Publisher[SonarTilt] | None = None
+        if config.sonar_tilt is not None:
+            self.tilt_pub = runner.publisher(topics.SONAR_TILT, vehicle=rov)
         status = topics.ROV_STATUS if config.role == "rov" else topics.ASV_AUTOPILOT
         self.status_pub: Publisher[AutopilotStatus] = runner.publisher(status, vehicle=rov)
         # Fix arrival to the estimate leaving the socket; and the ping (the fix's stamp) to it.
@@ -511,6 +540,8 @@ class Bridge:
             ]
             if cfg.role == "asv":  # no depth on the surface vehicle
                 rates = [(name, hz) for name, hz in rates if name != "SCALED_PRESSURE2"]
+            if cfg.sonar_tilt is not None:
+                rates.append(("GIMBAL_DEVICE_ATTITUDE_STATUS", cfg.sonar_tilt.status_hz))
             for name, hz in rates:
                 self.link.send_set_message_interval(
                     target_system=target, message_id=message_id(name), rate_hz=hz
@@ -606,6 +637,10 @@ class Bridge:
             self._publish_depth(message)
         elif isinstance(message, SystemTime):
             self._observe(message.time_boot_ms, arrival_ns)
+        elif isinstance(message, GimbalAttitude) and self.tilt_pub is not None:
+            if not self._observe(message.time_boot_ms, arrival_ns):
+                return
+            self._publish_tilt(message)
         elif isinstance(message, OriginReport):
             if not self.origin_set:
                 self.origin_set = True
@@ -642,6 +677,53 @@ class Bridge:
             self.counts["vehicle_reboots"] += 1
             logger.warning("autopilot rebooted", extra={"fields": {"boots": self.clock.boots}})
         return self.clock.ready
+
+    def _publish_tilt(self, message: GimbalAttitude) -> None:
+        """The mount's reported pitch as the servo's tilt (down + from its zero), stamped."""
+        assert self.tilt_pub is not None
+        assert self.config.sonar_tilt is not None
+        if message.horizon_relative:
+            # A stabilised gimbal's pitch is the horizon's, not the hull's: H_B_S would then
+            # move with the waves unseen. Refused, said once.
+            self.counts["tilt_refused_horizon_relative"] += 1
+            if not self._tilt_refusal_logged:
+                self._tilt_refusal_logged = True
+                logger.warning(
+                    "sonar tilt refused: the mount reports its pitch against the horizon "
+                    "(PITCH_LOCK); set it to follow the vehicle"
+                )
+            return
+        zero = math.radians(self.config.sonar_tilt.zero_pitch_deg)
+        tilt = zero - message.pitch_rad
+        if not -math.pi / 2 <= tilt <= math.pi / 2:
+            self.counts["tilt_refused_out_of_range"] += 1
+            return
+        self.counts["tilt_reports"] += 1
+        self.tilt_pub.put(
+            SonarTilt(
+                stamp_ns=self.clock.to_unix_ns(message.time_boot_ms),
+                seq=self.tilt_pub.next_seq(),
+                tilt_rad=tilt,
+            )
+        )
+
+    def _send_tilt(self, tilt_rad: float) -> None:
+        """The follower's angle to the mount (the caller holds the lock; GUIDED only)."""
+        servo = self.config.sonar_tilt
+        if servo is None:
+            self.counts["commands_tilt_no_servo"] += 1
+            return
+        pitch_deg = servo.zero_pitch_deg - math.degrees(tilt_rad)
+        now = time.monotonic()
+        if self._tilt_sent is not None:
+            last_deg, at = self._tilt_sent
+            if abs(pitch_deg - last_deg) < servo.deadband_deg and now - at < servo.resend_s:
+                return
+        self.link.send_gimbal_pitch(
+            target_system=self.config.mavlink.target_system, pitch_deg=pitch_deg
+        )
+        self._tilt_sent = (pitch_deg, now)
+        self.counts["commands_sent_tilt"] += 1
 
     def _publish_depth(self, message: ScaledPressure) -> None:
         assert self.depth_pub is not None  # the ROV's bridge only
@@ -790,6 +872,8 @@ class Bridge:
             )
             self.counts["commands_sent_target"] += 1
             self._asv_target_xy = goal_xy
+        if self.config.role == "asv" and command.sonar_tilt_rad is not None:
+            self._send_tilt(command.sonar_tilt_rad)
         # Every command is logged; the mission's twice-a-second repeats at debug level.
         logger.log(
             logging.DEBUG if command.reason == "repeat" else logging.INFO,

@@ -26,7 +26,14 @@ from capsd.errors import CapsdError, ConfigError
 from capsd.geometry import Transform, quat_to_matrix
 from capsd.mailbox import Mailbox
 from capsd.mounts import SonarMountConfig
-from capsd.payloads import AsvPose, Detection, RovDepth, SonarDetections, SonarFrame
+from capsd.payloads import (
+    AsvPose,
+    Detection,
+    RovDepth,
+    SonarDetections,
+    SonarFrame,
+    SonarTilt,
+)
 from capsd.runner import Publisher, ServiceRunner
 from capsd.services.sonar_detect.classical import ClassicalDetector, ClassicalSettings
 from capsd.services.sonar_detect.depth_gate import DepthGate
@@ -239,13 +246,14 @@ def make_detector(config: Config) -> Detector:
 
 
 class GateInputs:
-    """The newest ASV pose and ROV depth (written on Zenoh's thread, read by the worker)."""
+    """The newest ASV pose, ROV depth and sonar tilt (Zenoh's thread writes, the worker reads)."""
 
     def __init__(self, config: DepthGateConfig):
         self.config = config
         self._mount = config.sonar.transform()
         self.pose: AsvPose | None = None
         self.depth: RovDepth | None = None
+        self.tilt: SonarTilt | None = None  # where the sonar sits on a tilt servo
 
     def gate(self, stamp_ns: int) -> DepthGate | None:
         """The gate for a ping, or None when off or without fresh inputs."""
@@ -256,8 +264,15 @@ class GateInputs:
         limit_ns = c.max_age_s * 1e9
         if abs(stamp_ns - pose.stamp_ns) > limit_ns or abs(stamp_ns - depth.stamp_ns) > limit_ns:
             return None
+        mount = self._mount
+        if c.sonar.tilt is not None:
+            # On a servo, no gate without its angle: a guessed elevation would reject the ROV.
+            tilt = self.tilt
+            if tilt is None or abs(stamp_ns - tilt.stamp_ns) > c.sonar.tilt.max_age_s * 1e9:
+                return None
+            mount = c.sonar.transform(tilt_rad=tilt.tilt_rad)
         asv = Transform(quat_to_matrix(np.array(pose.orientation_xyzw)), np.array(pose.position_m))
-        return c.gate_at(asv.compose(self._mount), -depth.depth_m)
+        return c.gate_at(asv.compose(mount), -depth.depth_m)
 
 
 def main(config: Config) -> int:
@@ -306,6 +321,12 @@ def main(config: Config) -> int:
                 lambda depth: setattr(inputs, "depth", depth),
                 vehicle=config.depth_gate.rov_vehicle,
             )
+            if config.depth_gate.sonar.tilt is not None:
+                runner.subscribe(
+                    topics.SONAR_TILT,
+                    lambda tilt: setattr(inputs, "tilt", tilt),
+                    vehicle=config.depth_gate.asv_vehicle,
+                )
         next_snapshot = time.monotonic()
 
         def work() -> None:

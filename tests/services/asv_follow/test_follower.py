@@ -879,19 +879,21 @@ def test_a_hull_past_its_station_closes_the_rest_with_the_end_that_faces_it() ->
     assert target.direction == "reverse"
 
 
-def test_a_servo_is_told_the_angle_for_the_rov_now_from_where_the_asv_is() -> None:
-    """Not the station's, not the lead's: the fix, from the hull's pose this step."""
+def test_a_servo_is_told_the_angle_for_the_rov_half_a_second_on_from_where_the_asv_is() -> None:
+    """Not the station's, nor its 3 s lead: the fix 0.5 s on, from the hull's pose now."""
     servo = msgspec.convert({"tilt": {}}, SonarMountConfig)
     planner = StationPlanner(servo, TankBounds(), StationSettings())
     follower = Follower(planner, FollowSettings())
     follower.on_pose(START, 0.3)
     follower.on_mode("GUIDED")
-    rov = np.array([14.0, 9.0, -3.5])
-    follower.on_fix(0.0, rov, np.array([0.2, 0.0, 0.0]))
+    rov, velocity = np.array([14.0, 9.0, -3.5]), np.array([-0.2, 0.0, 0.0])
+    follower.on_fix(0.0, rov, velocity)
     target = follower.step(0.0)
     assert target is not None
     assert target.sonar_tilt_rad is not None
-    assert target.sonar_tilt_rad == pytest.approx(planner.tilt_rad(START, 0.3, rov))
+    ahead = planner.tilt_rad(START, 0.3, rov + 0.5 * velocity)
+    assert target.sonar_tilt_rad == pytest.approx(ahead)
+    assert ahead > planner.tilt_rad(START, 0.3, rov)  # nearer: steeper
     assert target.sonar_tilt_rad != pytest.approx(0.0, abs=1e-3)  # 4.5 m off: steeper than 30
     # Without a servo: nothing to tell.
     plain = _follower()

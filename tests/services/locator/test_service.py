@@ -10,7 +10,15 @@ import numpy as np
 
 from capsd.geometry import Transform
 from capsd.mounts import SonarMountConfig
-from capsd.payloads import AsvPose, Detection, RovAttitude, RovDepth, RovFix, SonarDetections
+from capsd.payloads import (
+    AsvPose,
+    Detection,
+    RovAttitude,
+    RovDepth,
+    RovFix,
+    SonarDetections,
+    SonarTilt,
+)
 from capsd.services.locator.service import (
     ClutterConfig,
     Config,
@@ -524,3 +532,37 @@ def test_a_far_track_whose_echo_moves_as_a_rov_is_proven_by_it() -> None:
     # Held still there, it would wait the full relocate_confirm_s (20 s).
     still = _lost_then_elsewhere(_locator(), echo_m=ROV + np.array([-1.0, -3.0, 0.0]))
     assert all(f.quality != "good" for f in still)
+
+
+def test_a_sonar_on_a_tilt_servo_is_fixed_through_the_angle_reported_for_its_ping() -> None:
+    """The ping's H_B_S has the servo's angle; without a fresh angle there is no fix."""
+    servo = msgspec.convert({"pitch_deg": 20.0, "tilt": {"max_age_s": 0.5}}, SonarMountConfig)
+    locator = _locator(sonar=servo)
+    _feed_inputs(locator, until_s=2.0)
+    # Tilted 12 deg down, the sonar saw the ROV where this echo says.
+    tilt = math.radians(12.0)
+    rov = np.array([7.0, 7.5, ROV[2]])  # off the boresight: there the pitch matters
+    seen_by = Transform(np.eye(3), ASV).compose(servo.transform(tilt_rad=tilt))
+    r, azimuth, elevation = to_polar(servo.beam_model, seen_by.inverse().apply(rov))
+    echo = Detection(range_m=r, azimuth_rad=azimuth, range_sigma_m=0.01,
+                     azimuth_sigma_rad=math.radians(0.2), confidence=0.9)  # fmt: skip
+    assert abs(elevation) < math.radians(10.0)
+    no_angle = locator.locate(_ping(SECOND // 2, echo), seq=0)
+    assert no_angle.quality == "invalid"
+    assert no_angle.no_fix_reason is not None
+    assert "sonar_tilt_no_samples" in no_angle.no_fix_reason
+    for k in range(0, 21):  # 10 reports a second from 0.5 s to 2.5 s
+        locator.on_tilt(SonarTilt(stamp_ns=SECOND // 2 + k * SECOND // 10, seq=k, tilt_rad=tilt))
+    fix = locator.locate(_ping(SECOND, echo), seq=1)
+    assert fix.raw_position_m is not None
+    assert np.allclose(fix.raw_position_m, rov, atol=1e-6)
+    # The same echo through the servo's zero lands elsewhere (or nowhere): the angle mattered.
+    fixed = _locator(sonar=msgspec.structs.replace(servo, tilt=None))
+    _feed_inputs(fixed, until_s=2.0)
+    other = fixed.locate(_ping(SECOND, echo), seq=0)
+    assert other.raw_position_m is None or not np.allclose(other.raw_position_m, rov, atol=0.05)
+    # Reports stopped at 2.5 s: a ping 0.6 s later has no angle young enough (max_age_s 0.5).
+    _feed_inputs(locator, from_s=2.0, until_s=3.5)
+    stale = locator.locate(_ping(3 * SECOND + SECOND // 10, echo), seq=2)
+    assert stale.no_fix_reason is not None
+    assert "sonar_tilt_too_new" in stale.no_fix_reason

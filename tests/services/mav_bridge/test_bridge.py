@@ -9,6 +9,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 import pytest
@@ -22,14 +23,17 @@ from capsd.config import BusConfig
 from capsd.geometry import matrix_to_quat
 from capsd.health import query_health
 from capsd.keys import is_concrete
+from capsd.mounts import SonarTiltConfig
 from capsd.ned import TankToNed
 from capsd.payloads import (
     AsvPose,
     AutopilotStatus,
     Health,
+    Payload,
     RovAttitude,
     RovDepth,
     RovFix,
+    SonarTilt,
     VehicleCommand,
 )
 from capsd.signing import SiteKey, write_key
@@ -41,7 +45,10 @@ from capsd.simulator.autopilot import (
     VehicleState,
 )
 from capsd.simulator.guided import AsvLimits
+from capsd.simulator.tilt_servo import TiltServo
 from tests.conftest import REPO, Proc, free_port, wait_for
+
+P = TypeVar("P", bound=Payload)
 
 pytestmark = pytest.mark.integration
 
@@ -796,6 +803,34 @@ def test_mav_check_wants_the_delay_the_bridge_measures(
     assert "CHANGE" in row  # the stand-in's 10 ms is not what this system needs
 
 
+def _collect(
+    client: zenoh.Session, key: str, payload: type[P]
+) -> tuple[list[P], zenoh.Subscriber[None]]:
+    """Every `payload` put on `key`, decoded, in arrival order (and the subscriber)."""
+    received: list[P] = []
+    codec = Codec(payload)
+    subscriber = client.declare_subscriber(
+        key,
+        lambda s: received.append(
+            codec.decode(s.payload.to_bytes(), encoding=str(s.encoding), key_expr=str(s.key_expr))
+        ),
+    )
+    return received, subscriber
+
+
+def _asv_bridge_config(tmp_path: Path, endpoint: str, port: int, extra: str) -> Path:
+    """The ASV's bridge (role asv) on the stand-in at `port`, with `extra` YAML lines."""
+    config = tmp_path / "asv_bridge.yaml"
+    config.write_text(
+        f"site: tank\nvehicle: asv\nrole: asv\nbus:\n  connect: [{endpoint}]\n"
+        f"fix_key: {_key_path(tmp_path)}\nmission_commands: accept\n"
+        "tank:\n  length_m: 28.0\n  width_m: 16.0\n  depth_m: 8.0\n"
+        f"mavlink:\n  connect: tcp:127.0.0.1:{port}\n"
+        "ekf_origin:\n  lat_deg: 54.42\n  lon_deg: -3.5\n  alt_m: 0.0\n" + extra
+    )
+    return config
+
+
 def test_the_asv_role_feeds_its_pose_and_passes_follow_targets_only_in_guided(
     spawn: Callable[..., Proc], client: zenoh.Session, endpoint: str, tmp_path: Path
 ) -> None:
@@ -812,15 +847,12 @@ def test_the_asv_role_feeds_its_pose_and_passes_follow_targets_only_in_guided(
         params=CONFIGURED_PARAMS,
         on_direction=directions.append,
     ) as rover:
-        config = tmp_path / "asv_bridge.yaml"
-        config.write_text(
-            f"site: tank\nvehicle: asv\nrole: asv\nbus:\n  connect: [{endpoint}]\n"
-            f"fix_key: {_key_path(tmp_path)}\nmission_commands: accept\n"
+        config = _asv_bridge_config(
+            tmp_path,
+            endpoint,
+            rover.port,
             "geofence_clearance_m: 1.0\n"
-            "tank:\n  length_m: 28.0\n  width_m: 16.0\n  depth_m: 8.0\n"
-            f"mavlink:\n  connect: tcp:127.0.0.1:{rover.port}\n"
-            f"ned:\n  heading_deg: {heading_deg}\n  origin_ned_m: [0.0, 0.0, 0.0]\n"
-            "ekf_origin:\n  lat_deg: 54.42\n  lon_deg: -3.5\n  alt_m: 0.0\n"
+            f"ned:\n  heading_deg: {heading_deg}\n  origin_ned_m: [0.0, 0.0, 0.0]\n",
         )
         spawn("run", "mav_bridge", "--config", str(config))
         key = SiteKey.load(_key_path(tmp_path), config_key="fix_key")
@@ -831,14 +863,8 @@ def test_the_asv_role_feeds_its_pose_and_passes_follow_targets_only_in_guided(
             topics.ASV_COMMAND.key("tank", "topside"),
             encoding=zenoh.Encoding(Codec(VehicleCommand).encoding),
         )
-        statuses: list[AutopilotStatus] = []
-        status_sub = client.declare_subscriber(
-            topics.ASV_AUTOPILOT.key("tank", "asv"),
-            lambda s: statuses.append(
-                Codec(AutopilotStatus).decode(
-                    s.payload.to_bytes(), encoding=str(s.encoding), key_expr=str(s.key_expr)
-                )
-            ),
+        statuses, status_sub = _collect(
+            client, topics.ASV_AUTOPILOT.key("tank", "asv"), AutopilotStatus
         )
         yaw_w = 0.4  # the ASV's heading in W (ccw from x)
         r_w_b = np.array(
@@ -972,4 +998,88 @@ def test_the_asv_role_feeds_its_pose_and_passes_follow_targets_only_in_guided(
         assert health.counters.get("commands_refused_outside_geofence", 0) >= 1
         status_sub.undeclare()
         poses.undeclare()
+        commands.undeclare()
+
+
+def test_the_asv_role_drives_the_sonar_tilt_servo_in_guided_and_publishes_its_angle(
+    spawn: Callable[..., Proc], client: zenoh.Session, endpoint: str, tmp_path: Path
+) -> None:
+    """The follower's angle to ArduRover's mount (GUIDED only), the mount's report back.
+
+    The mount reports MAVLink's pitch (up +): the sonar's zero at -45 deg, so a tilt of 10
+    deg down goes out as -55 deg and comes back as 10 deg on `asv/sonar/tilt`, stamped.
+    """
+    servo = TiltServo(SonarTiltConfig(), zero_pitch_deg=-45.0)
+    told: list[float] = []
+
+    def on_pitch(pitch_deg: float) -> None:
+        told.append(pitch_deg)
+        servo.command(time.monotonic(), pitch_deg)
+
+    with AutopilotStandIn(
+        free_port(),
+        mode="MANUAL",
+        autopilot="ardurover",
+        params=CONFIGURED_PARAMS,
+        on_gimbal_pitch=on_pitch,
+        gimbal_pitch_rad=servo.reported_pitch_rad,
+    ) as rover:
+        config = _asv_bridge_config(
+            tmp_path, endpoint, rover.port, "sonar_tilt:\n  zero_pitch_deg: -45.0\n"
+        )
+        tilts, tilt_sub = _collect(client, topics.SONAR_TILT.key("tank", "asv"), SonarTilt)
+        spawn("run", "mav_bridge", "--config", str(config))
+        key = SiteKey.load(_key_path(tmp_path), config_key="fix_key")
+        commands = client.declare_publisher(
+            topics.ASV_COMMAND.key("tank", "topside"),
+            encoding=zenoh.Encoding(Codec(VehicleCommand).encoding),
+        )
+
+        def put_command(tilt_deg: float) -> None:
+            command = VehicleCommand(
+                stamp_ns=time.time_ns(), seq=0, mission="follow", kind="goto",
+                position_m=(10.0, 8.0, 0.0), sonar_tilt_rad=math.radians(tilt_deg),
+            )  # fmt: skip
+            data = Codec(VehicleCommand).encode(command)
+            tag = key.tag(topics.ASV_COMMAND.key("tank", "topside"), data)
+            commands.put(data, attachment=time.time_ns().to_bytes(8, "little") + tag)
+
+        # The mount's reports reach the bus from the start (the servo at its zero).
+        wait_for(lambda: len(tilts) >= 3, timeout_s=20, what="the mount's angle on the bus")
+        assert tilts[-1].tilt_rad == pytest.approx(0.0, abs=1e-6)
+        assert abs(tilts[-1].stamp_ns - time.time_ns()) < 2e9  # the autopilot's clock, mapped
+        # MANUAL: the servo is left alone.
+        for _ in range(5):
+            put_command(10.0)
+            time.sleep(0.1)
+        assert told == []
+        rover.mode = "GUIDED"
+
+        def tilted() -> bool:
+            put_command(10.0)
+            time.sleep(0.1)
+            return bool(tilts) and tilts[-1].tilt_rad == pytest.approx(math.radians(10.0), abs=1e-6)
+
+        wait_for(tilted, timeout_s=10, what="the servo tilted 10 deg down, reported")
+        assert told[0] == pytest.approx(-55.0)
+        # The same angle again within the dead band is not re-sent every command.
+        sent = len(told)
+        for _ in range(3):
+            put_command(10.1)
+            time.sleep(0.05)
+        assert len(told) <= sent + 1
+
+        # Beyond the servo's range (+40 deg): the mount stops there and says so.
+        def at_limit() -> bool:
+            put_command(60.0)
+            time.sleep(0.1)
+            return tilts[-1].tilt_rad == pytest.approx(math.radians(40.0), abs=1e-6)
+
+        wait_for(at_limit, timeout_s=10, what="the servo at its limit")
+        health = query_health(client, site="tank", vehicle="asv", service="mav_bridge")
+        assert health is not None
+        sent, reported = (health.counters.get(k, 0) for k in ("commands_sent_tilt", "tilt_reports"))
+        assert sent >= 2  # 10 deg, then the limit
+        assert reported >= 3
+        tilt_sub.undeclare()
         commands.undeclare()

@@ -144,3 +144,27 @@ def test_detect_gated_searches_the_window_and_rejects_what_is_off_the_rov_plane(
     assert kept == [on_plane, near]
     assert rejected == 0
     assert detector.windows[-1] is None
+
+
+def test_a_sonar_on_a_servo_is_gated_through_its_reported_angle_or_not_at_all() -> None:
+    """The gate's sonar pose has the servo's angle; no fresh angle, no gate (nothing refused)."""
+    import msgspec
+
+    from capsd.payloads import AsvPose, RovDepth, SonarTilt
+    from capsd.services.sonar_detect.service import DepthGateConfig, GateInputs
+
+    servo = msgspec.convert({"sonar": {"pitch_deg": 30.0, "tilt": {}}}, DepthGateConfig)
+    inputs = GateInputs(servo)
+    stamp = 10_000_000_000
+    cov = tuple(float(i == j) * 1e-4 for i in range(6) for j in range(6))
+    inputs.pose = AsvPose(stamp_ns=stamp, seq=0, position_m=(0.0, 0.0, 0.0),
+                          orientation_xyzw=(0.0, 0.0, 0.0, 1.0), covariance=cov)  # fmt: skip
+    inputs.depth = RovDepth(stamp_ns=stamp, seq=0, depth_m=3.0, sigma_m=0.01)
+    assert inputs.gate(stamp) is None  # no angle yet
+    inputs.tilt = SonarTilt(stamp_ns=stamp - 2_000_000_000, seq=0, tilt_rad=0.3)
+    assert inputs.gate(stamp) is None  # 2 s old
+    inputs.tilt = SonarTilt(stamp_ns=stamp, seq=1, tilt_rad=0.3)
+    gate = inputs.gate(stamp)
+    assert gate is not None
+    tilted = servo.sonar.transform(tilt_rad=0.3)
+    assert np.allclose(gate.sonar_in_world.rotation, tilted.rotation)

@@ -1,0 +1,53 @@
+"""The sonar's tilt servo on the simulated ASV, as ArduRover's servo mount drives it.
+
+The autopilot is told a mount pitch (MAVLink's degrees, up +; MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW),
+clamps it to the mount's range and reports that angle back (GIMBAL_DEVICE_ATTITUDE_STATUS): a
+servo mount has no feedback, so what it reports is where it drives the servo, not where the
+servo is. The servo itself slews there at its rate, so while it moves the report runs ahead of
+the sonar, as on a real ASV. Angles here are the servo's tilt, down + from its zero (the sonar
+at the mount's pitch), the autopilot's pitch being `zero_pitch_deg` less the tilt.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+
+from capsd.mounts import SonarTiltConfig
+
+
+class TiltServo:
+    """`command(t, pitch_deg)` from the autopilot's thread; read `tilt_rad(t)` and the report."""
+
+    def __init__(self, servo: SonarTiltConfig, *, zero_pitch_deg: float):
+        self.servo = servo
+        self.zero_pitch_deg = zero_pitch_deg
+        self._lock = threading.Lock()
+        self._t0 = 0.0  # when the servo last took a new target (sim seconds)
+        self._from = 0.0  # its tilt then
+        self._to = 0.0  # its target tilt (within the range)
+        self.commands = 0
+
+    def _at(self, t_s: float) -> float:
+        most = math.radians(self.servo.rate_deg_s) * max(0.0, t_s - self._t0)
+        return self._from + max(-most, min(most, self._to - self._from))
+
+    def tilt_rad(self, t_s: float) -> float:
+        """Where the servo truly is at sim time `t_s` (what the sonar looks along)."""
+        with self._lock:
+            return self._at(t_s)
+
+    def command(self, t_s: float, pitch_deg: float) -> None:
+        """The autopilot told the mount `pitch_deg` at sim time `t_s` (NaN: ignored)."""
+        if not math.isfinite(pitch_deg):
+            return
+        with self._lock:
+            self._from = self._at(t_s)
+            self._t0 = t_s
+            self._to = self.servo.clamp_rad(math.radians(self.zero_pitch_deg - pitch_deg))
+            self.commands += 1
+
+    def reported_pitch_rad(self) -> float:
+        """What the autopilot reports: the (clamped) pitch it drives the servo to, up +."""
+        with self._lock:
+            return math.radians(self.zero_pitch_deg) - self._to
