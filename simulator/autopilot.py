@@ -332,7 +332,10 @@ class AutopilotStandIn:
         elif msg == message_id("SYSTEM_TIME"):
             link.send_system_time(time_unix_usec=0, time_boot_ms=boot_ms)
         elif msg == message_id("GIMBAL_DEVICE_ATTITUDE_STATUS") and self.gimbal_pitch_rad:
-            link.send_gimbal_attitude(time_boot_ms=boot_ms, pitch_rad=self.gimbal_pitch_rad())
+            # As ArduPilot's mount library: the pitch against the horizon, the lock flags set.
+            link.send_gimbal_attitude(
+                time_boot_ms=boot_ms, pitch_rad=self.gimbal_pitch_rad(), horizon_relative=True
+            )
         elif msg == message_id("SYS_STATUS"):
             link.send_sys_status(self.sys_status())
         elif msg == message_id("EKF_STATUS_REPORT"):

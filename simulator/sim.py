@@ -22,7 +22,7 @@ import msgspec
 import numpy as np
 
 from capsd import topics
-from capsd.geometry import Array, Transform, matrix_to_quat
+from capsd.geometry import Array, Transform, matrix_to_euler_zyx, matrix_to_quat
 from capsd.payloads import (
     AsvPose,
     Detection,
@@ -268,8 +268,9 @@ class Simulation:
         """H_B_S as it truly is at `t_s`: the mount, its servo's angle, this run's error."""
         if self.tilt_servo is None:
             return self.mount
-        tilted = self.config.sonar.transform(tilt_rad=self.tilt_servo.tilt_rad(t_s))
-        return tilted.compose(self.errors.sonar)
+        hull_pitch = matrix_to_euler_zyx(self.asv_pose(t_s).rotation)[1]
+        tilt = self.tilt_servo.tilt_rad(t_s, hull_pitch_rad=hull_pitch)
+        return self.config.sonar.transform(tilt_rad=tilt).compose(self.errors.sonar)
 
     def _rov_ellipsoid(self, rov: RovState) -> Ellipsoid:
         return Ellipsoid(rov.position_m, rov.rotation, BLUEROV2_SEMI_AXES)

@@ -4,8 +4,10 @@ The autopilot is told a mount pitch (MAVLink's degrees, up +; MAV_CMD_DO_GIMBAL_
 clamps it to the mount's range and reports that angle back (GIMBAL_DEVICE_ATTITUDE_STATUS): a
 servo mount has no feedback, so what it reports is where it drives the servo, not where the
 servo is. The servo itself slews there at its rate, so while it moves the report runs ahead of
-the sonar, as on a real ASV. Angles here are the servo's tilt, down + from its zero (the sonar
-at the mount's pitch), the autopilot's pitch being `zero_pitch_deg` less the tilt.
+the sonar, as on a real ASV. ArduPilot's mount holds its pitch against the horizon: the servo
+takes the hull's own pitch out (`tilt_rad`'s `hull_pitch_rad`). Angles here are the servo's
+tilt, down + from its zero (the sonar at the mount's pitch), the autopilot's pitch being
+`zero_pitch_deg` less the tilt.
 """
 
 from __future__ import annotations
@@ -32,10 +34,14 @@ class TiltServo:
         most = math.radians(self.servo.rate_deg_s) * max(0.0, t_s - self._t0)
         return self._from + max(-most, min(most, self._to - self._from))
 
-    def tilt_rad(self, t_s: float) -> float:
-        """Where the servo truly is at sim time `t_s` (what the sonar looks along)."""
+    def tilt_rad(self, t_s: float, *, hull_pitch_rad: float = 0.0) -> float:
+        """Where the servo truly is on the hull at sim time `t_s` (what the sonar looks along).
+
+        `hull_pitch_rad`: the hull's pitch then (nose down +, W's Z-Y-X), which the servo takes
+        out to hold its angle against the horizon.
+        """
         with self._lock:
-            return self._at(t_s)
+            return self._at(t_s) - hull_pitch_rad
 
     def command(self, t_s: float, pitch_deg: float) -> None:
         """The autopilot told the mount `pitch_deg` at sim time `t_s` (NaN: ignored)."""
@@ -48,6 +54,9 @@ class TiltServo:
             self.commands += 1
 
     def reported_pitch_rad(self) -> float:
-        """What the autopilot reports: the (clamped) pitch it drives the servo to, up +."""
+        """What the autopilot reports: the (clamped) pitch it drives the servo to (up +).
+
+        Against the horizon, as ArduPilot's mount library reports it.
+        """
         with self._lock:
             return math.radians(self.zero_pitch_deg) - self._to

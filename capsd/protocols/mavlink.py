@@ -33,8 +33,10 @@ MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN = 246
 MAV_CMD_REQUEST_MESSAGE = 512
 # A gimbal's pitch and yaw (ArduPilot 4.3 on: its mount library, a servo mount included).
 MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW = 1000
-# GIMBAL_DEVICE_ATTITUDE_STATUS flags: pitch relative to the horizon (else to the vehicle).
+# GIMBAL_DEVICE_ATTITUDE_STATUS flags: pitch (roll) relative to the horizon, else to the
+# vehicle. ArduPilot's mount library sets both always: its pitch is the horizon's.
 GIMBAL_DEVICE_FLAGS_PITCH_LOCK = int(mavutil.mavlink.GIMBAL_DEVICE_FLAGS_PITCH_LOCK)
+GIMBAL_DEVICE_FLAGS_ROLL_LOCK = int(mavutil.mavlink.GIMBAL_DEVICE_FLAGS_ROLL_LOCK)
 # SYS_STATUS sensor bit of external position (ArduPilot: VISO_TYPE set; healthy once the
 # visual-odometry backend made at boot has had an estimate within 300 ms).
 MAV_SYS_STATUS_SENSOR_VISION_POSITION = int(mavutil.mavlink.MAV_SYS_STATUS_SENSOR_VISION_POSITION)
@@ -634,7 +636,8 @@ class MavLink:
     def send_gimbal_pitch(self, *, target_system: int, pitch_deg: float) -> None:
         """MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW: every gimbal to `pitch_deg` (up +), yaw ahead.
 
-        In the vehicle's frame (no lock flag); the rates unused (NaN).
+        No lock flag: the yaw follows the vehicle (ArduPilot takes the pitch against the
+        horizon whatever the flags); the rates unused (NaN).
         """
         nan = float("nan")
         self._mav.command_long_send(
@@ -678,11 +681,19 @@ class MavLink:
             a.time_boot_ms, a.roll, a.pitch, a.yaw, a.rollspeed, a.pitchspeed, a.yawspeed
         )
 
-    def send_gimbal_attitude(self, *, time_boot_ms: int, pitch_rad: float) -> None:
-        """GIMBAL_DEVICE_ATTITUDE_STATUS of a mount pitched `pitch_rad` (up +) on the vehicle."""
+    def send_gimbal_attitude(
+        self, *, time_boot_ms: int, pitch_rad: float, horizon_relative: bool
+    ) -> None:
+        """GIMBAL_DEVICE_ATTITUDE_STATUS of a mount pitched `pitch_rad` (up +).
+
+        Against the horizon (the lock flags, as ArduPilot's mount sends it) or the vehicle.
+        """
         q = (math.cos(pitch_rad / 2.0), 0.0, math.sin(pitch_rad / 2.0), 0.0)  # w, x, y, z
+        flags = GIMBAL_DEVICE_FLAGS_PITCH_LOCK | GIMBAL_DEVICE_FLAGS_ROLL_LOCK
         nan = float("nan")
-        self._mav.gimbal_device_attitude_status_send(0, 0, time_boot_ms, 0, q, nan, nan, nan, 0)
+        self._mav.gimbal_device_attitude_status_send(
+            0, 0, time_boot_ms, flags if horizon_relative else 0, q, nan, nan, nan, 0
+        )
 
     def send_scaled_pressure2(
         self, *, time_boot_ms: int, press_abs_hpa: float, temperature_c: float

@@ -319,7 +319,6 @@ class Bridge:
         self._asv_direction: DriveDirection | None = None
         # Role asv with a tilt servo: the last angle sent (deg, MAVLink's) and when.
         self._tilt_sent: tuple[float, float] | None = None
-        self._tilt_refusal_logged = False
         self._outage_reasons: Counter[str] = Counter()
         self._announced: str | None = None
         self._last_statustext: dict[str, float] = {}
@@ -679,22 +678,23 @@ class Bridge:
         return self.clock.ready
 
     def _publish_tilt(self, message: GimbalAttitude) -> None:
-        """The mount's reported pitch as the servo's tilt (down + from its zero), stamped."""
+        """The mount's reported pitch as the servo's tilt on the hull (down + from its zero).
+
+        ArduPilot's mount reports (and holds) its pitch against the horizon (the PITCH_LOCK
+        flag, always set by its mount library): on the hull that is the reported pitch less
+        the vehicle's own (the newest ATTITUDE; a forward-looking mount). A mount reporting
+        against the vehicle is taken as it is.
+        """
         assert self.tilt_pub is not None
         assert self.config.sonar_tilt is not None
+        pitch_on_hull = message.pitch_rad
         if message.horizon_relative:
-            # A stabilised gimbal's pitch is the horizon's, not the hull's: H_B_S would then
-            # move with the waves unseen. Refused, said once.
-            self.counts["tilt_refused_horizon_relative"] += 1
-            if not self._tilt_refusal_logged:
-                self._tilt_refusal_logged = True
-                logger.warning(
-                    "sonar tilt refused: the mount reports its pitch against the horizon "
-                    "(PITCH_LOCK); set it to follow the vehicle"
-                )
-            return
+            if self.attitude is None:
+                self.counts["tilt_waiting_attitude"] += 1
+                return
+            pitch_on_hull -= self.attitude.pitch
         zero = math.radians(self.config.sonar_tilt.zero_pitch_deg)
-        tilt = zero - message.pitch_rad
+        tilt = zero - pitch_on_hull
         if not -math.pi / 2 <= tilt <= math.pi / 2:
             self.counts["tilt_refused_out_of_range"] += 1
             return
@@ -708,7 +708,11 @@ class Bridge:
         )
 
     def _send_tilt(self, tilt_rad: float) -> None:
-        """The follower's angle to the mount (the caller holds the lock; GUIDED only)."""
+        """The follower's angle to the mount (the caller holds the lock; GUIDED only).
+
+        ArduPilot holds a mount's pitch against the horizon: the follower's angle is the one
+        for a level ASV, so it is the horizon's too, and the servo keeps it through the waves.
+        """
         servo = self.config.sonar_tilt
         if servo is None:
             self.counts["commands_tilt_no_servo"] += 1

@@ -33,3 +33,10 @@ def test_beyond_its_range_it_stops_at_the_limit_and_says_so() -> None:
     servo.command(100.0, float("nan"))  # not a command: nothing changes
     assert servo.commands == 1
     assert servo.tilt_rad(200.0) == pytest.approx(math.radians(40.0))
+
+
+def test_it_holds_its_angle_against_the_horizon_taking_the_hull_s_pitch_out() -> None:
+    servo = TiltServo(SonarTiltConfig(), zero_pitch_deg=-45.0)
+    servo.command(0.0, -55.0)  # 10 deg down from the zero, against the horizon
+    hull_nose_down = math.radians(1.0)
+    assert servo.tilt_rad(5.0, hull_pitch_rad=hull_nose_down) == pytest.approx(math.radians(9.0))

@@ -1006,9 +1006,11 @@ def test_the_asv_role_drives_the_sonar_tilt_servo_in_guided_and_publishes_its_an
 ) -> None:
     """The follower's angle to ArduRover's mount (GUIDED only), the mount's report back.
 
-    The mount reports MAVLink's pitch (up +): the sonar's zero at -45 deg, so a tilt of 10
-    deg down goes out as -55 deg and comes back as 10 deg on `asv/sonar/tilt`, stamped.
+    The mount reports MAVLink's pitch (up +) against the horizon, as ArduPilot's does: the
+    sonar's zero at -45 deg, a tilt of 10 deg down goes out as -55 deg, and with the ASV
+    pitched 2 deg nose up (its ATTITUDE) comes back as 12 deg on the hull, stamped.
     """
+    nose_up = math.radians(2.0)
     servo = TiltServo(SonarTiltConfig(), zero_pitch_deg=-45.0)
     told: list[float] = []
 
@@ -1023,6 +1025,7 @@ def test_the_asv_role_drives_the_sonar_tilt_servo_in_guided_and_publishes_its_an
         params=CONFIGURED_PARAMS,
         on_gimbal_pitch=on_pitch,
         gimbal_pitch_rad=servo.reported_pitch_rad,
+        state=lambda _t: VehicleState(pitch=nose_up),
     ) as rover:
         config = _asv_bridge_config(
             tmp_path, endpoint, rover.port, "sonar_tilt:\n  zero_pitch_deg: -45.0\n"
@@ -1046,7 +1049,7 @@ def test_the_asv_role_drives_the_sonar_tilt_servo_in_guided_and_publishes_its_an
 
         # The mount's reports reach the bus from the start (the servo at its zero).
         wait_for(lambda: len(tilts) >= 3, timeout_s=20, what="the mount's angle on the bus")
-        assert tilts[-1].tilt_rad == pytest.approx(0.0, abs=1e-6)
+        assert tilts[-1].tilt_rad == pytest.approx(nose_up, abs=1e-6)
         assert abs(tilts[-1].stamp_ns - time.time_ns()) < 2e9  # the autopilot's clock, mapped
         # MANUAL: the servo is left alone.
         for _ in range(5):
@@ -1058,7 +1061,9 @@ def test_the_asv_role_drives_the_sonar_tilt_servo_in_guided_and_publishes_its_an
         def tilted() -> bool:
             put_command(10.0)
             time.sleep(0.1)
-            return bool(tilts) and tilts[-1].tilt_rad == pytest.approx(math.radians(10.0), abs=1e-6)
+            return bool(tilts) and tilts[-1].tilt_rad == pytest.approx(
+                math.radians(10.0) + nose_up, abs=1e-6
+            )
 
         wait_for(tilted, timeout_s=10, what="the servo tilted 10 deg down, reported")
         assert told[0] == pytest.approx(-55.0)
@@ -1073,7 +1078,7 @@ def test_the_asv_role_drives_the_sonar_tilt_servo_in_guided_and_publishes_its_an
         def at_limit() -> bool:
             put_command(60.0)
             time.sleep(0.1)
-            return tilts[-1].tilt_rad == pytest.approx(math.radians(40.0), abs=1e-6)
+            return tilts[-1].tilt_rad == pytest.approx(math.radians(40.0) + nose_up, abs=1e-6)
 
         wait_for(at_limit, timeout_s=10, what="the servo at its limit")
         health = query_health(client, site="tank", vehicle="asv", service="mav_bridge")
