@@ -264,11 +264,11 @@ class Simulation:
         rotation, translation = self.asv.pose(self._asv_time(t_s))
         return Transform(rotation, translation)
 
-    def sonar_mount(self, t_s: float) -> Transform:
-        """H_B_S as it truly is at `t_s`: the mount, its servo's angle, this run's error."""
+    def sonar_mount(self, t_s: float, asv: Transform) -> Transform:
+        """H_B_S at `t_s`, the ASV at `asv`: the mount, its servo's angle, this run's error."""
         if self.tilt_servo is None:
             return self.mount
-        hull_pitch = matrix_to_euler_zyx(self.asv_pose(t_s).rotation)[1]
+        hull_pitch = matrix_to_euler_zyx(asv.rotation)[1]
         tilt = self.tilt_servo.tilt_rad(t_s, hull_pitch_rad=hull_pitch)
         return self.config.sonar.transform(tilt_rad=tilt).compose(self.errors.sonar)
 
@@ -485,7 +485,7 @@ class Simulation:
             return
         rov = self.rov_state(t)
         asv = self.asv_pose(t)
-        sonar_pose = asv.compose(self.sonar_mount(t))
+        sonar_pose = asv.compose(self.sonar_mount(t, asv))
         stamp = clocks["asv"].stamp(true_ns)
         ping = self._next_seq("sonar")
         dropped = any(start <= t < end for start, end in cfg.sonar_dropouts_s)

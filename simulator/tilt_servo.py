@@ -21,13 +21,12 @@ from capsd.mounts import SonarTiltConfig
 class TiltServo:
     """`command(t, pitch_deg)` from the autopilot's thread; read `tilt_rad(t)` and the report."""
 
-    def __init__(self, servo: SonarTiltConfig, *, zero_pitch_deg: float):
+    def __init__(self, servo: SonarTiltConfig, *, zero_pitch_deg: float, start_rad: float = 0.0):
         self.servo = servo
         self.zero_pitch_deg = zero_pitch_deg
         self._lock = threading.Lock()
         self._t0 = 0.0  # when the servo last took a new target (sim seconds)
-        self._from = 0.0  # its tilt then
-        self._to = 0.0  # its target tilt (within the range)
+        self._from = self._to = servo.clamp_rad(start_rad)  # its tilt then, and its target
         self.commands = 0
 
     def _at(self, t_s: float) -> float:
@@ -45,12 +44,15 @@ class TiltServo:
 
     def command(self, t_s: float, pitch_deg: float) -> None:
         """The autopilot told the mount `pitch_deg` at sim time `t_s` (NaN: ignored)."""
-        if not math.isfinite(pitch_deg):
-            return
+        if math.isfinite(pitch_deg):
+            self.aim(t_s, math.radians(self.zero_pitch_deg - pitch_deg))
+
+    def aim(self, t_s: float, tilt_rad: float) -> None:
+        """Drive the servo to `tilt_rad` (within its range) from sim time `t_s`."""
         with self._lock:
             self._from = self._at(t_s)
             self._t0 = t_s
-            self._to = self.servo.clamp_rad(math.radians(self.zero_pitch_deg - pitch_deg))
+            self._to = self.servo.clamp_rad(tilt_rad)
             self.commands += 1
 
     def reported_pitch_rad(self) -> float:

@@ -23,7 +23,6 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import msgspec
 import numpy as np
 
 from capsd.geometry import Transform, distance_to_segment, wrap_angle
@@ -36,6 +35,7 @@ from capsd.progress import Progress
 from capsd.services.asv_follow.follower import Follower
 from capsd.services.asv_follow.station import StationPlanner
 from capsd.simulator.guided import AsvLimits, GuidedAsv, GuidedRov
+from capsd.simulator.tilt_servo import TiltServo
 from capsd.simulator.world import TankName, Waves
 from capsd.sonar_geometry import to_polar
 
@@ -92,27 +92,6 @@ class FollowRun:
     # Steps out of view by the hull's heading off the ROV's bearing (OFF_BINS_DEG's bins):
     # facing it (the ROV under or over the aperture), part turned (a move), turned away.
     out_by_off: list[int] = field(default_factory=lambda: [0] * (len(OFF_BINS_DEG) + 1))
-
-
-@dataclass
-class TiltServo:
-    """The sonar's tilt servo: slews to the follower's angle at its rate, within its range."""
-
-    mount: SonarMountConfig
-    angle_rad: float = 0.0
-    wanted_rad: float = 0.0
-
-    def step(self, dt_s: float) -> None:
-        assert self.mount.tilt is not None
-        most = math.radians(self.mount.tilt.rate_deg_s) * dt_s
-        wanted = self.mount.tilt.clamp_rad(self.wanted_rad)
-        self.angle_rad += max(-most, min(most, wanted - self.angle_rad))
-
-    def tilted(self) -> SonarMountConfig:
-        """The mount as the sonar now sits: its pitch plus the servo's angle."""
-        return msgspec.structs.replace(
-            self.mount, pitch_deg=self.mount.pitch_deg + math.degrees(self.angle_rad)
-        )
 
 
 def _in_view(mount: SonarMountConfig, sonar: Transform, rov_m: np.ndarray) -> bool:
@@ -172,12 +151,17 @@ def run_mission(
     rov.set_mode("POSHOLD")
     mission = MissionController(plan, points)
     follower.on_mode("GUIDED")
-    servo = None if mount.tilt is None else TiltServo(mount)
-    if servo is not None:
-        # The pilot tilts the sonar onto the ROV at the start, as they turn the hull to it.
-        servo.angle_rad = servo.wanted_rad = follower.planner.tilt_rad(
-            np.array([sx, sy]), math.radians(heading_deg), start
+    # The simulator's servo (its angle on a level hull); the pilot tilts the sonar onto the ROV
+    # at the start, as they turn the hull to it.
+    servo = (
+        None
+        if mount.tilt is None
+        else TiltServo(
+            mount.tilt,
+            zero_pitch_deg=-mount.pitch_deg,
+            start_rad=planner.tilt_rad(np.array([sx, sy]), math.radians(heading_deg), start),
         )
+    )
     out = FollowRun(tank_name, drive, "waiting", (0, len(points)), 0.0)
     legs = [
         (np.array(p.position_m[:2]), np.array(q.position_m[:2]))
@@ -194,10 +178,9 @@ def run_mission(
         body = Transform(rotation, translation)
         state = rov.state(t)
         rov_m = state.position_m
-        if servo is not None:
-            servo.step(STEP_S)
-            mount = servo.tilted()
-        elevation = _view_elevation(mount, body.compose(mount.transform()), rov_m)
+        servo_rad = 0.0 if servo is None else servo.tilt_rad(t)
+        sonar_pose = body.compose(mount.transform(tilt_rad=servo_rad))
+        elevation = _view_elevation(mount, sonar_pose, rov_m)
         seen = elevation is not None
         yaw = math.atan2(float(rotation[1, 0]), float(rotation[0, 0]))
         asv_xy = np.array(translation[:2])
@@ -210,7 +193,7 @@ def run_mission(
             mission.on_fix(good=True, position_m=(fix[0], fix[1], fix[2]), now=t)
         margin = view_margin_rad(
             asv=body,
-            mount=config.sonar,
+            mount=mount,
             rov_m=rov_m,
             velocity_m_s=state.velocity_m_s,
             lookahead_s=1.5,
@@ -235,7 +218,7 @@ def run_mission(
         if asv_mode == "follow" and k % FOLLOW_EVERY == 0:
             target = follower.step(t)
             if servo is not None and target is not None and target.sonar_tilt_rad is not None:
-                servo.wanted_rad = target.sonar_tilt_rad
+                servo.aim(t, target.sonar_tilt_rad)
             if target is not None:
                 at_goal = float(np.linalg.norm(asv_xy - target.position_xy))
                 steady = (

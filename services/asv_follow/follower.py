@@ -350,15 +350,12 @@ class Follower:
         Where the ROV is, not where the station was chosen for (its lead): the servo is fast
         and the fix is what must stay in the aperture. Held (None) with nothing to look at.
         """
-        if self.planner.tilt is None or self.asv_xy is None:
+        if self.planner.tilt is None or self.asv_xy is None or self.rov_m is None:
             return None
-        look = self.rov_m if fresh else self._aim
-        if look is None:
-            look = self.rov_m
-        if look is None:
-            return None
-        if fresh and look is self.rov_m:
-            look = look + self.rov_velocity * self.settings.tilt_lead_s
+        if fresh:
+            look = self.rov_m + self.rov_velocity * self.settings.tilt_lead_s
+        else:
+            look = self.rov_m if self._aim is None else self._aim
         return self.planner.tilt_rad(self.asv_xy, self.asv_heading, look)
 
     def _look_point(self, *, fresh: bool) -> Array | None:
