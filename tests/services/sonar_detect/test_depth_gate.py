@@ -2,15 +2,16 @@ from __future__ import annotations
 
 import math
 
+import msgspec
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from capsd.geometry import Transform
-from capsd.payloads import Detection, SonarFrame
+from capsd.payloads import AsvPose, Detection, RovDepth, SonarFrame, SonarTilt
 from capsd.services.sonar_detect.depth_gate import DepthGate
-from capsd.services.sonar_detect.service import detect_gated
+from capsd.services.sonar_detect.service import DepthGateConfig, GateInputs, detect_gated
 from capsd.sonar_geometry import BeamModel, beam_direction, to_polar
 from tests.capsd.samples import SAMPLES
 
@@ -148,11 +149,6 @@ def test_detect_gated_searches_the_window_and_rejects_what_is_off_the_rov_plane(
 
 def test_a_sonar_on_a_servo_is_gated_through_its_reported_angle_or_not_at_all() -> None:
     """The gate's sonar pose has the servo's angle; no fresh angle, no gate (nothing refused)."""
-    import msgspec
-
-    from capsd.payloads import AsvPose, RovDepth, SonarTilt
-    from capsd.services.sonar_detect.service import DepthGateConfig, GateInputs
-
     servo = msgspec.convert({"sonar": {"pitch_deg": 30.0, "tilt": {}}}, DepthGateConfig)
     inputs = GateInputs(servo)
     stamp = 10_000_000_000
