@@ -84,20 +84,32 @@ CONFIGURED_PARAMS: dict[str, float] = DEFAULT_PARAMS | {
 }
 # A fresh ArduRover (the ASV) adds how GUIDED drives to a target (AR_WPNav's and Rover's
 # defaults): it stops steering 2 m from it, a boat then drifts 2 m before it drives back.
-ROVER_DEFAULT_PARAMS: dict[str, float] = DEFAULT_PARAMS | {
-    "WP_RADIUS": 2.0,
-    "LOIT_RADIUS": 2.0,
-    "WP_SPEED": 2.0,
-}
+# Its outputs: steering and throttle (ArduRover's defaults), the rest unassigned, no mount.
+ROVER_DEFAULT_PARAMS: dict[str, float] = (
+    DEFAULT_PARAMS
+    | {"WP_RADIUS": 2.0, "LOIT_RADIUS": 2.0, "WP_SPEED": 2.0, "MNT1_TYPE": 0.0}
+    | {f"SERVO{n}_FUNCTION": 0.0 for n in range(1, 17)}
+    | {"SERVO1_FUNCTION": 26.0, "SERVO3_FUNCTION": 70.0}
+)
+# ArduPilot lists a mount's parameters once MNT1_TYPE is set (its defaults then).
+MOUNT_LISTED_PARAMS: dict[str, float] = {"MNT1_PITCH_MIN": -90.0, "MNT1_PITCH_MAX": 20.0}
 # ... after `capsd mav check --role asv --apply` and a reboot (the ASV's yaw: its pose's).
-ROVER_CONFIGURED_PARAMS: dict[str, float] = CONFIGURED_PARAMS | {
-    "EK3_SRC1_YAW": 6.0,
-    "WP_RADIUS": WP_RADIUS_M,  # the simulated ASV stops steering this near its target
-    "LOIT_RADIUS": 0.3,
-    "WP_SPEED": 0.5,
-}
+# The sonar's tilt servo on output 9 (`capsd mav check --role asv --bridge-config ...`).
+ROVER_CONFIGURED_PARAMS: dict[str, float] = (
+    ROVER_DEFAULT_PARAMS
+    | CONFIGURED_PARAMS
+    | MOUNT_LISTED_PARAMS
+    | {
+        "EK3_SRC1_YAW": 6.0,
+        "WP_RADIUS": WP_RADIUS_M,  # the simulated ASV stops steering this near its target
+        "LOIT_RADIUS": 0.3,
+        "WP_SPEED": 0.5,
+        "MNT1_TYPE": 1.0,
+        "SERVO9_FUNCTION": 7.0,
+    }
+)
 # Read by ArduPilot at boot only (its parameter documentation: RebootRequired).
-BOOT_PARAMS = ("VISO_TYPE", "GPS1_TYPE")
+BOOT_PARAMS = ("VISO_TYPE", "GPS1_TYPE", "MNT1_TYPE")
 REBOOT_S = 1.0  # how long a reboot keeps the link down
 # ArduPilot drops an EKF origin sent before its EKF has started (this long after boot here).
 EKF_START_S = 1.5
@@ -477,6 +489,8 @@ class AutopilotStandIn:
         elif isinstance(message, ParamSet) and message.name in self.params:
             if math.isfinite(message.value):
                 self.params[message.name] = message.value
+            if message.name == "MNT1_TYPE" and message.value != 0.0:
+                self.params = MOUNT_LISTED_PARAMS | self.params
             link.send_param_value(
                 name=message.name,
                 value=self.params[message.name],

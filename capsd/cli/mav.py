@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any, Literal
 
 from capsd.cli.common import Subcommands, fail
@@ -92,9 +93,62 @@ _ROLE_AUTOPILOT: dict[str, Literal["ardusub", "ardurover"]] = {"rov": "ardusub",
 _ROLE_YAW: dict[str, Literal["compass", "vision"]] = {"rov": "compass", "asv": "vision"}
 
 
+def _mount_range(args: argparse.Namespace) -> Any:
+    """The mount pitches the follower's servo angles need (check.MountRange), or None.
+
+    From the ASV bridge's config (`sonar_tilt.zero_pitch_deg`) and the follower's (its sonar's
+    `tilt` range): the files the ASV runs with, so the check and the services cannot disagree.
+    A ConfigError names what is missing or wrong.
+    """
+    if args.bridge_config is None:
+        if args.follow_config is not None:
+            raise ConfigError(
+                "--follow-config", "", "give the bridge's config too (--bridge-config)"
+            )
+        return None
+    from capsd.config import load_config
+    from capsd.services.asv_follow.service import Config as FollowConfig
+    from capsd.services.mav_bridge.check import MountRange
+    from capsd.services.mav_bridge.service import Config as BridgeConfig
+
+    bridge = load_config(args.bridge_config, BridgeConfig)
+    if bridge.sonar_tilt is None:
+        return None  # a fixed sonar: no mount to check
+    if args.follow_config is None:
+        raise ConfigError(
+            str(args.bridge_config),
+            "sonar_tilt",
+            "set: give the follower's config too (--follow-config): its sonar's `tilt` range "
+            "is what the mount must allow",
+        )
+    follow = load_config(args.follow_config, FollowConfig)
+    tilt = follow.sonar.tilt
+    if tilt is None:
+        raise ConfigError(
+            str(args.follow_config),
+            "sonar.tilt",
+            f"not set, but {args.bridge_config} drives a tilt servo (`sonar_tilt`): the "
+            "follower would never move it",
+        )
+    return MountRange.of(
+        zero_pitch_deg=bridge.sonar_tilt.zero_pitch_deg,
+        tilt_min_deg=tilt.min_deg,
+        tilt_max_deg=tilt.max_deg,
+    )
+
+
 def _cmd_mav_check(args: argparse.Namespace) -> int:
     if args.vehicle is None:
         args.vehicle = args.role
+    if args.role != "asv" and (args.bridge_config or args.follow_config):
+        return fail(
+            "--bridge-config/--follow-config: the sonar's servo is on the ASV (--role asv)",
+            EXIT_CONFIG,
+        )
+    try:
+        mount = _mount_range(args)
+    except ConfigError as exc:
+        return fail(str(exc), EXIT_CONFIG)
     delay = _measured_delay_ms(args) if args.delay_ms == "auto" else float(args.delay_ms)
     return _mav_tool(
         args,
@@ -109,6 +163,7 @@ def _cmd_mav_check(args: argparse.Namespace) -> int:
             timeout_s=args.timeout,
             estimates_arriving=lambda: _estimates_arriving(args),
             reboot="when_pending" if args.reboot else "ask",
+            mount=mount,
         ),
     )
 
@@ -153,6 +208,19 @@ def register(sub: Subcommands) -> None:
         default="rov",
         help="rov (default): ArduSub on the ROV; asv: ArduRover on the ASV, also how GUIDED "
         "drives to the follower's stations (WP_RADIUS, LOIT_RADIUS, WP_SPEED)",
+    )
+    check.add_argument(
+        "--bridge-config",
+        type=Path,
+        default=None,
+        help="--role asv: the ASV bridge's config; with its `sonar_tilt` set, also the "
+        "mount (MNT1_TYPE servo, MNT1_PITCH_MIN/MAX wide enough, a SERVOn_FUNCTION 7)",
+    )
+    check.add_argument(
+        "--follow-config",
+        type=Path,
+        default=None,
+        help="--role asv with a tilt servo: the follower's config (its sonar's `tilt` range)",
     )
     check.add_argument(
         "--yaw-source",

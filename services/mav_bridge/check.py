@@ -8,7 +8,13 @@ ArduRover (the ASV, `--role asv`) also: WP_RADIUS at most 0.2 m (GUIDED calls a 
 reached this near and stops steering for it: 2 m by default, so a follower's station ends up to
 2 m off and the bridge's turn to the station's heading, within 0.3 m, never comes), LOIT_RADIUS
 at most 0.3 m (a boat at its target drifts freely this far: 2 m by default), WP_SPEED at most
-the follower's speed (2 m/s by default). Found with ArduRover SITL (README).
+the follower's speed (2 m/s by default). Found with ArduRover SITL (README). With the sonar on a
+tilt servo (the bridge's `sonar_tilt`): MNT1_TYPE=1 (servo; read at boot), MNT1_PITCH_MIN and
+MNT1_PITCH_MAX wide enough for every angle the follower may ask (the servo's range about the
+bridge's `zero_pitch_deg`), and one servo output driving the mount's tilt (SERVOn_FUNCTION=7).
+Which output the servo is wired to, and the pitch limits (a servo mount maps them onto the
+output's pulse range: they are the servo's measured calibration), are for a person to set:
+this check says what they must allow and never --apply's them.
 
 VISO_TYPE and GPS1_TYPE are read at boot only. Whether the running firmware uses what the
 parameters say is the autopilot's own state: its SYS_STATUS reports external position healthy
@@ -45,7 +51,11 @@ from capsd.protocols.mavlink import (
 YawSource = Literal["compass", "vision"]
 RebootChoice = Literal["ask", "when_pending"]
 # Parameters ArduPilot reads at boot only (RebootRequired in its parameter documentation).
-BOOT_PARAMS = frozenset({"VISO_TYPE", "GPS1_TYPE", "GPS_TYPE"})
+BOOT_PARAMS = frozenset({"VISO_TYPE", "GPS1_TYPE", "GPS_TYPE", "MNT1_TYPE"})
+# A boot parameter's family, which ArduPilot lists only once it is set (and booted).
+_LISTED_AFTER = {"VISO_TYPE": "VISO_", "MNT1_TYPE": "MNT1_"}
+Bound = Literal["equal", "at_most", "at_least", "any_equal"]
+Fix = Literal["apply", "by_hand"]
 EXIT_REBOOT_PENDING = 3
 
 _GCS_SYSTEM = 255
@@ -54,13 +64,20 @@ _GCS_COMPONENT = 190  # MAV_COMP_ID_MISSIONPLANNER: a ground-station identity
 
 @dataclass(frozen=True)
 class Rule:
-    """One parameter, the value it should have, and why; `tolerance` allows a band."""
+    """One parameter, the value it should have, and why; `tolerance` allows a band.
+
+    `bound` at_most / at_least: the value may also be lower / higher; any_equal: one of
+    `names` (all read) has the value, shown under `label`. `fix` by_hand: --apply leaves it
+    to a person (a wiring or a calibration the check cannot know).
+    """
 
     names: tuple[str, ...]  # the first one the vehicle has is used (renamed across versions)
     wanted: float
     why: str
     tolerance: float = 0.0
-    at_most: bool = False  # the value may also be lower
+    bound: Bound = "equal"
+    label: str | None = None  # any_equal: the name shown (e.g. SERVOn_FUNCTION)
+    fix: Fix = "apply"
 
 
 @dataclass(frozen=True)
@@ -70,6 +87,30 @@ class Finding:
     wanted: float
     ok: bool
     why: str
+    bound: Bound = "equal"
+    fix: Fix = "apply"
+
+    @property
+    def settable(self) -> bool:
+        """Whether --apply may set it."""
+        return self.fix == "apply"
+
+
+@dataclass(frozen=True)
+class MountRange:
+    """The mount pitches (MAVLink's: up +, degrees) the follower's servo angles need."""
+
+    lowest_deg: float  # the servo's furthest tilt down: zero_pitch_deg - tilt max_deg
+    highest_deg: float  # its furthest up: zero_pitch_deg - tilt min_deg
+
+    @staticmethod
+    def of(*, zero_pitch_deg: float, tilt_min_deg: float, tilt_max_deg: float) -> MountRange:
+        return MountRange(zero_pitch_deg - tilt_max_deg, zero_pitch_deg - tilt_min_deg)
+
+
+MOUNT_TYPE_SERVO = 1  # MNT1_TYPE
+SERVO_FUNCTION_MOUNT_TILT = 7  # SERVOn_FUNCTION: "Mount1Pitch" (mount tilt)
+SERVO_OUTPUTS = 16
 
 
 # ArduRover: GUIDED stops steering for a target this near (its WP_RADIUS), and the bridge turns
@@ -86,11 +127,12 @@ def rules(
     delay_ms: float | None,
     autopilot: Autopilot = "ardusub",
     max_speed_m_s: float = 0.5,
+    mount: MountRange | None = None,
 ) -> list[Rule]:
     """The parameter rules; VISO_DELAY_MS only when the delay is known (measured or given).
 
     `autopilot` ardurover (the ASV): also how GUIDED drives to the follower's stations, with
-    `max_speed_m_s` the follower's speed.
+    `max_speed_m_s` the follower's speed, and with `mount` the sonar's tilt servo.
     """
     rov = autopilot == "ardusub"
     out = [
@@ -112,7 +154,7 @@ def rules(
             ("VISO_POS_M_NSE",),
             position_noise_m,
             "the EKF's floor on position noise: at most CAP-SD's",
-            at_most=True,
+            bound="at_most",
         ),
     ]
     if delay_ms is not None:
@@ -123,15 +165,46 @@ def rules(
                 ("WP_RADIUS",),
                 ASV_ARRIVE_WITHIN_M,
                 "GUIDED stops this near a station (then the bridge turns it to its heading)",
-                at_most=True,
+                bound="at_most",
             ),
             Rule(
                 ("LOIT_RADIUS",),
                 ASV_LOITER_WITHIN_M,
                 "a boat drifts this far from its station before it drives back",
-                at_most=True,
+                bound="at_most",
             ),
-            Rule(("WP_SPEED",), max_speed_m_s, "GUIDED's speed: the follower's", at_most=True),
+            Rule(("WP_SPEED",), max_speed_m_s, "GUIDED's speed: the follower's", bound="at_most"),
+        ]
+    if not rov and mount is not None:
+        out += [
+            Rule(("MNT1_TYPE",), MOUNT_TYPE_SERVO, "the sonar's tilt servo (reboot needed)"),
+            # A servo mount maps MNT1_PITCH_MIN..MAX onto its output's SERVOn_MIN..MAX pulses:
+            # they are the servo's calibration, which a person measures; never --apply'd.
+            Rule(
+                ("MNT1_PITCH_MIN",),
+                round(mount.lowest_deg, 2),
+                "the servo's pitch at its lowest pulse, as measured: it must reach the "
+                "follower's furthest tilt down (sonar_tilt zero less tilt max_deg), or "
+                "narrow the tilt",
+                bound="at_most",
+                fix="by_hand",
+            ),
+            Rule(
+                ("MNT1_PITCH_MAX",),
+                round(mount.highest_deg, 2),
+                "the servo's pitch at its highest pulse, as measured: it must reach the "
+                "furthest tilt up (zero less tilt min_deg), or narrow the tilt",
+                bound="at_least",
+                fix="by_hand",
+            ),
+            Rule(
+                tuple(f"SERVO{n}_FUNCTION" for n in range(1, SERVO_OUTPUTS + 1)),
+                SERVO_FUNCTION_MOUNT_TILT,
+                "the output the servo is wired to drives the mount's tilt",
+                bound="any_equal",
+                label="SERVOn_FUNCTION",
+                fix="by_hand",
+            ),
         ]
     return out
 
@@ -204,16 +277,38 @@ class _Autopilot:
 def evaluate(values: dict[str, float], checks: list[Rule]) -> list[Finding]:
     findings = []
     for rule in checks:
+        if rule.bound == "any_equal":
+            found = [n for n in rule.names if values.get(n) == rule.wanted]
+            name = found[0] if found else (rule.label or rule.names[0])
+            current = rule.wanted if found else None
+            findings.append(
+                Finding(name, current, rule.wanted, bool(found), rule.why, rule.bound, rule.fix)
+            )
+            continue
         name = next((n for n in rule.names if n in values), rule.names[0])
         current = values.get(name)
         if current is None:
             ok = False
-        elif rule.at_most:
+        elif rule.bound == "at_most":
             ok = current <= rule.wanted + 1e-6
+        elif rule.bound == "at_least":
+            ok = current >= rule.wanted - 1e-6
         else:
             ok = abs(current - rule.wanted) <= rule.tolerance + 1e-6
-        findings.append(Finding(name, current, rule.wanted, ok, rule.why))
+        findings.append(Finding(name, current, rule.wanted, ok, rule.why, rule.bound, rule.fix))
     return findings
+
+
+def _groups(checks: list[Rule]) -> list[tuple[str, ...]]:
+    """What `_read` asks for: one group per rule, each name its own for an any_equal rule."""
+    out: list[tuple[str, ...]] = []
+    for rule in checks:
+        out += [(n,) for n in rule.names] if rule.bound == "any_equal" else [rule.names]
+    return out
+
+
+def _names(findings: list[Finding]) -> str:
+    return ", ".join(f.name for f in findings)
 
 
 def run_check(
@@ -228,6 +323,7 @@ def run_check(
     reboot: RebootChoice = "ask",
     autopilot: Autopilot = "ardusub",
     max_speed_m_s: float = 0.5,
+    mount: MountRange | None = None,
     out: TextIO = sys.stdout,
 ) -> int:
     """Print the findings (and fix them with `apply`); the exit code (module docstring).
@@ -241,46 +337,62 @@ def run_check(
         delay_ms=delay_ms,
         autopilot=autopilot,
         max_speed_m_s=max_speed_m_s,
+        mount=mount,
     )
     with _Autopilot(connection, timeout_s=timeout_s, out=out) as (link, target):
         if target is None:
             return 1
-        values = _read(link, target, [r.names for r in checks], timeout_s)
+        values = _read(link, target, _groups(checks), timeout_s)
         findings = evaluate(values, checks)
         _print(findings, out)
         wrong = [f for f in findings if not f.ok]
+        by_hand = [f for f in wrong if not f.settable]
         if wrong and not apply:
             print(
-                f"{len(wrong)} parameter(s) to change; run again with --apply to set them.",
+                f"{len(wrong)} parameter(s) to change; run again with --apply to set them"
+                + (f" ({_names(by_hand)} by hand)." if by_hand else "."),
                 file=out,
             )
             return 1
         changed_at_boot = sorted(f.name for f in wrong if f.name in BOOT_PARAMS)
-        if wrong:
+        if any(f.settable for f in wrong):
             for finding in wrong:
-                link.send_param_set(target_system=target, name=finding.name, value=finding.wanted)
-            after = evaluate(_read(link, target, [r.names for r in checks], timeout_s), checks)
+                if finding.settable:
+                    link.send_param_set(
+                        target_system=target, name=finding.name, value=finding.wanted
+                    )
+            after = evaluate(_read(link, target, _groups(checks), timeout_s), checks)
             print("after --apply:", file=out)
             _print(after, out)
-            # ArduRover lists the other VISO_* only once VISO_TYPE is set: not in this read.
+            # ArduPilot lists a family (the other VISO_*, MNT1_*) only once its type is set:
+            # not in this read.
+            prefixes = tuple(_LISTED_AFTER[p] for p in changed_at_boot if p in _LISTED_AFTER)
             waiting = [
                 f
                 for f in after
-                if not f.ok and f.current is None and f.name.startswith("VISO_")
-                if "VISO_TYPE" in changed_at_boot
+                if not f.ok and f.current is None and prefixes and f.name.startswith(prefixes)
             ]
-            still = [f for f in after if not f.ok and f not in waiting]
+            still = [f for f in after if not f.ok and f.settable and f not in waiting]
+            by_hand = [f for f in after if not f.ok and not f.settable and f not in waiting]
             if still:
                 print(f"{len(still)} parameter(s) could not be set.", file=out)
                 return 1
             print("Parameters set.", file=out)
             if waiting:
-                listed = ", ".join(f.name for f in waiting)
+                types = ", ".join(p for p in changed_at_boot if p in _LISTED_AFTER)
                 print(
-                    f"{listed}: not listed yet (ArduRover lists them once VISO_TYPE is set); "
-                    "run this check again, with --apply if it says CHANGE.",
+                    f"{_names(waiting)}: not listed yet (ArduPilot lists them once {types} is "
+                    "set); run this check again, with --apply if it says CHANGE.",
                     file=out,
                 )
+        if by_hand:
+            print(
+                f"{_names(by_hand)}: only a person can set these (a wiring or a measured "
+                "calibration: see WHY); set them, then run this check again"
+                + (" (after the reboot a boot parameter needs)." if changed_at_boot else "."),
+                file=out,
+            )
+            return 1
         pending = _reboot_pending(
             link, target, changed_at_boot, estimates_arriving, timeout_s=timeout_s, out=out
         )
@@ -411,12 +523,18 @@ def _back_after_reboot(
     return False
 
 
+_BOUND_MARK: dict[Bound, str] = {"equal": "", "at_most": "<=", "at_least": ">=", "any_equal": ""}
+
+
 def _print(findings: list[Finding], out: TextIO) -> None:
     print(f"{'PARAMETER':<16} {'NOW':>8} {'WANTED':>8}  STATUS   WHY", file=out)
     for f in findings:
         now = "absent" if f.current is None else f"{f.current:g}"
+        if f.bound == "any_equal" and f.current is None:
+            now = "none"
         status = "ok" if f.ok else "CHANGE"
-        print(f"{f.name:<16} {now:>8} {f.wanted:>8g}  {status:<7}  {f.why}", file=out)
+        wanted = f"{_BOUND_MARK[f.bound]}{f.wanted:g}"
+        print(f"{f.name:<16} {now:>8} {wanted:>8}  {status:<7}  {f.why}", file=out)
 
 
 RHO_G = 1000.0 * 9.80665  # fresh water; the depth shown uses BARO_SPEC_GRAV

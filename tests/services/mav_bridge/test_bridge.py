@@ -13,6 +13,7 @@ from typing import TypeVar
 
 import numpy as np
 import pytest
+import yaml
 import zenoh
 
 from capsd import topics
@@ -489,13 +490,9 @@ def test_mav_check_applies_and_tracks_a_pending_reboot_through_the_autopilot(
         assert bridge.popen.poll() is None
 
 
-def test_mav_check_for_the_asv_sets_how_ardurover_drives_to_a_station() -> None:
-    """A fresh ArduRover stops 2 m short of a GUIDED target: `--role asv` wants it within 0.2 m.
-
-    Found with ArduRover SITL (README): WP_RADIUS 2 left the follower's stations up to 2 m off,
-    so the bridge's turn to the station's heading (within 0.3 m) never came.
-    """
-    with AutopilotStandIn(
+def _fresh_ardurover() -> AutopilotStandIn:
+    """A disarmed ArduRover stand-in at its defaults, with a ground-station port."""
+    return AutopilotStandIn(
         free_port(),
         state=lambda _t: STATE,
         armed=False,
@@ -503,7 +500,16 @@ def test_mav_check_for_the_asv_sets_how_ardurover_drives_to_a_station() -> None:
         autopilot="ardurover",
         params=ROVER_DEFAULT_PARAMS,
         gcs_port=free_port(),
-    ) as rover:
+    )
+
+
+def test_mav_check_for_the_asv_sets_how_ardurover_drives_to_a_station() -> None:
+    """A fresh ArduRover stops 2 m short of a GUIDED target: `--role asv` wants it within 0.2 m.
+
+    Found with ArduRover SITL (README): WP_RADIUS 2 left the follower's stations up to 2 m off,
+    so the bridge's turn to the station's heading (within 0.3 m) never came.
+    """
+    with _fresh_ardurover() as rover:
 
         def check(*extra: str) -> subprocess.CompletedProcess[str]:
             return _capsd(
@@ -532,11 +538,101 @@ def test_mav_check_for_the_asv_sets_how_ardurover_drives_to_a_station() -> None:
         assert "CHANGE" not in again.stdout, again.stdout
 
 
+def _servo_configs(tmp_path: Path, *, follower_tilt: bool = True) -> tuple[Path, Path]:
+    """The shipped ASV bridge and follower configs with the sonar on a tilt servo."""
+    bridge = yaml.safe_load((REPO / "deploy/config/asv_bridge.yaml").read_text())
+    bridge["sonar_tilt"] = {"zero_pitch_deg": -30.0}
+    follow = yaml.safe_load((REPO / "deploy/config/asv_follow.yaml").read_text())
+    if follower_tilt:
+        follow["sonar"]["tilt"] = {"min_deg": -15.0, "max_deg": 55.0}
+    paths = (tmp_path / "asv_bridge.yaml", tmp_path / "asv_follow.yaml")
+    for path, config in zip(paths, (bridge, follow), strict=True):
+        path.write_text(yaml.safe_dump(config))
+    return paths
+
+
+def test_mav_check_for_the_asv_sets_up_the_sonars_tilt_servo(tmp_path: Path) -> None:
+    """A fresh ArduRover has no mount: the check wants a servo mount that allows every angle.
+
+    Zero at -30 deg (MAVLink's pitch, up +), tilts -15..+55 deg down: the mount must reach
+    -85 and -15 deg. MNT1_TYPE is read at boot and its MNT1_* listed once set; the output
+    the servo is wired to (SERVOn_FUNCTION 7) and the pitch at its pulse limits (the servo's
+    calibration) only a person knows: never applied.
+    """
+    bridge, follow = _servo_configs(tmp_path)
+    with _fresh_ardurover() as rover:
+
+        def check(*extra: str) -> subprocess.CompletedProcess[str]:
+            return _capsd(
+                "mav", "check", "--connect", f"tcp:127.0.0.1:{rover.gcs_port}", "--role", "asv",
+                "--delay-ms", "10", "--bus", "tcp/127.0.0.1:1", "--bridge-config", str(bridge),
+                "--follow-config", str(follow), *extra,
+            )  # fmt: skip
+
+        def status(result: subprocess.CompletedProcess[str], name: str) -> str:
+            """The parameter's status in the last table printed (after --apply's, if any)."""
+            line = [x for x in result.stdout.splitlines() if x.startswith(name + " ")][-1]
+            return "CHANGE" if "CHANGE" in line else "ok"
+
+        first = check()
+        assert first.returncode == 1, first.stdout
+        assert status(first, "MNT1_TYPE") == "CHANGE"
+        assert status(first, "SERVOn_FUNCTION") == "CHANGE"
+        assert "SERVOn_FUNCTION by hand" in first.stdout
+        applied = check("--apply")
+        assert applied.returncode == 1, applied.stdout  # the servo's output: by hand
+        assert rover.params["MNT1_TYPE"] == 1.0
+        assert "SERVOn_FUNCTION: only a person can set these" in applied.stdout
+        assert rover.params["SERVO9_FUNCTION"] == 0.0  # never guessed
+        # Listed now, at ArduPilot's defaults (-90..20): 20 > -15 is fine, -90 < -85 too.
+        assert status(applied, "MNT1_PITCH_MIN") == "ok", applied.stdout
+        rover.params["SERVO9_FUNCTION"] = 7.0
+        rover.params["MNT1_PITCH_MIN"] = -60.0  # a servo measured with too little travel
+        again = check("--apply")
+        assert again.returncode == 1, again.stdout
+        assert status(again, "SERVO9_FUNCTION") == "ok", again.stdout  # the one found
+        assert status(again, "MNT1_PITCH_MIN") == "CHANGE", again.stdout
+        assert rover.params["MNT1_PITCH_MIN"] == -60.0  # its calibration: never applied
+        rover.params["MNT1_PITCH_MIN"] = -88.0  # re-measured after moving the linkage
+        final = check()
+        assert "CHANGE" not in final.stdout, final.stdout
+        # Without the bridge's config the mount is not the check's business.
+        plain = _capsd(
+            "mav", "check", "--connect", f"tcp:127.0.0.1:{rover.gcs_port}", "--role", "asv",
+            "--delay-ms", "10", "--bus", "tcp/127.0.0.1:1",
+        ).stdout  # fmt: skip
+        assert not [x for x in plain.splitlines() if x.startswith(("MNT1_", "SERVO"))], plain
+
+
+def test_mav_check_refuses_a_servo_the_follower_does_not_know(tmp_path: Path) -> None:
+    """The bridge drives a servo and the follower's sonar has no tilt: refused, both named."""
+    bridge, follow = _servo_configs(tmp_path, follower_tilt=False)
+    result = _capsd("mav", "check", "--connect", "tcp:127.0.0.1:1", "--role", "asv",
+                    "--bridge-config", str(bridge), "--follow-config", str(follow))  # fmt: skip
+    assert result.returncode == 2, result.stderr
+    assert "asv_follow.yaml" in result.stderr
+    assert "sonar.tilt" in result.stderr
+    alone = _capsd("mav", "check", "--connect", "tcp:127.0.0.1:1", "--role", "asv",
+                   "--bridge-config", str(bridge))  # fmt: skip
+    assert alone.returncode == 2, alone.stderr
+    assert "--follow-config" in alone.stderr
+    rov = _capsd("mav", "check", "--connect", "tcp:127.0.0.1:1", "--bridge-config", str(bridge))
+    assert rov.returncode == 2, rov.stderr
+    assert "--role asv" in rov.stderr
+
+
 def test_the_simulated_ardurover_is_configured_as_the_check_wants() -> None:
     """The demo's ArduRover stand-in reports (and drives by) what `--role asv --apply` sets."""
-    from capsd.services.mav_bridge.check import evaluate, rules
+    from capsd.services.mav_bridge.check import MountRange, evaluate, rules
 
-    wanted = rules(yaw_source="vision", position_noise_m=0.05, delay_ms=None, autopilot="ardurover")
+    mount = MountRange.of(zero_pitch_deg=-45.0, tilt_min_deg=-15.0, tilt_max_deg=40.0)
+    wanted = rules(
+        yaw_source="vision",
+        position_noise_m=0.05,
+        delay_ms=None,
+        autopilot="ardurover",
+        mount=mount,  # the demo's servo (`capsd demo --sonar-tilt servo`, the mockup's 45 deg)
+    )
     assert [f.name for f in evaluate(ROVER_CONFIGURED_PARAMS, wanted) if not f.ok] == []
     assert AsvLimits().arrive_radius_m == ROVER_CONFIGURED_PARAMS["WP_RADIUS"]
 
