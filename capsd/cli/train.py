@@ -28,10 +28,25 @@ def _cmd_train_calibrate(args: argparse.Namespace) -> int:
 
 def _cmd_train_range_bias(args: argparse.Namespace) -> int:
     from capsd.services.sonar_detect.range_bias import DEFAULT_TABLE
-    from capsd.train.range_bias import run
+    from capsd.train.range_bias import PITCH_DEG, STEEP_PITCH_DEG, run, run_evaluate
 
     try:
-        run(runs=args.runs, duration_s=args.duration, out=args.out or DEFAULT_TABLE)
+        if args.evaluate is not None:
+            run_evaluate(
+                args.evaluate or ["none", "shipped"],
+                runs=args.runs,
+                duration_s=args.duration,
+                pitch_deg=tuple(args.pitch_deg or PITCH_DEG),
+                json_out=args.json,
+            )
+        else:
+            run(
+                runs=args.runs,
+                steep_runs=args.steep_runs,
+                duration_s=args.duration,
+                out=args.out or DEFAULT_TABLE,
+                pitch_deg=tuple(args.pitch_deg or STEEP_PITCH_DEG),
+            )
     except CapsdError as exc:
         return fail(f"range-bias: {exc}", EXIT_CONFIG)
     return EXIT_OK
@@ -235,17 +250,49 @@ def register(sub: Subcommands) -> None:
     tcal.set_defaults(func=_cmd_train_calibrate)
     tbias = train.add_parser(
         "range-bias",
-        help="the CNN's range error by where a near ROV lies in the vertical aperture",
+        help="the CNN's range error to a near ROV by how steeply the sonar sees it and where "
+        "it lies in the vertical aperture",
         description="On runs drawn as training runs are (tuning tanks, training looks, seeds "
-        "of their own), the configured CNN through the depth-aware search; its median signed "
-        "range error by the elevation the depth gate puts a near ROV at: the table "
-        "`cnn.range_bias: by_elevation` takes off.",
+        "of their own): training-like ones (the sonar pitched as trained) and steep ones (the "
+        "sonar pitched from --pitch-deg, the ASV following), the configured CNN through the "
+        "depth-aware search; its median signed range error by the line of sight's depression "
+        "and the elevation the depth gate puts a near ROV at: the table `cnn.range_bias: "
+        "by_elevation` takes off.",
     )
-    tbias.add_argument("--runs", type=positive_int, default=24, help="simulated runs")
+    tbias.add_argument(
+        "--runs",
+        type=positive_int,
+        default=24,
+        help="training-like runs (with --evaluate: the evaluation's runs)",
+    )
+    tbias.add_argument(
+        "--steep-runs", type=positive_int, default=96, help="runs with the sonar pitched steeply"
+    )
     tbias.add_argument(
         "--duration", type=positive_float, default=15.0, help="seconds per run (10 Hz pings)"
     )
     tbias.add_argument(
         "--out", type=Path, default=None, help="the table (JSON; default: the shipped one)"
+    )
+    tbias.add_argument(
+        "--pitch-deg",
+        type=float,
+        nargs=2,
+        default=None,
+        metavar=("LOW", "HIGH"),
+        help="sonar pitches drawn uniformly per run: the steep runs' (default 40 85: "
+        "steeper than trained, to a tilt servo's steepest); with --evaluate its runs' "
+        "(default 10 85)",
+    )
+    tbias.add_argument(
+        "--evaluate",
+        nargs="*",
+        default=None,
+        metavar="TABLE",
+        help="measure no table: score each TABLE (a path, `none`: uncorrected, `shipped`; "
+        "default: none shipped) on runs of a seed no table is measured on, by depression",
+    )
+    tbias.add_argument(
+        "--json", type=Path, default=None, help="--evaluate: also write the figures here"
     )
     tbias.set_defaults(func=_cmd_train_range_bias)

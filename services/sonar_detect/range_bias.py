@@ -1,12 +1,17 @@
-"""The detector's range to a near ROV, corrected for where the ROV lies in the vertical aperture.
+"""The detector's range to a near ROV, corrected for how the sonar sees it.
 
 Under 4 m a BlueROV2 spans a third of a 20 deg aperture or more, and the vertical beam lights
 its parts unevenly: the echo's range moves with the ROV's elevation in the beam, which the
 image cannot show (`capsd bench detect`, the rows by the ROV's place in the aperture: the CNN
-+2.8 cm in the lower third against +0.2 in the middle). The depth-aware search knows it: the
-ROV's depth plane and the sonar's pose put a candidate at (range, azimuth) at one elevation.
-A table of the detector's median signed range error by that elevation (as a share of the half
-aperture), measured on training runs by `capsd train range-bias`, is taken off its range.
++2.8 cm in the lower third against +0.2 in the middle). It moves as much with the angle the
+sonar looks down at the ROV from (its depression): seen from the side the echo starts at the
+ROV's end, seen from above at its top, and a network trained on sonars 8-30 deg down puts a
+ROV seen 60-80 deg down 6-10 cm too far (`capsd train range-bias`, session 43). The
+depth-aware search knows both: the ROV's depth plane and the sonar's pose put a candidate at
+(range, azimuth) at one elevation, and the height between them over the range is the
+depression. A table of the detector's median signed range error by depression band and
+elevation (as a share of the half aperture), measured on training runs by `capsd train
+range-bias`, is taken off its range.
 """
 
 from __future__ import annotations
@@ -26,45 +31,63 @@ DEFAULT_TABLE = Path(__file__).with_name("weights") / "range_bias.json"
 
 
 class RangeBias(msgspec.Struct, frozen=True, kw_only=True):
-    """Median signed range error (detected less true, metres) by elevation share, near ROVs."""
+    """Median signed range error (detected less true, metres) by depression and elevation."""
 
     # Bin edges of elevation / half aperture, ascending; one bias per bin between two edges.
     share_edges: Annotated[tuple[float, ...], msgspec.Meta(min_length=2, max_length=64)]
+    # Bands of the line of sight's depression below the horizontal (degrees), ascending. The
+    # default, one band for every depression, is a table by elevation alone (before session 43).
+    depression_edges_deg: Annotated[
+        tuple[float, ...], msgspec.Meta(min_length=2, max_length=64)
+    ] = (-90.0, 90.0)
+    # One bias per (band, bin), band by band (row-major).
     bias_m: tuple[float, ...]
-    samples: tuple[int, ...]  # matched detections per bin (a bin with too few has bias 0)
+    # Matched detections per (band, bin); a cell with too few took the bias of its band's
+    # nearest measured cell (a band with none has bias 0): `capsd train range-bias`.
+    samples: tuple[int, ...]
     within_m: Annotated[float, msgspec.Meta(gt=0.0, le=100.0)]  # nearer ROVs only
     half_aperture_deg: Annotated[float, msgspec.Meta(gt=0.0, le=90.0)]
     # How it was measured: command, runs, weights, looks.
     provenance: dict[str, str | int | float] = {}
 
     def __post_init__(self) -> None:
-        bins = len(self.share_edges) - 1
-        if len(self.bias_m) != bins or len(self.samples) != bins:
-            raise ValueError(f"{bins} bins need as many biases and sample counts")
+        cells = (len(self.share_edges) - 1) * (len(self.depression_edges_deg) - 1)
+        if len(self.bias_m) != cells or len(self.samples) != cells:
+            raise ValueError(f"{cells} cells (bands x bins) need as many biases and sample counts")
         if list(self.share_edges) != sorted(self.share_edges):
             raise ValueError("`share_edges` must ascend")
+        if list(self.depression_edges_deg) != sorted(self.depression_edges_deg):
+            raise ValueError("`depression_edges_deg` must ascend")
         if any(not math.isfinite(b) or abs(b) > 0.5 for b in self.bias_m):
             raise ValueError("a bias must be finite and within 0.5 m")
 
-    def at(self, elevation_rad: float, range_m: float) -> float:
-        """The bias to take off a detection at this elevation and range (0 outside the table)."""
+    def at(self, elevation_rad: float, range_m: float, depression_rad: float = 0.0) -> float:
+        """The bias to take off a detection seen so (0 outside the table)."""
         if range_m >= self.within_m:
             return 0.0
+        bins = len(self.share_edges) - 1
         share = math.degrees(elevation_rad) / self.half_aperture_deg
         k = bisect.bisect_right(self.share_edges, share) - 1
-        if k < 0 or k >= len(self.bias_m):
+        band = bisect.bisect_right(self.depression_edges_deg, math.degrees(depression_rad)) - 1
+        if not (0 <= k < bins and 0 <= band < len(self.depression_edges_deg) - 1):
             return 0.0
-        return self.bias_m[k]
+        return self.bias_m[band * bins + k]
 
     def corrected(self, detection: Detection, gate: DepthGate) -> Detection:
-        """The detection with its range corrected where the gate places it in the aperture."""
+        """The detection with its range corrected for how the gate places it."""
         elevation = gate.elevation_at(detection.range_m, detection.azimuth_rad)
         if elevation is None:
             return detection
-        bias = self.at(elevation, detection.range_m)
+        bias = self.at(elevation, detection.range_m, depression_rad(gate, detection.range_m))
         if bias == 0.0 or detection.range_m - bias <= 0.0:
             return detection
         return msgspec.structs.replace(detection, range_m=detection.range_m - bias)
+
+
+def depression_rad(gate: DepthGate, range_m: float) -> float:
+    """The angle below the horizontal at which the sonar sees the ROV's plane at this range."""
+    height = float(gate.sonar_in_world.translation[2]) - gate.rov_z_m
+    return math.asin(max(-1.0, min(1.0, height / max(range_m, 1e-6))))
 
 
 def load(path: Path) -> RangeBias:
@@ -82,4 +105,4 @@ def save(table: RangeBias, path: Path) -> None:
     path.write_bytes(msgspec.json.format(msgspec.json.encode(table), indent=1) + b"\n")
 
 
-__all__ = ["DEFAULT_TABLE", "RangeBias", "load", "save"]
+__all__ = ["DEFAULT_TABLE", "RangeBias", "depression_rad", "load", "save"]

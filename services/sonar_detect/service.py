@@ -82,8 +82,9 @@ class CnnConfig(ConfigSection, frozen=True, kw_only=True):
     track_hold_s: Annotated[float, msgspec.Meta(ge=0.0, le=10.0)] = 0.0
     threads: Annotated[int, msgspec.Meta(ge=1, le=64)] = 1
     # by_elevation: with the depth gate, a near ROV's range corrected for where it lies in the
-    # vertical aperture (capsd.services.sonar_detect.range_bias; the table measured on training
-    # runs by `capsd train range-bias`); off: as the network says.
+    # vertical aperture and how steeply the sonar looks down at it (capsd.services.sonar_detect
+    # .range_bias; the table measured on training runs by `capsd train range-bias`); off: as
+    # the network says.
     range_bias: Literal["by_elevation", "off"] = "by_elevation"
     # None: the table shipped beside the weights (services/sonar_detect/weights/range_bias.json).
     range_bias_table: str | None = None

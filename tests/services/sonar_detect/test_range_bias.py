@@ -12,7 +12,13 @@ from capsd.errors import CapsdError, ConfigError
 from capsd.geometry import Transform
 from capsd.payloads import Detection
 from capsd.services.sonar_detect.depth_gate import DepthGate
-from capsd.services.sonar_detect.range_bias import DEFAULT_TABLE, RangeBias, load, save
+from capsd.services.sonar_detect.range_bias import (
+    DEFAULT_TABLE,
+    RangeBias,
+    depression_rad,
+    load,
+    save,
+)
 from capsd.services.sonar_detect.service import CnnConfig, detect_gated
 from capsd.sonar_geometry import beam_direction, to_polar
 from tests.services.sonar_detect.test_depth_gate import SAMPLES_FRAME
@@ -48,6 +54,39 @@ def test_a_near_rov_low_in_the_aperture_has_its_range_shortened_by_its_bin() -> 
         assert TABLE.corrected(detection, gate) == detection
 
 
+def test_the_same_place_in_the_aperture_seen_more_steeply_takes_its_band() -> None:
+    """A sonar looking down steeply sees the ROV's top first: the band by depression decides.
+
+    The test's sonar is pitched 30 deg: a ROV 8 deg below the boresight is seen 38 deg down
+    (band 30-50), one 8 deg above 22 deg down (band 0-30).
+    """
+    table = RangeBias(
+        share_edges=(-1.0, 0.0, 1.0),
+        depression_edges_deg=(-90.0, 30.0, 50.0, 90.0),
+        bias_m=(0.01, -0.01, 0.05, 0.03, 0.09, 0.07),
+        samples=(40,) * 6,
+        within_m=4.0,
+        half_aperture_deg=10.0,
+    )
+    for elevation, bias in ((-8.0, 0.05), (8.0, -0.01)):
+        detection, gate = _at(elevation, 2.5)
+        assert table.corrected(detection, gate).range_m == pytest.approx(detection.range_m - bias)
+    # The depression is the height between the sonar and the ROV's plane over the range.
+    detection, gate = _at(-8.0, 2.5)
+    assert math.degrees(depression_rad(gate, detection.range_m)) == pytest.approx(38.0, abs=0.3)
+    # A table from before the bands (one band for every depression) reads as before.
+    old = msgspec.json.decode(
+        b'{"share_edges": [-1.0, 0.0, 1.0], "bias_m": [0.04, 0.0], "samples": [50, 50],'
+        b' "within_m": 4.0, "half_aperture_deg": 10.0}',
+        type=RangeBias,
+    )
+    assert old.at(math.radians(-5.0), 2.0, math.radians(70.0)) == 0.04
+    with pytest.raises(ValueError, match="6 cells"):
+        RangeBias(share_edges=(-1.0, 0.0, 1.0), depression_edges_deg=(-90.0, 30.0, 50.0, 90.0),
+                  bias_m=(0.0,) * 2, samples=(1,) * 2, within_m=4.0,
+                  half_aperture_deg=10.0)  # fmt: skip
+
+
 def test_detect_gated_corrects_only_with_a_gate_and_a_table() -> None:
     detection, gate = _at(-8.0, 2.5)
 
@@ -70,7 +109,7 @@ def test_a_table_round_trips_and_a_bad_one_is_refused(tmp_path: Path) -> None:
     path = tmp_path / "bias.json"
     save(TABLE, path)
     assert load(path) == TABLE
-    with pytest.raises(ValueError, match="bins need"):
+    with pytest.raises(ValueError, match="cells"):
         RangeBias(share_edges=(0.0, 1.0), bias_m=(0.0, 0.1), samples=(1,), within_m=4.0,
                   half_aperture_deg=10.0)  # fmt: skip
     (tmp_path / "bad.json").write_text('{"share_edges": [1.0, 0.0], "bias_m": [0.0]}')
@@ -101,3 +140,4 @@ def test_the_shipped_table_loads_and_says_how_it_was_measured() -> None:
     assert str(table.provenance["command"]).startswith("capsd train range-bias")
     assert table.within_m == 4.0
     assert sum(table.samples) > 0
+    assert len(table.depression_edges_deg) > 2  # by depression too (session 43)
