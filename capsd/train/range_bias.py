@@ -92,12 +92,15 @@ def filled(medians: list[float | None], bins: int) -> list[float]:
 
 @dataclass(frozen=True)
 class Sample:
-    """One detection matched to a near ROV: how the gate sees it and its signed range error."""
+    """A near ROV in view: how the gate sees its detection and its signed range error.
+
+    A ROV not detected (`error_m` None) is placed where the gate puts its true centre.
+    """
 
     elevation_rad: float  # where the gate puts the detection in the aperture
     depression_rad: float  # the line of sight's angle below the horizontal
     range_m: float  # the detection's (uncorrected)
-    error_m: float  # detected less true
+    error_m: float | None  # detected less true; None: not detected
 
 
 def training_plans(*, runs: int, duration_s: float, seed: int) -> list[RunPlan]:
@@ -148,6 +151,14 @@ def samples(plans: list[RunPlan], *, duration_s: float, label: str) -> Iterator[
                 and abs(d.azimuth_rad - truth.azimuth_rad) * truth.range_m < MATCH_M
             ]
             if not near:
+                at = gate.elevation_at(truth.range_m, truth.azimuth_rad)
+                if at is not None:
+                    yield Sample(
+                        elevation_rad=at,
+                        depression_rad=depression_rad(gate, truth.range_m),
+                        range_m=truth.range_m,
+                        error_m=None,
+                    )
                 continue
             match = max(near, key=lambda d: d.confidence)
             elevation = gate.elevation_at(match.range_m, match.azimuth_rad)
@@ -184,6 +195,8 @@ def measure(
     for plans, within_training in ((trained, True), (steep, False)):
         label = "range bias, training runs" if within_training else "range bias, steep runs"
         for sample in samples(plans, duration_s=duration_s, label=label):
+            if sample.error_m is None:
+                continue
             depression = math.degrees(sample.depression_rad)
             if (depression < TRAINED_DEPRESSION_DEG) != within_training:
                 continue
@@ -234,16 +247,18 @@ def evaluate(
 ) -> dict[str, dict[str, dict[str, float | int]]]:
     """Each table's (None: no correction) range error on runs of a seed no table is measured on.
 
-    By depression band (EVALUATE_BANDS_DEG, the last every ping): detections, the signed
-    median, the median and 90th percentile of the absolute error (cm). The same detections
-    for every table: a correction moves a range, never what is found.
+    By depression band (EVALUATE_BANDS_DEG, the last every ping): the near ROVs in view, the
+    share detected, and of the detections the signed median, the median and 90th percentile
+    of the absolute error (cm). The same detections for every table: a correction moves a
+    range, never what is found.
     """
     plans = steep_plans(runs=runs, duration_s=duration_s, pitch_deg=pitch_deg, seed=seed)
-    found = list(samples(plans, duration_s=duration_s, label="evaluate"))
+    seen = list(samples(plans, duration_s=duration_s, label="evaluate"))
     out: dict[str, dict[str, dict[str, float | int]]] = {}
     for name, table in tables.items():
         rows: dict[str, dict[str, float | int]] = {}
         for low, high in EVALUATE_BANDS_DEG:
+            band = [s for s in seen if low <= math.degrees(s.depression_rad) < high]
             errors = np.array(
                 [
                     s.error_m
@@ -252,12 +267,14 @@ def evaluate(
                         if table is None
                         else table.at(s.elevation_rad, s.range_m, s.depression_rad)
                     )
-                    for s in found
-                    if low <= math.degrees(s.depression_rad) < high
+                    for s in band
+                    if s.error_m is not None
                 ]
             )
             key = "all" if (low, high) == (-90.0, 90.0) else f"{max(low, 0.0):g}-{high:g} deg"
-            rows[key] = {"detections": int(errors.size)}
+            rows[key] = {"in_view": len(band), "detections": int(errors.size)}
+            if band:
+                rows[key]["found_pct"] = round(100.0 * errors.size / len(band), 1)
             if errors.size:
                 rows[key] |= {
                     "signed_median_cm": round(float(np.median(errors)) * 100.0, 2),
@@ -328,15 +345,19 @@ def run_evaluate(
         f"near-ROV range error (cm) on {runs} runs of {duration_s:g} s, seed {EVALUATE_SEED}, "
         f"sonar pitched {low:g}-{high:g} deg; by the line of sight's depression"
     )
-    print(f"  {'table':<28} {'depression':<11} {'n':>6} {'signed':>7} {'|err| med':>9} {'p90':>6}")
+    print(
+        f"  {'table':<28} {'depression':<11} {'in view':>7} {'found':>6} {'n':>6} "
+        f"{'signed':>7} {'|err| med':>9} {'p90':>6}"
+    )
     for name, rows in figures.items():
         for band, row in rows.items():
+            found = f"{row['found_pct']:5.1f}%" if "found_pct" in row else "     -"
+            head = f"  {name:<28} {band:<11} {row['in_view']:>7} {found} {row['detections']:>6}"
             if "abs_median_cm" not in row:
-                print(f"  {name:<28} {band:<11} {row['detections']:>6}")
+                print(head)
                 continue
             print(
-                f"  {name:<28} {band:<11} {row['detections']:>6} "
-                f"{row['signed_median_cm']:>+7.2f} {row['abs_median_cm']:>9.2f} "
+                f"{head} {row['signed_median_cm']:>+7.2f} {row['abs_median_cm']:>9.2f} "
                 f"{row['abs_p90_cm']:>6.2f}"
             )
     if json_out is not None:

@@ -68,6 +68,8 @@ def test_evaluate_scores_tables_on_the_same_detections(tmp_path: Path) -> None:
     figures = json.loads(out.read_text())["tables"]
     plain, moved = figures["none"]["all"], figures[str(constant)]["all"]
     assert plain["detections"] == moved["detections"] > 0
+    assert plain["in_view"] >= plain["detections"]
+    assert plain["found_pct"] == round(100.0 * plain["detections"] / plain["in_view"], 1)
     assert moved["signed_median_cm"] == pytest.approx(plain["signed_median_cm"] - 1.0, abs=0.011)
     assert not (tmp_path / "range_bias.json").exists()  # evaluating writes no table
 
@@ -85,6 +87,9 @@ def test_under_the_trained_depression_only_training_runs_count(
             for _ in range(40):
                 yield Sample(elevation_rad=0.01, depression_rad=math.radians(depression),
                              range_m=1.5, error_m=error)  # fmt: skip
+                # A ROV in view not detected: no error to take a median of.
+                yield Sample(elevation_rad=0.01, depression_rad=math.radians(depression),
+                             range_m=1.5, error_m=None)  # fmt: skip
 
     monkeypatch.setattr(range_bias, "samples", fake)
     table = range_bias.measure(runs=1, steep_runs=1, duration_s=1.0)
