@@ -150,24 +150,20 @@ def samples(plans: list[RunPlan], *, duration_s: float, label: str) -> Iterator[
                 if abs(d.range_m - truth.range_m) < MATCH_M
                 and abs(d.azimuth_rad - truth.azimuth_rad) * truth.range_m < MATCH_M
             ]
-            if not near:
-                at = gate.elevation_at(truth.range_m, truth.azimuth_rad)
-                if at is not None:
-                    yield Sample(
-                        elevation_rad=at,
-                        depression_rad=depression_rad(gate, truth.range_m),
-                        range_m=truth.range_m,
-                        error_m=None,
-                    )
-                continue
-            match = max(near, key=lambda d: d.confidence)
-            elevation = gate.elevation_at(match.range_m, match.azimuth_rad)
+            # Where the gate puts the detection, or the true centre of a ROV not detected.
+            if near:
+                match = max(near, key=lambda d: d.confidence)
+                range_m, azimuth_rad = match.range_m, match.azimuth_rad
+                error: float | None = match.range_m - truth.range_m
+            else:
+                range_m, azimuth_rad, error = truth.range_m, truth.azimuth_rad, None
+            elevation = gate.elevation_at(range_m, azimuth_rad)
             if elevation is not None:
                 yield Sample(
                     elevation_rad=elevation,
-                    depression_rad=depression_rad(gate, match.range_m),
-                    range_m=match.range_m,
-                    error_m=match.range_m - truth.range_m,
+                    depression_rad=depression_rad(gate, range_m),
+                    range_m=range_m,
+                    error_m=error,
                 )
         bar.update(float(k + 1))
     bar.close()
