@@ -6,7 +6,7 @@ import argparse
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from capsd.cli.common import Subcommands, fail
 from capsd.config import BusConfig
@@ -16,6 +16,9 @@ from capsd.launch import (
     EXIT_FAILURE,
     positive_float,
 )
+
+if TYPE_CHECKING:  # the check needs the rov extra (pymavlink): imported where it runs
+    from capsd.services.mav_bridge.check import MountRange
 
 
 def _mav_tool(args: argparse.Namespace, tool: Callable[[Any], int]) -> int:
@@ -93,8 +96,8 @@ _ROLE_AUTOPILOT: dict[str, Literal["ardusub", "ardurover"]] = {"rov": "ardusub",
 _ROLE_YAW: dict[str, Literal["compass", "vision"]] = {"rov": "compass", "asv": "vision"}
 
 
-def _mount_range(args: argparse.Namespace) -> Any:
-    """The mount pitches the follower's servo angles need (check.MountRange), or None.
+def _mount_range(args: argparse.Namespace) -> MountRange | None:
+    """The mount pitches the follower's servo angles need, or None without a servo.
 
     From the ASV bridge's config (`sonar_tilt.zero_pitch_deg`) and the follower's (its sonar's
     `tilt` range): the files the ASV runs with, so the check and the services cannot disagree.

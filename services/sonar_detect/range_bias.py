@@ -61,7 +61,7 @@ class RangeBias(msgspec.Struct, frozen=True, kw_only=True):
         if any(not math.isfinite(b) or abs(b) > 0.5 for b in self.bias_m):
             raise ValueError("a bias must be finite and within 0.5 m")
 
-    def at(self, elevation_rad: float, range_m: float, depression_rad: float = 0.0) -> float:
+    def at(self, elevation_rad: float, range_m: float, depression_rad: float) -> float:
         """The bias to take off a detection seen so (0 outside the table)."""
         if range_m >= self.within_m:
             return 0.0
