@@ -206,6 +206,7 @@ class Follower:
         self._searched = False  # this loss has had a search look
         self._arrived_s: float | None = None  # when the carrot reached the look's station
         self._aim: Array | None = None  # where the station was chosen to look
+        self._held: Array | None = None  # without a fresh fix: where the ROV holds
         self._last_step_s: float | None = None
         self.leg_end: Array | None = None  # where the ROV's mission sends it now (W)
         self._direction: DriveDirection = "forward"  # steered: how the hull drives its way
@@ -290,6 +291,7 @@ class Follower:
                 self.replans += 1
                 replanned = True
         lost_for = now_s - self.fix_s
+        self._held = None if fresh or self.rov_m is None else self._held_at(lost_for)
         if (
             not fresh
             and self.rov_m is not None
@@ -355,12 +357,24 @@ class Follower:
         if fresh:
             look = self.rov_m + self.rov_velocity * self.settings.tilt_lead_s
         else:
-            look = self.rov_m if self._aim is None else self._aim
+            lost = self._lost_look()
+            look = self.rov_m if lost is None else lost
         return self.planner.tilt_rad(self.asv_xy, self.asv_heading, look)
 
     def _look_point(self, *, fresh: bool) -> Array | None:
-        """Where the ROV is (ahead, with a fresh fix) or is looked for (the station's aim)."""
-        return self._ahead() if fresh and self.rov_m is not None else self._aim
+        """Where the ROV is (ahead, with a fresh fix) or is looked for (`_lost_look`)."""
+        return self._ahead() if fresh and self.rov_m is not None else self._lost_look()
+
+    def _lost_look(self) -> Array | None:
+        """Without a fresh fix: where the ROV holds, or, once searching, the look's aim.
+
+        Not the station's aim before the search: that is where the ROV was to be `lead_s` on,
+        and a ROV that lost its fix stops (a mockup servo run, seed 2: the servo tilted 20
+        deg up to a point on the leg ahead, the ROV 35-44 deg below the boresight, 25 s).
+        """
+        if self._searched or self._held is None:
+            return self._aim
+        return self._held
 
     def _around(self, look: Array | None, station_xy: Array) -> Array:
         """Where the carrot heads: the station, or round the ROV when the way passes over it.

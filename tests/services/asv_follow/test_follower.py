@@ -902,3 +902,25 @@ def test_a_servo_is_told_the_angle_for_the_rov_half_a_second_on_from_where_the_a
     told = plain.step(0.0)
     assert told is not None
     assert told.sonar_tilt_rad is None
+
+
+def test_a_servo_looks_where_a_rov_that_lost_its_fix_holds_not_at_the_stations_lead() -> None:
+    """The station was chosen for the ROV 0.75 m on; lost, the ROV stops 0.25 m on."""
+    servo = msgspec.convert({"tilt": {}}, SonarMountConfig)
+    planner = StationPlanner(servo, TankBounds(), StationSettings())
+    follower = Follower(planner, FollowSettings(lead_s=3.0, stop_within_s=1.0))
+    follower.on_pose(START, 0.0)
+    follower.on_mode("GUIDED")
+    rov, velocity = np.array([16.0, 8.0, -3.5]), np.array([0.25, 0.0, 0.0])
+    follower.on_leg_end(0.0, np.array([22.0, 8.0, -3.5]))
+    follower.on_fix(0.0, rov, velocity)
+    assert follower.step(0.0) is not None
+    lead = follower._ahead()
+    assert lead[0] == pytest.approx(16.75)
+    follower.on_leg_end(1.5, None)  # the mission holds it
+    lost = follower.step(1.5)  # 1.5 s without a fix: no search yet
+    assert lost is not None
+    assert lost.state == "holding"
+    held = rov + velocity * 1.0
+    assert lost.sonar_tilt_rad == pytest.approx(planner.tilt_rad(START, 0.0, held))
+    assert lost.sonar_tilt_rad != pytest.approx(planner.tilt_rad(START, 0.0, lead), abs=1e-3)
