@@ -41,6 +41,29 @@ class SonarTiltConfig(ConfigSection, frozen=True, kw_only=True):
         return min(max(tilt_rad, math.radians(self.min_deg)), math.radians(self.max_deg))
 
 
+class SonarPanConfig(ConfigSection, frozen=True, kw_only=True):
+    """A pan servo under the tilt servo: the angle it adds to the mount's yaw (left +), limits.
+
+    A steered hull (ArduRover's GUIDED turns it to its way) takes a forward-looking sonar off
+    the ROV whenever its way crosses the ROV's bearing; a pan keeps the sonar on it. The mount's
+    `yaw_deg` is the yaw at the pan's zero; the reported angle is added ping by ping
+    (docs/CONVENTIONS.md). Needs the tilt servo (an autopilot mount with both axes).
+    """
+
+    min_deg: Annotated[float, msgspec.Meta(ge=-180.0, le=180.0)] = -90.0
+    max_deg: Annotated[float, msgspec.Meta(ge=-180.0, le=180.0)] = 90.0
+    rate_deg_s: Annotated[float, msgspec.Meta(gt=0.0, le=720.0)] = 60.0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.min_deg >= self.max_deg:
+            raise ValueError(f"`min_deg` ({self.min_deg}) must be below `max_deg` ({self.max_deg})")
+
+    def clamp_rad(self, pan_rad: float) -> float:
+        """`pan_rad` within the servo's range."""
+        return min(max(pan_rad, math.radians(self.min_deg)), math.radians(self.max_deg))
+
+
 class SonarMountConfig(ConfigSection, frozen=True, kw_only=True):
     """H_B_S: where the sonar sits on the ASV, and its beam geometry."""
 
@@ -57,15 +80,25 @@ class SonarMountConfig(ConfigSection, frozen=True, kw_only=True):
     range_offset_m: Annotated[float, msgspec.Meta(ge=-0.5, le=0.5)] = 0.0
     # None: the sonar is fixed to the hull. A servo: its angle is added to `pitch_deg`.
     tilt: SonarTiltConfig | None = None
+    # None: no pan. A pan servo (with the tilt: one mount, both axes, one report whose age
+    # `tilt.max_age_s` bounds): its angle is added to `yaw_deg`.
+    pan: SonarPanConfig | None = None
 
-    def transform(self, *, tilt_rad: float = 0.0) -> Transform:
-        """H_B_S in radians (the one place its degrees are converted), the servo at `tilt_rad`.
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.pan is not None and self.tilt is None:
+            raise ValueError("`pan` needs `tilt`: the pan servo is the tilt mount's second axis")
 
-        The servo turns the sonar about its own y axis: the pitch is the mount's plus the tilt.
+    def transform(self, *, tilt_rad: float = 0.0, pan_rad: float = 0.0) -> Transform:
+        """H_B_S in radians (the one place its degrees are converted), the servos at their angles.
+
+        The tilt turns the sonar about its own y axis (the pitch is the mount's plus the tilt),
+        the pan about the body's z axis through the mount's position (the yaw is the mount's
+        plus the pan).
         """
         return Transform.from_euler_zyx(
             self.position_m,
-            yaw_rad=math.radians(self.yaw_deg),
+            yaw_rad=math.radians(self.yaw_deg) + pan_rad,
             pitch_rad=math.radians(self.pitch_deg) + tilt_rad,
             roll_rad=math.radians(self.roll_deg),
         )

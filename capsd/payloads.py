@@ -290,14 +290,16 @@ class SonarDetections(Payload, frozen=True, kw_only=True):
 
 
 class SonarTilt(Payload, frozen=True, kw_only=True):
-    """The angle of the tilt servo under the sonar at `stamp_ns` (the ASV's clock).
+    """The angles of the servos under the sonar at `stamp_ns` (the ASV's clock).
 
-    Added to the sonar mount's pitch (down +): H_B_S of a ping is the mount's with this pitch
-    added (docs/CONVENTIONS.md). Published by the ASV's bridge from its autopilot's mount
-    (GIMBAL_DEVICE_ATTITUDE_STATUS), which reports the angle it drives the servo to.
+    `tilt_rad` is added to the sonar mount's pitch (down +), `pan_rad` (a mount with a pan
+    servo; else 0) to its yaw (left +): H_B_S of a ping is the mount's with these added
+    (docs/CONVENTIONS.md). Published by the ASV's bridge from its autopilot's mount
+    (GIMBAL_DEVICE_ATTITUDE_STATUS), which reports the angles it drives the servos to.
     """
 
     tilt_rad: Annotated[float, msgspec.Meta(ge=-math.pi / 2, le=math.pi / 2)]
+    pan_rad: Annotated[float, msgspec.Meta(ge=-math.pi, le=math.pi)] = 0.0
 
 
 class RovDepth(Payload, frozen=True, kw_only=True):

@@ -308,10 +308,15 @@ def _lerp_depth(a: DepthSample, b: DepthSample, f: float) -> DepthSample:
     return a[0] + f * (b[0] - a[0]), b[1], a[2] + f * (b[2] - a[2])
 
 
-def _hold_tilt(a: float, b: float, f: float) -> float:
-    # Between two reports the servo moved from one to the other; past the newest it holds
-    # (the autopilot reports the angle it drives the servo to, which stays until told again).
-    return b if f >= 1.0 else a + f * (b - a)
+ServoAngles = tuple[float, float]  # the sonar's tilt and pan (rad), as SonarTilt reports them
+
+
+def _hold_servos(a: ServoAngles, b: ServoAngles, f: float) -> ServoAngles:
+    # Between two reports the servos moved from one to the other; past the newest they hold
+    # (the autopilot reports the angles it drives them to, which stay until told again).
+    if f >= 1.0:
+        return b
+    return a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1])
 
 
 def _vec3(v: Array) -> tuple[float, float, float]:
@@ -331,14 +336,15 @@ class Locator:
         self.label: LocatorMethod = (
             "ablation" if self.method.preset == "custom" else self.method.preset
         )
-        # H_B_S; on a tilt servo, each ping's (the servo's reported angle added to the pitch).
+        # H_B_S; on a tilt servo, each ping's (the servo's reported angle added to the pitch,
+        # a pan servo's to the yaw).
         self.mount = config.sonar.transform()
         tilt = config.sonar.tilt
-        self.tilts: Timeline[float] | None = (
+        self.tilts: Timeline[ServoAngles] | None = (
             None
             if tilt is None
             else Timeline(
-                _hold_tilt,
+                _hold_servos,
                 capacity=int(config.inputs.buffer_s * 100),
                 max_extrapolation_ns=int(tilt.max_age_s * 1e9),
             )
@@ -423,11 +429,12 @@ class Locator:
         )
 
     def on_tilt(self, tilt: SonarTilt) -> None:
-        """The sonar's tilt servo (taken only where the mount has one)."""
+        """The sonar's servos (taken only where the mount has a tilt; the pan where it has one)."""
         if self.tilts is None:
             return
         self._note_arrival(tilt.stamp_ns)
-        self.tilts.add(tilt.stamp_ns, tilt.tilt_rad)
+        pan = tilt.pan_rad if self.config.sonar.pan is not None else 0.0
+        self.tilts.add(tilt.stamp_ns, (tilt.tilt_rad, pan))
 
     def on_depth(self, depth: RovDepth) -> None:
         self._note_arrival(depth.stamp_ns)
@@ -631,7 +638,9 @@ class Locator:
             inputs.append(("sonar_tilt", tilt))
             tilted = tilt.value is not None
             if tilt.value is not None:
-                self.mount = self.config.sonar.transform(tilt_rad=tilt.value)
+                self.mount = self.config.sonar.transform(
+                    tilt_rad=tilt.value[0], pan_rad=tilt.value[1]
+                )
         for name, lookup in inputs:
             if lookup.failure is not None:
                 reasons.append(f"{name}_{lookup.failure}")

@@ -271,7 +271,8 @@ class GateInputs:
             tilt = self.tilt
             if tilt is None or abs(stamp_ns - tilt.stamp_ns) > c.sonar.tilt.max_age_s * 1e9:
                 return None
-            mount = c.sonar.transform(tilt_rad=tilt.tilt_rad)
+            pan = tilt.pan_rad if c.sonar.pan is not None else 0.0
+            mount = c.sonar.transform(tilt_rad=tilt.tilt_rad, pan_rad=pan)
         asv = Transform(quat_to_matrix(np.array(pose.orientation_xyzw)), np.array(pose.position_m))
         return c.gate_at(asv.compose(mount), -depth.depth_m)
 

@@ -62,7 +62,7 @@ SAMPLES: tuple[Payload, ...] = (
     SonarDetections(stamp_ns=STAMP, seq=7, ping_id=7, detector="cnn", detections=(
         Detection(range_m=5.2, azimuth_rad=0.1, range_sigma_m=0.02, azimuth_sigma_rad=0.003,
                   confidence=0.9, range_extent_m=0.4, azimuth_extent_rad=0.08),)),
-    SonarTilt(stamp_ns=STAMP, seq=3, tilt_rad=0.17),
+    SonarTilt(stamp_ns=STAMP, seq=3, tilt_rad=0.17, pan_rad=-0.4),
     RovDepth(stamp_ns=STAMP, seq=1, depth_m=3.2, pressure_pa=132_000.0, temperature_c=18.5),
     RovAttitude(stamp_ns=STAMP, seq=1, orientation_xyzw=(0.0, 0.0, math.sin(0.25), math.cos(0.25))),
     RovVelocity(stamp_ns=STAMP, seq=1, velocity_m_s=(0.2, 0.0, -0.05), covariance_m2_s2=_COV3),

@@ -566,3 +566,37 @@ def test_a_sonar_on_a_tilt_servo_is_fixed_through_the_angle_reported_for_its_pin
     stale = locator.locate(_ping(3 * SECOND + SECOND // 10, echo), seq=2)
     assert stale.no_fix_reason is not None
     assert "sonar_tilt_too_new" in stale.no_fix_reason
+
+
+def test_a_sonar_on_a_pan_servo_is_fixed_through_the_pan_reported_for_its_ping() -> None:
+    """A pan turns the sonar about the body's z through its mount: the fix follows the pan."""
+    servo = msgspec.convert(
+        {"pitch_deg": 20.0, "tilt": {"max_age_s": 0.5}, "pan": {}}, SonarMountConfig
+    )
+    locator = _locator(sonar=servo)
+    _feed_inputs(locator, until_s=2.0)
+    tilt, pan = math.radians(12.0), math.radians(50.0)
+    asv = Transform(np.eye(3), ASV)
+    seen_by = asv.compose(servo.transform(tilt_rad=tilt, pan_rad=pan))
+    # The ROV 3 m off along the panned boresight's bearing, a little off it.
+    bearing = pan + math.radians(6.0)
+    rov = ASV + np.array([3.0 * math.cos(bearing), 3.0 * math.sin(bearing), 0.0])
+    rov[2] = ROV[2]
+    r, azimuth, elevation = to_polar(servo.beam_model, seen_by.inverse().apply(rov))
+    echo = Detection(range_m=r, azimuth_rad=azimuth, range_sigma_m=0.01,
+                     azimuth_sigma_rad=math.radians(0.2), confidence=0.9)  # fmt: skip
+    assert abs(elevation) < math.radians(10.0)
+    for k in range(0, 21):
+        stamp = SECOND // 2 + k * SECOND // 10
+        locator.on_tilt(SonarTilt(stamp_ns=stamp, seq=k, tilt_rad=tilt, pan_rad=pan))
+    fix = locator.locate(_ping(SECOND, echo), seq=0)
+    assert fix.raw_position_m is not None
+    assert np.allclose(fix.raw_position_m, rov, atol=1e-6)
+    # A mount without the pan takes the tilt alone (its reports' pan is not its own).
+    tilt_only = _locator(sonar=msgspec.structs.replace(servo, pan=None))
+    _feed_inputs(tilt_only, until_s=2.0)
+    for k in range(0, 21):
+        stamp = SECOND // 2 + k * SECOND // 10
+        tilt_only.on_tilt(SonarTilt(stamp_ns=stamp, seq=k, tilt_rad=tilt, pan_rad=pan))
+    other = tilt_only.locate(_ping(SECOND, echo), seq=0)
+    assert other.raw_position_m is None or not np.allclose(other.raw_position_m, rov, atol=0.05)

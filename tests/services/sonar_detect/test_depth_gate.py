@@ -164,3 +164,19 @@ def test_a_sonar_on_a_servo_is_gated_through_its_reported_angle_or_not_at_all() 
     assert gate is not None
     tilted = servo.sonar.transform(tilt_rad=0.3)
     assert np.allclose(gate.sonar_in_world.rotation, tilted.rotation)
+    # A pan in the report: taken where the mount has the pan servo, not elsewhere.
+    inputs.tilt = SonarTilt(stamp_ns=stamp, seq=2, tilt_rad=0.3, pan_rad=0.8)
+    gate = inputs.gate(stamp)
+    assert gate is not None
+    assert np.allclose(gate.sonar_in_world.rotation, tilted.rotation)
+    panning = msgspec.convert({"sonar": {"tilt": {}, "pan": {}}}, DepthGateConfig)
+    inputs = GateInputs(panning)
+    inputs.pose = AsvPose(stamp_ns=stamp, seq=0, position_m=(0.0, 0.0, 0.0),
+                          orientation_xyzw=(0.0, 0.0, 0.0, 1.0), covariance=cov)  # fmt: skip
+    inputs.depth = RovDepth(stamp_ns=stamp, seq=0, depth_m=3.0, sigma_m=0.01)
+    inputs.tilt = SonarTilt(stamp_ns=stamp, seq=0, tilt_rad=0.3, pan_rad=0.8)
+    gate = inputs.gate(stamp)
+    assert gate is not None
+    panned = panning.sonar.transform(tilt_rad=0.3, pan_rad=0.8)
+    assert np.allclose(gate.sonar_in_world.rotation, panned.rotation)
+    assert np.allclose(gate.sonar_in_world.translation, panned.translation)
