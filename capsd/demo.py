@@ -98,8 +98,8 @@ def main(
     commands it through the bridge, and the demo ends when the mission does. With `asv`
     "follow" the ASV is driven too: the follower's targets through the ASV's bridge to the
     ArduRover stand-in the simulator hosts (`asv_drive`: how it moves, AsvDrive; `sonar_tilt`
-    "servo": the sonar on a tilt servo the follower drives through it); "station" keeps it
-    where it starts. With
+    "servo": the sonar on a tilt servo the follower drives through it, "pan-tilt": on a pan
+    servo too); "station" keeps it where it starts. With
     `install_errors` "realistic" (the default) the simulated installation is what a tape
     measured (docs/INSTALL-ERRORS.md), uncalibrated unless `calibration` is "dive" (first a
     simulated calibration dive fitted by capsd calibrate's code, as a field team starts);
@@ -114,8 +114,10 @@ def main(
     router_port = port or free_port()
     mav_port = free_port()
     endpoint = f"tcp/127.0.0.1:{router_port}"
-    if sonar_tilt == "servo" and asv != "follow":
-        raise CapsdError("--sonar-tilt servo needs --asv follow: the follower drives the servo")
+    if sonar_tilt != "fixed" and asv != "follow":
+        raise CapsdError(
+            f"--sonar-tilt {sonar_tilt} needs --asv follow: the follower drives the servo"
+        )
     if asv == "follow" and mission is None:
         raise CapsdError("--asv follow needs --mission: the ASV follows a ROV flown live")
     if calibration == "dive" and install_errors != "realistic":

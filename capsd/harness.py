@@ -159,15 +159,18 @@ FOLLOW_STATION: dict[str, dict[str, float]] = {
 SONAR_PITCH_DEG: dict[str, float] = {"mockup": 45.0}
 
 # fixed: the sonar bolted to the hull; servo: on a tilt servo the follower drives (the mount's
-# `tilt`, its default range and rate: capsd.mounts.SonarTiltConfig).
-SonarTilt = Literal["fixed", "servo"]
+# `tilt`, its default range and rate: capsd.mounts.SonarTiltConfig); pan-tilt: that servo on a
+# pan servo too (the mount's `pan`: capsd.mounts.SonarPanConfig).
+SonarTilt = Literal["fixed", "servo", "pan-tilt"]
 
 
 def sonar_mount(tank: TankName, *, tilt: SonarTilt = "fixed") -> dict[str, Any]:
     """The demo's sonar mount changes for this tank (simulator and services alike)."""
     out: dict[str, Any] = {"pitch_deg": SONAR_PITCH_DEG[tank]} if tank in SONAR_PITCH_DEG else {}
-    if tilt == "servo":
+    if tilt in ("servo", "pan-tilt"):
         out["tilt"] = {}
+    if tilt == "pan-tilt":
+        out["pan"] = {}
     return out
 
 
@@ -370,7 +373,10 @@ def write_configs(
         if "tilt" in mount:
             # The stand-in's mount reports the sonar's nominal pitch at the servo's zero.
             nominal = msgspec.convert(mount, SonarMountConfig).pitch_deg
-            configs["asv_bridge"]["sonar_tilt"] = {"zero_pitch_deg": -nominal}
+            configs["asv_bridge"]["sonar_tilt"] = {
+                "zero_pitch_deg": -nominal,
+                "pan": "servo" if "pan" in mount else "none",
+            }
         configs["asv_follow"] = {
             "bus": bus,
             "tank": msgspec.to_builtins(tank_bounds(t)),

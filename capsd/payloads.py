@@ -422,6 +422,9 @@ class VehicleCommand(Payload, frozen=True, kw_only=True):
     # The ASV's goto, where its sonar sits on a tilt servo: the angle to tilt it to, added to
     # the mount's pitch (down +; the mount's `tilt`). None: leave the servo where it is.
     sonar_tilt_rad: Annotated[float, msgspec.Meta(ge=-math.pi / 2, le=math.pi / 2)] | None = None
+    # ... and, where the tilt servo sits on a pan servo, the pan (added to the mount's yaw, left
+    # +; the mount's `pan`). None: ahead.
+    sonar_pan_rad: Annotated[float, msgspec.Meta(ge=-math.pi, le=math.pi)] | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -92,7 +92,12 @@ ROVER_DEFAULT_PARAMS: dict[str, float] = (
     | {"SERVO1_FUNCTION": 26.0, "SERVO3_FUNCTION": 70.0}
 )
 # ArduPilot lists a mount's parameters once MNT1_TYPE is set (its defaults then).
-MOUNT_LISTED_PARAMS: dict[str, float] = {"MNT1_PITCH_MIN": -90.0, "MNT1_PITCH_MAX": 20.0}
+MOUNT_LISTED_PARAMS: dict[str, float] = {
+    "MNT1_PITCH_MIN": -90.0,
+    "MNT1_PITCH_MAX": 20.0,
+    "MNT1_YAW_MIN": -180.0,
+    "MNT1_YAW_MAX": 180.0,
+}
 # ... after `capsd mav check --role asv --apply` and a reboot (the ASV's yaw: its pose's).
 # The sonar's tilt servo on output 9 (`capsd mav check --role asv --bridge-config ...`).
 ROVER_CONFIGURED_PARAMS: dict[str, float] = (
@@ -106,6 +111,7 @@ ROVER_CONFIGURED_PARAMS: dict[str, float] = (
         "WP_SPEED": 0.5,
         "MNT1_TYPE": 1.0,
         "SERVO9_FUNCTION": 7.0,
+        "SERVO10_FUNCTION": 6.0,  # a pan servo (where the mount has one)
     }
 )
 # Read by ArduPilot at boot only (its parameter documentation: RebootRequired).
@@ -179,8 +185,9 @@ class AutopilotStandIn:
         on_target: Callable[[PositionTarget], None] | None = None,
         on_estimate: Callable[[VisionPositionEstimate], None] | None = None,
         on_direction: Callable[[DriveDirection], None] | None = None,
-        on_gimbal_pitch: Callable[[float], None] | None = None,
+        on_gimbal_pitch: Callable[[float, float], None] | None = None,
         gimbal_pitch_rad: Callable[[], float] | None = None,
+        gimbal_yaw_rad: Callable[[], float] | None = None,
         gcs_port: int | None = None,
     ):
         self.port = port
@@ -191,9 +198,11 @@ class AutopilotStandIn:
         self.on_target = on_target
         self.on_estimate = on_estimate
         self.on_direction = on_direction  # ArduRover's MAV_CMD_DO_SET_REVERSE
-        # A mount (the sonar's tilt servo): told a pitch (deg, up +), reporting one (rad).
+        # A mount (the sonar's tilt servo, a pan servo too): told a pitch and a yaw (deg, up
+        # +, right +; NaN: unchanged), reporting them (rad; the yaw 0 without a pan).
         self.on_gimbal_pitch = on_gimbal_pitch
         self.gimbal_pitch_rad = gimbal_pitch_rad
+        self.gimbal_yaw_rad = gimbal_yaw_rad
         self.state = state
         self.heartbeat_sent_s = -math.inf
         self.params = dict(DEFAULT_PARAMS if params is None else params)
@@ -346,7 +355,10 @@ class AutopilotStandIn:
         elif msg == message_id("GIMBAL_DEVICE_ATTITUDE_STATUS") and self.gimbal_pitch_rad:
             # As ArduPilot's mount library: the pitch against the horizon, the lock flags set.
             link.send_gimbal_attitude(
-                time_boot_ms=boot_ms, pitch_rad=self.gimbal_pitch_rad(), horizon_relative=True
+                time_boot_ms=boot_ms,
+                pitch_rad=self.gimbal_pitch_rad(),
+                horizon_relative=True,
+                yaw_rad=0.0 if self.gimbal_yaw_rad is None else self.gimbal_yaw_rad(),
             )
         elif msg == message_id("SYS_STATUS"):
             link.send_sys_status(self.sys_status())
@@ -449,7 +461,7 @@ class AutopilotStandIn:
             # ArduPilot's mount takes it in any mode (the bridge sends it in GUIDED only).
             mounted = self.on_gimbal_pitch is not None
             if self.on_gimbal_pitch is not None:
-                self.on_gimbal_pitch(message.params[0])
+                self.on_gimbal_pitch(message.params[0], message.params[1])
             link.send_command_ack(
                 command=message.command,
                 result=MAV_RESULT_ACCEPTED if mounted else MAV_RESULT_UNSUPPORTED,

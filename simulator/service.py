@@ -197,9 +197,12 @@ def hosted_asv_autopilot(
         on_estimate=on_estimate,
         on_direction=asv.set_direction,
         on_gimbal_pitch=(
-            None if servo is None else lambda deg: servo.command(sim_time(time.time()), deg)
+            None
+            if servo is None
+            else lambda pitch_deg, yaw_deg: servo.command(sim_time(time.time()), pitch_deg, yaw_deg)
         ),
         gimbal_pitch_rad=None if servo is None else servo.reported_pitch_rad,
+        gimbal_yaw_rad=None if servo is None else servo.reported_yaw_rad,
     )
 
 

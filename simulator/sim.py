@@ -140,7 +140,9 @@ class Simulation:
         self.tilt_servo = (
             None
             if config.sonar.tilt is None
-            else TiltServo(config.sonar.tilt, zero_pitch_deg=-config.sonar.pitch_deg)
+            else TiltServo(
+                config.sonar.tilt, zero_pitch_deg=-config.sonar.pitch_deg, pan=config.sonar.pan
+            )
         )
         if config.rov_mode == "parked":
             self.rov = planned = hovering(self.rov.track.p[0], duration_s=self.horizon_s)
@@ -270,7 +272,8 @@ class Simulation:
             return self.mount
         hull_pitch = matrix_to_euler_zyx(asv.rotation)[1]
         tilt = self.tilt_servo.tilt_rad(t_s, hull_pitch_rad=hull_pitch)
-        return self.config.sonar.transform(tilt_rad=tilt).compose(self.errors.sonar)
+        pan = self.tilt_servo.pan_rad(t_s)
+        return self.config.sonar.transform(tilt_rad=tilt, pan_rad=pan).compose(self.errors.sonar)
 
     def _rov_ellipsoid(self, rov: RovState) -> Ellipsoid:
         return Ellipsoid(rov.position_m, rov.rotation, BLUEROV2_SEMI_AXES)

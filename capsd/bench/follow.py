@@ -15,13 +15,10 @@ view (how near the aperture's edges it is kept), and each loss of 5 s or more (w
 hull's heading off the ROV's bearing). The demo's figures (`capsd demo --mission ... --asv
 follow`) add the detector's misses and the locator's refusals to these.
 
-`pan` "what-if": a question about hardware, not a mode of the services. The sonar's tilt servo
-sits on a pan servo (PAN_LIMIT_DEG either side of the mount's yaw, PAN_RATE_DEG_S) that the
-bench aims, as a follower would, at the follower's last good fix (half a second on at its
-velocity), the tilt computed for the panned sonar: a steered hull's moves across the line of
-sight (ArduRover's GUIDED turns the hull to its way) then leave the sonar on the ROV. No
-service drives a pan yet (the locator, the detector's gate, the bridge and the simulator's
-stand-in take a tilt alone): this is what one would give.
+With `--sonar-tilt pan-tilt` the tilt servo sits on a pan servo (the mount's `pan`) that the
+follower aims at the ROV with the tilt: a steered hull's moves across the line of sight
+(ArduRover's GUIDED turns the hull to its way) then leave the sonar on the ROV; the mission's
+view guard judges the view where the pan is, as `capsd mission run` does.
 """
 
 from __future__ import annotations
@@ -30,12 +27,9 @@ import itertools
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
 
-import msgspec
 import numpy as np
 
-from capsd.errors import CapsdError
 from capsd.geometry import Transform, distance_to_segment, wrap_angle
 from capsd.harness import AsvMode, SonarTilt, follow_config, start_station
 from capsd.mission.controller import MissionController
@@ -60,52 +54,6 @@ HEADING_ONLY_WITHIN_M = 0.3  # the ASV bridge's `heading_only_within_m`
 LOSS_REPORTED_S = 5.0
 OFF_BINS_DEG = (15.0, 45.0)
 EDGE_DEG = 2.0  # the ROV this near the aperture's edge: in view, but barely
-# The what-if pan servo (`pan`): hobby pan servos turn 60 deg/s and more, and a quarter turn
-# either way covers a ROV abeam of a hull driving past it.
-PAN_LIMIT_DEG = 90.0
-PAN_RATE_DEG_S = 60.0
-PAN_LEAD_S = 0.5  # the follower's `tilt_lead_s`
-# none: no pan (the services' case); what-if: see the module's docstring.
-SonarPan = Literal["none", "what-if"]
-
-
-@dataclass
-class PanServo:
-    """A pan servo (rad about the mount's yaw, counter-clockwise +): rate-limited, clamped."""
-
-    angle_rad: float = 0.0
-    wanted_rad: float = 0.0
-
-    def step(self, dt_s: float) -> None:
-        most = math.radians(PAN_RATE_DEG_S) * dt_s
-        self.angle_rad += max(-most, min(most, self.wanted_rad - self.angle_rad))
-
-    def aim(self, pan_rad: float) -> None:
-        limit = math.radians(PAN_LIMIT_DEG)
-        self.wanted_rad = max(-limit, min(limit, pan_rad))
-
-
-def pan_tilt_aim(
-    planner: StationPlanner,
-    asv_xy: np.ndarray,
-    heading_rad: float,
-    look_m: np.ndarray,
-    *,
-    pan_now_rad: float,
-) -> tuple[float, float]:
-    """The pan that faces `look_m`, and the tilt for it with the pan where it is now.
-
-    The pan about the mount's yaw, the tilt about its pitch, putting `look_m` at the target
-    elevation (level hull); the tilt within the servo's range, as the follower's
-    (`StationPlanner.tilt_rad`).
-    """
-    sonar = planner.sonar_xy(asv_xy, heading_rad)
-    dx, dy = float(look_m[0] - sonar[0]), float(look_m[1] - sonar[1])
-    pan = wrap_angle(math.atan2(dy, dx) - heading_rad - planner.mount_yaw)
-    forward = math.hypot(dx, dy) * math.cos(wrap_angle(pan - pan_now_rad))
-    drop = planner.sonar_z - float(look_m[2])
-    tilt = math.atan2(drop, forward) + planner.settings.target_elevation_rad - planner.pitch
-    return pan, tilt if planner.tilt is None else planner.tilt.clamp_rad(tilt)
 
 
 @dataclass
@@ -180,12 +128,9 @@ def run_mission(
     seed: int = 0,
     asv_mode: AsvMode = "follow",
     tilt: SonarTilt = "fixed",
-    pan: SonarPan = "none",
     progress: Progress | None = None,
 ) -> FollowRun:
     """Fly the plan once with the follower (or the ASV held at its start); see the module."""
-    if pan != "none" and tilt != "servo":
-        raise ValueError("a what-if pan needs the sonar on its tilt servo (tilt 'servo')")
     rng = np.random.default_rng(seed)
     config = follow_config(tank_name, drive=drive, tilt=tilt)
     bounds = config.tank
@@ -220,6 +165,7 @@ def run_mission(
             mount.tilt,
             zero_pitch_deg=-mount.pitch_deg,
             start_rad=planner.tilt_rad(np.array([sx, sy]), math.radians(heading_deg), start),
+            pan=mount.pan,
         )
     )
     out = FollowRun(tank_name, drive, "waiting", (0, len(points)), 0.0)
@@ -228,7 +174,6 @@ def run_mission(
         for p, q in itertools.pairwise(points)
     ]
     last_target: np.ndarray | None = None
-    panner = PanServo() if pan == "what-if" else None
     lost_from: float | None = None
     lost_rows: list[tuple[np.ndarray, np.ndarray, float]] = []
     started: float | None = None
@@ -240,13 +185,8 @@ def run_mission(
         state = rov.state(t)
         rov_m = state.position_m
         servo_rad = 0.0 if servo is None else servo.tilt_rad(t)
-        looking = mount
-        if panner is not None:
-            panner.step(STEP_S)
-            looking = msgspec.structs.replace(
-                mount, yaw_deg=mount.yaw_deg + math.degrees(panner.angle_rad)
-            )
-        sonar_pose = body.compose(looking.transform(tilt_rad=servo_rad))
+        pan_rad = 0.0 if servo is None else servo.pan_rad(t)
+        sonar_pose = body.compose(mount.transform(tilt_rad=servo_rad, pan_rad=pan_rad))
         elevation = _view_elevation(mount, sonar_pose, rov_m)
         seen = elevation is not None
         yaw = math.atan2(float(rotation[1, 0]), float(rotation[0, 0]))
@@ -260,10 +200,11 @@ def run_mission(
             mission.on_fix(good=True, position_m=(fix[0], fix[1], fix[2]), now=t)
         margin = view_margin_rad(
             asv=body,
-            mount=looking,
+            mount=mount,
             rov_m=rov_m,
             velocity_m_s=state.velocity_m_s,
             lookahead_s=1.5,
+            pan_rad=pan_rad,
         )
         mission.on_view(margin, now=t)
         mission.on_mode(rov.mode, now=t)
@@ -284,16 +225,10 @@ def run_mission(
             )
         if asv_mode == "follow" and k % FOLLOW_EVERY == 0:
             target = follower.step(t)
-            if panner is not None and servo is not None and follower.rov_m is not None:
-                # Aimed as a follower would: its last good fix, half a second on.
-                look = follower.rov_m + follower.rov_velocity * PAN_LEAD_S
-                pan_rad, tilt_rad = pan_tilt_aim(
-                    planner, asv_xy, yaw, look, pan_now_rad=panner.angle_rad
-                )
-                panner.aim(pan_rad)
-                servo.aim(t, tilt_rad)
-            elif servo is not None and target is not None and target.sonar_tilt_rad is not None:
+            if servo is not None and target is not None and target.sonar_tilt_rad is not None:
                 servo.aim(t, target.sonar_tilt_rad)
+                if target.sonar_pan_rad is not None:
+                    servo.aim_pan(t, target.sonar_pan_rad)
             if target is not None:
                 at_goal = float(np.linalg.norm(asv_xy - target.position_xy))
                 steady = (
@@ -380,26 +315,21 @@ def run(
     seeds: int,
     asv_mode: AsvMode = "follow",
     tilt: SonarTilt = "fixed",
-    pan: SonarPan = "none",
 ) -> int:
     """Print one line per seed and the losses; the median share in view."""
-    if pan != "none" and tilt != "servo":
-        raise CapsdError("--sonar-pan what-if needs --sonar-tilt servo: the pan carries the tilt")
     shares = []
     mount_half_deg = follow_config(tank, drive=drive).sonar.vertical_aperture_deg / 2.0
     for seed in range(seeds):
         progress = Progress(duration_s, label=f"bench follow seed {seed}", unit=" s")
         r = run_mission(tank, plan_path, drive=drive, duration_s=duration_s, seed=seed,
-                        asv_mode=asv_mode, tilt=tilt, pan=pan, progress=progress)  # fmt: skip
+                        asv_mode=asv_mode, tilt=tilt, progress=progress)  # fmt: skip
         progress.close()
         share = r.in_view / r.steps if r.steps else 0.0
         shares.append(share)
         masked = r.in_view_masked / r.steps if r.steps else 0.0
         asv: str = "held" if asv_mode == "station" else drive
-        if tilt == "servo":
-            asv += ", sonar on a tilt servo"
-        if pan == "what-if":
-            asv += f" on a what-if pan servo ({PAN_LIMIT_DEG:g} deg, {PAN_RATE_DEG_S:g} deg/s)"
+        if tilt != "fixed":
+            asv += ", sonar on a tilt servo" + (" on a pan servo" if tilt == "pan-tilt" else "")
         print(
             f"{tank} {plan_path.name} (ASV {asv}) seed {seed}: mission {r.state}, waypoint "
             f"{r.waypoints[0]} of {r.waypoints[1]}, {r.mission_s:.0f} s; ROV in view "

@@ -186,7 +186,6 @@ def _cmd_bench_follow(args: argparse.Namespace) -> int:
         seeds=args.seeds,
         asv_mode=args.asv,
         tilt=args.sonar_tilt,
-        pan=args.sonar_pan,
     )
 
 
@@ -470,18 +469,10 @@ def register(sub: Subcommands) -> None:
     )
     bfollow.add_argument(
         "--sonar-tilt",
-        choices=("fixed", "servo"),
+        choices=("fixed", "servo", "pan-tilt"),
         default="fixed",
         help="servo: the sonar on a tilt servo the follower drives (30 deg/s, -15 to +40 deg "
-        "about the mount's pitch)",
-    )
-    bfollow.add_argument(
-        "--sonar-pan",
-        choices=("none", "what-if"),
-        default="none",
-        help="what-if (with --sonar-tilt servo): the tilt servo on a pan servo (+-90 deg, "
-        "60 deg/s) the bench aims at the follower's fix; no service drives a pan yet: what "
-        "one would give",
+        "about the mount's pitch); pan-tilt: on a pan servo too (60 deg/s, +-90 deg)",
     )
     bfollow.add_argument("--duration", type=positive_float, default=900.0,
                          help="seconds at most per run")  # fmt: skip

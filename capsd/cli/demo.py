@@ -93,10 +93,12 @@ def register(sub: Subcommands) -> None:
     dem.add_argument(
         "--sonar-tilt",
         default="fixed",
-        choices=["fixed", "servo"],
+        choices=["fixed", "servo", "pan-tilt"],
         help="with --asv follow: the sonar fixed to the hull (default) or on a tilt servo "
         "(-15 to +40 deg about its pitch, 30 deg/s) the follower drives through the ASV's "
-        "autopilot mount; the services take its reported angle ping by ping",
+        "autopilot mount; the services take its reported angle ping by ping; pan-tilt: that "
+        "servo on a pan servo too (+-90 deg, 60 deg/s), which keeps the sonar on the ROV while "
+        "a steered hull's way crosses its bearing",
     )
     dem.add_argument(
         "--install-errors",

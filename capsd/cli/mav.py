@@ -133,10 +133,20 @@ def _mount_range(args: argparse.Namespace) -> MountRange | None:
             f"not set, but {args.bridge_config} drives a tilt servo (`sonar_tilt`): the "
             "follower would never move it",
         )
+    pan = follow.sonar.pan
+    if (pan is not None) != (bridge.sonar_tilt.pan == "servo"):
+        raise ConfigError(
+            str(args.bridge_config),
+            "sonar_tilt.pan",
+            f"{bridge.sonar_tilt.pan!r}, but {args.follow_config}'s `sonar.pan` is "
+            f"{'set' if pan is not None else 'not set'}: the bridge drives a pan servo exactly "
+            "when the follower aims one",
+        )
     return MountRange.of(
         zero_pitch_deg=bridge.sonar_tilt.zero_pitch_deg,
         tilt_min_deg=tilt.min_deg,
         tilt_max_deg=tilt.max_deg,
+        pan_deg=None if pan is None else (pan.min_deg, pan.max_deg),
     )
 
 

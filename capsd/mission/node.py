@@ -33,7 +33,7 @@ from capsd.mission.controller import Command, MissionController
 from capsd.mission.plan import Plan, Waypoint, load_plan, path_length_m
 from capsd.mission.view_guard import view_margin_rad
 from capsd.mounts import SonarMountConfig
-from capsd.payloads import AsvPose, AutopilotStatus, RovFix, VehicleCommand
+from capsd.payloads import AsvPose, AutopilotStatus, RovFix, SonarTilt, VehicleCommand
 from capsd.runner import Publisher, ServiceRunner
 from capsd.services.locator.service import Config as LocatorConfig
 from capsd.signing import SiteKey
@@ -106,6 +106,7 @@ class MissionNode:
         self.plan = plan
         self.sonar = sonar
         self._asv: AsvPose | None = None
+        self._pan_rad = 0.0  # a pan servo's newest reported angle (the mount's `pan`)
         self.progress_period_s = progress_period_s
         self.controller = MissionController(plan, points)
         self.runner = runner
@@ -124,6 +125,7 @@ class MissionNode:
         with self.lock:
             self.controller.on_fix(good=good, position_m=position, now=now)
             pose = self._asv
+            pan = self._pan_rad
         if good and position is not None and pose is not None:
             margin = view_margin_rad(
                 asv=Transform.from_quat(pose.position_m, pose.orientation_xyzw),
@@ -131,9 +133,15 @@ class MissionNode:
                 rov_m=np.array(position),
                 velocity_m_s=None if fix.velocity_m_s is None else np.array(fix.velocity_m_s),
                 lookahead_s=self.plan.view_guard.lookahead_s,
+                pan_rad=pan,
             )
             with self.lock:
                 self.controller.on_view(margin, now=now)
+
+    def on_sonar_tilt(self, servos: SonarTilt) -> None:
+        """The sonar's servos: the pan turns its look off the bow (the guard's view)."""
+        with self.lock:
+            self._pan_rad = servos.pan_rad
 
     def on_asv_pose(self, pose: AsvPose) -> None:
         # 200 poses a second: kept as they came, turned into a transform only for a fix.
@@ -302,6 +310,8 @@ def main(
         runner.subscribe(topics.ROV_FIX, node.on_fix, vehicle=config.locator_vehicle)
         if plan.view_guard.mode != "off":
             runner.subscribe(topics.ASV_POSE, node.on_asv_pose, vehicle=config.asv_vehicle)
+            if locator.sonar.pan is not None:
+                runner.subscribe(topics.SONAR_TILT, node.on_sonar_tilt, vehicle=config.asv_vehicle)
         runner.subscribe(topics.ROV_STATUS, node.on_status, vehicle=config.rov_vehicle)
         try:
             runner.run(node.step, period_s=0.05)

@@ -13,7 +13,8 @@ ROV keeps to where the follower's stations see it, and the servo covers the hull
 lags. Judged at the servo's reported angle, the ROV flew on while the servo followed it, to
 0.2 m from the sonar, steeper than the servo reaches, and was lost there for 60 s (the mockup
 demo, README session 42); `capsd bench follow --sonar-tilt servo` gives 94.7 % in view either
-way (perfect fixes, no lag).
+way (perfect fixes, no lag). A pan servo under it (the mount's `pan`) is judged where it is (the
+newest reported pan): it turns the sonar's look off the hull's bow, which a tilt does not.
 """
 
 from __future__ import annotations
@@ -27,12 +28,14 @@ from capsd.mounts import SonarMountConfig
 from capsd.sonar_geometry import to_polar
 
 
-def elevation_margin_rad(*, asv: Transform, mount: SonarMountConfig, rov_m: Array) -> float:
+def elevation_margin_rad(
+    *, asv: Transform, mount: SonarMountConfig, rov_m: Array, pan_rad: float = 0.0
+) -> float:
     """Half the vertical aperture less the ROV's |elevation| in the sonar (negative: outside).
 
-    At a tilt servo's zero (see the module).
+    At a tilt servo's zero, a pan servo at `pan_rad` (see the module).
     """
-    sonar = asv.compose(mount.transform())
+    sonar = asv.compose(mount.transform(pan_rad=pan_rad))
     p_s = sonar.inverse().apply(np.asarray(rov_m, dtype=np.float64))
     try:
         _, _, elevation = to_polar(mount.beam_model, p_s)
@@ -48,10 +51,11 @@ def view_margin_rad(
     rov_m: Array,
     velocity_m_s: Array | None,
     lookahead_s: float,
+    pan_rad: float = 0.0,
 ) -> float:
     """The smaller elevation margin of now and `lookahead_s` ahead (the ASV where it is)."""
-    now = elevation_margin_rad(asv=asv, mount=mount, rov_m=rov_m)
+    now = elevation_margin_rad(asv=asv, mount=mount, rov_m=rov_m, pan_rad=pan_rad)
     if velocity_m_s is None or lookahead_s <= 0.0:
         return now
     ahead = np.asarray(rov_m, dtype=np.float64) + np.asarray(velocity_m_s) * lookahead_s
-    return min(now, elevation_margin_rad(asv=asv, mount=mount, rov_m=ahead))
+    return min(now, elevation_margin_rad(asv=asv, mount=mount, rov_m=ahead, pan_rad=pan_rad))

@@ -37,6 +37,12 @@ MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW = 1000
 # vehicle. ArduPilot's mount library sets both always: its pitch is the horizon's.
 GIMBAL_DEVICE_FLAGS_PITCH_LOCK = int(mavutil.mavlink.GIMBAL_DEVICE_FLAGS_PITCH_LOCK)
 GIMBAL_DEVICE_FLAGS_ROLL_LOCK = int(mavutil.mavlink.GIMBAL_DEVICE_FLAGS_ROLL_LOCK)
+# ... and its yaw: in the vehicle's frame (a pan on the hull) or the earth's (locked).
+GIMBAL_DEVICE_FLAGS_YAW_LOCK = int(mavutil.mavlink.GIMBAL_DEVICE_FLAGS_YAW_LOCK)
+GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME = int(
+    mavutil.mavlink.GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME
+)
+GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME = int(mavutil.mavlink.GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME)
 # SYS_STATUS sensor bit of external position (ArduPilot: VISO_TYPE set; healthy once the
 # visual-odometry backend made at boot has had an estimate within 300 ms).
 MAV_SYS_STATUS_SENSOR_VISION_POSITION = int(mavutil.mavlink.MAV_SYS_STATUS_SENSOR_VISION_POSITION)
@@ -191,11 +197,14 @@ class GimbalAttitude:
     """GIMBAL_DEVICE_ATTITUDE_STATUS: a mount's pitch (rad, up +) and whether it is the horizon's.
 
     `horizon_relative`: the PITCH_LOCK flag (a stabilised gimbal); else relative to the vehicle.
+    `yaw_rad`: its yaw in the vehicle's frame (right +, MAVLink's); None where the message puts
+    it in the earth's frame (YAW_LOCK or YAW_IN_EARTH_FRAME), which a pan on the hull is not.
     """
 
     time_boot_ms: int
     pitch_rad: float
     horizon_relative: bool
+    yaw_rad: float | None = 0.0
 
 
 @dataclass(frozen=True)
@@ -342,7 +351,13 @@ def _convert(msg: Any) -> Message | None:
         w, x, y, z = (float(c) for c in msg.q)
         pitch = math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
         locked = bool(msg.flags & GIMBAL_DEVICE_FLAGS_PITCH_LOCK)
-        return GimbalAttitude(msg.time_boot_ms, pitch, locked)
+        earth = GIMBAL_DEVICE_FLAGS_YAW_LOCK | GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME
+        yaw = (
+            None
+            if msg.flags & earth
+            else math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+        )
+        return GimbalAttitude(msg.time_boot_ms, pitch, locked, yaw)
     if kind == "GPS_INPUT":
         return GpsInput(msg.time_usec, msg.lat, msg.lon, msg.alt, msg.horiz_accuracy, msg.fix_type)
     if kind == "SET_GPS_GLOBAL_ORIGIN":
@@ -633,16 +648,19 @@ class MavLink:
             1.0 if direction == "reverse" else 0.0, 0, 0, 0, 0, 0, 0,
         )  # fmt: skip
 
-    def send_gimbal_pitch(self, *, target_system: int, pitch_deg: float) -> None:
-        """MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW: every gimbal to `pitch_deg` (up +), yaw ahead.
+    def send_gimbal_pitch(
+        self, *, target_system: int, pitch_deg: float, yaw_deg: float = 0.0
+    ) -> None:
+        """MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW: every gimbal to `pitch_deg` (up +), `yaw_deg`.
 
-        No lock flag: the yaw follows the vehicle (ArduPilot takes the pitch against the
-        horizon whatever the flags); the rates unused (NaN).
+        The yaw in the vehicle's frame (right +; 0: ahead). No lock flag: the yaw follows the
+        vehicle (ArduPilot takes the pitch against the horizon whatever the flags); the rates
+        unused (NaN).
         """
         nan = float("nan")
         self._mav.command_long_send(
             target_system, 1, MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW, 0,
-            float(pitch_deg), 0.0, nan, nan, 0, 0, 0,
+            float(pitch_deg), float(yaw_deg), nan, nan, 0, 0, 0,
         )  # fmt: skip
 
     def send_set_gps_global_origin(
@@ -682,17 +700,29 @@ class MavLink:
         )
 
     def send_gimbal_attitude(
-        self, *, time_boot_ms: int, pitch_rad: float, horizon_relative: bool
+        self, *, time_boot_ms: int, pitch_rad: float, horizon_relative: bool, yaw_rad: float = 0.0
     ) -> None:
-        """GIMBAL_DEVICE_ATTITUDE_STATUS of a mount pitched `pitch_rad` (up +).
+        """GIMBAL_DEVICE_ATTITUDE_STATUS of a mount pitched `pitch_rad` (up +), yawed `yaw_rad`.
 
-        Against the horizon (the lock flags, as ArduPilot's mount sends it) or the vehicle.
+        The pitch against the horizon (the lock flags, as ArduPilot's mount sends it) or the
+        vehicle; the yaw in the vehicle's frame (right +).
         """
-        q = (math.cos(pitch_rad / 2.0), 0.0, math.sin(pitch_rad / 2.0), 0.0)  # w, x, y, z
-        flags = GIMBAL_DEVICE_FLAGS_PITCH_LOCK | GIMBAL_DEVICE_FLAGS_ROLL_LOCK
+        cy, sy = math.cos(yaw_rad / 2.0), math.sin(yaw_rad / 2.0)
+        cp, sp = math.cos(pitch_rad / 2.0), math.sin(pitch_rad / 2.0)
+        q = (cy * cp, -sy * sp, cy * sp, sy * cp)  # w, x, y, z: the yaw, then the pitch
+        flags = GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME
+        flags |= GIMBAL_DEVICE_FLAGS_PITCH_LOCK | GIMBAL_DEVICE_FLAGS_ROLL_LOCK
         nan = float("nan")
         self._mav.gimbal_device_attitude_status_send(
-            0, 0, time_boot_ms, flags if horizon_relative else 0, q, nan, nan, nan, 0
+            0,
+            0,
+            time_boot_ms,
+            flags if horizon_relative else GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME,
+            q,
+            nan,
+            nan,
+            nan,
+            0,
         )
 
     def send_scaled_pressure2(

@@ -150,6 +150,8 @@ class Target:
     # A sonar on a tilt servo: the angle it is to take (added to the mount's pitch, down +),
     # for the ROV where it is (or is looked for) from where the ASV is now; None: no servo.
     sonar_tilt_rad: float | None = None
+    # ... on a pan servo too: the pan that faces it (added to the mount's yaw, left +).
+    sonar_pan_rad: float | None = None
 
 
 def _along(start_m: Array, end_m: Array, reach_m: float) -> Array | None:
@@ -337,29 +339,35 @@ class Follower:
         else:
             state = "following" if fresh else "holding"
         self._walk(dt, fresh=fresh)
+        tilt, pan = self._sonar_angles(fresh=fresh)
         return Target(
             self._carrot.copy(),
             self._carrot_heading,
             state,
             replanned,
             self._direction,
-            self._sonar_tilt(fresh=fresh),
+            tilt,
+            pan,
         )
 
-    def _sonar_tilt(self, *, fresh: bool) -> float | None:
-        """The servo's angle for the ROV now (or where it is looked for), seen from the ASV now.
+    def _sonar_angles(self, *, fresh: bool) -> tuple[float | None, float | None]:
+        """The servos' angles (tilt, pan) for the ROV now (or where it is looked for).
 
-        Where the ROV is, not where the station was chosen for (its lead): the servo is fast
-        and the fix is what must stay in the aperture. Held (None) with nothing to look at.
+        Seen from the ASV now. Where the ROV is, not where the station was chosen for (its
+        lead): the servos are fast and the fix is what must stay in the aperture. Held (None)
+        with nothing to look at; the pan None without a pan servo.
         """
         if self.planner.tilt is None or self.asv_xy is None or self.rov_m is None:
-            return None
+            return None, None
         if fresh:
             look = self.rov_m + self.rov_velocity * self.settings.tilt_lead_s
         else:
             lost = self._lost_look()
             look = self.rov_m if lost is None else lost
-        return self.planner.tilt_rad(self.asv_xy, self.asv_heading, look)
+        if self.planner.pan is None:
+            return self.planner.tilt_rad(self.asv_xy, self.asv_heading, look), None
+        pan, tilt = self.planner.pan_tilt_rad(self.asv_xy, self.asv_heading, look)
+        return tilt, pan
 
     def _look_point(self, *, fresh: bool) -> Array | None:
         """Where the ROV is (ahead, with a fresh fix) or is looked for (`_lost_look`)."""

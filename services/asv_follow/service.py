@@ -256,6 +256,7 @@ class FollowNode:
                 reason="station" if target.replanned else "repeat",
                 direction=target.direction,
                 sonar_tilt_rad=target.sonar_tilt_rad,
+                sonar_pan_rad=target.sonar_pan_rad,
             )
         )
         self.put_count += 1

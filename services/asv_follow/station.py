@@ -184,6 +184,7 @@ class StationPlanner:
         self.mount_yaw = math.radians(sonar.yaw_deg)
         self.pitch = math.radians(sonar.pitch_deg)
         self.tilt = sonar.tilt  # a tilt servo under the sonar (`tilt_rad`), or None
+        self.pan = sonar.pan  # a pan servo under that (`pan_tilt_rad`), or None
         self.half_aperture = math.radians(sonar.vertical_aperture_deg) / 2.0
         surface = [f for f in tank.fixtures if f.hi_m[2] > -0.5]  # what a hull can hit
         self.keep_out = tuple(surface) + settings.keep_out
@@ -248,6 +249,30 @@ class StationPlanner:
         drop = self.sonar_z - float(rov_m[2])
         wanted = math.atan2(drop, forward) + self.settings.target_elevation_rad - self.pitch
         return self.tilt.clamp_rad(wanted)
+
+    def pan_tilt_rad(
+        self, asv_xy: Array, heading_rad: float, rov_m: Array, *, pan_now_rad: float | None = None
+    ) -> tuple[float, float]:
+        """The pan that faces the ROV and the tilt that puts it at the target elevation.
+
+        From this ASV pose, each within its servo's range. The tilt is for the pan at
+        `pan_now_rad` (where the servo is; None: at the angle asked): a pan still turning
+        leaves the ROV off its boresight, nearer in the boresight's plane (`tilt_rad`'s
+        azimuth). Stations stay chosen at both servos' zero (`tilt_rad`): the pan only keeps
+        the sonar on the ROV while a steered hull's way crosses its bearing (`capsd bench
+        follow --sonar-pan what-if`: the mockup's one loss a run).
+        """
+        if self.pan is None or self.tilt is None:
+            return 0.0, self.tilt_rad(asv_xy, heading_rad, rov_m)
+        sonar = self.sonar_xy(asv_xy, heading_rad)
+        dx, dy = float(rov_m[0] - sonar[0]), float(rov_m[1] - sonar[1])
+        pan = self.pan.clamp_rad(wrap_angle(math.atan2(dy, dx) - heading_rad - self.mount_yaw))
+        at = pan if pan_now_rad is None else pan_now_rad
+        off = wrap_angle(math.atan2(dy, dx) - heading_rad - self.mount_yaw - at)
+        forward = math.hypot(dx, dy) * math.cos(off)
+        drop = self.sonar_z - float(rov_m[2])
+        wanted = math.atan2(drop, forward) + self.settings.target_elevation_rad - self.pitch
+        return pan, self.tilt.clamp_rad(wanted)
 
     def view_is_good(self, view: View) -> bool:
         """Inside the aperture (with the margin), the range band and the conditioning."""

@@ -98,18 +98,32 @@ class Finding:
 
 @dataclass(frozen=True)
 class MountRange:
-    """The mount pitches (MAVLink's: up +, degrees) the follower's servo angles need."""
+    """The mount pitches (MAVLink's: up +, degrees) the follower's servo angles need.
+
+    With a pan servo, the yaws too (MAVLink's: the vehicle's frame, right +, degrees: the pan
+    is left +).
+    """
 
     lowest_deg: float  # the servo's furthest tilt down: zero_pitch_deg - tilt max_deg
     highest_deg: float  # its furthest up: zero_pitch_deg - tilt min_deg
+    yaws_deg: tuple[float, float] | None = None  # the pan's furthest right, left; None: no pan
 
     @staticmethod
-    def of(*, zero_pitch_deg: float, tilt_min_deg: float, tilt_max_deg: float) -> MountRange:
-        return MountRange(zero_pitch_deg - tilt_max_deg, zero_pitch_deg - tilt_min_deg)
+    def of(
+        *,
+        zero_pitch_deg: float,
+        tilt_min_deg: float,
+        tilt_max_deg: float,
+        pan_deg: tuple[float, float] | None = None,
+    ) -> MountRange:
+        """`pan_deg`: the pan servo's (min, max), left +; None without one."""
+        yaws = None if pan_deg is None else (-pan_deg[1], -pan_deg[0])
+        return MountRange(zero_pitch_deg - tilt_max_deg, zero_pitch_deg - tilt_min_deg, yaws)
 
 
 MOUNT_TYPE_SERVO = 1  # MNT1_TYPE
 SERVO_FUNCTION_MOUNT_TILT = 7  # SERVOn_FUNCTION: "Mount1Pitch" (mount tilt)
+SERVO_FUNCTION_MOUNT_PAN = 6  # SERVOn_FUNCTION: "Mount1Yaw" (mount pan)
 SERVO_OUTPUTS = 16
 
 
@@ -118,6 +132,50 @@ SERVO_OUTPUTS = 16
 ASV_ARRIVE_WITHIN_M = 0.2
 # A boat at its GUIDED target drifts freely within LOIT_RADIUS before it drives back.
 ASV_LOITER_WITHIN_M = 0.3
+
+
+def _servo_axis_rules(
+    axis: Literal["PITCH", "YAW"],
+    limits_deg: tuple[float, float],
+    function: int,
+    *,
+    what: tuple[str, str],
+    reach: tuple[str, str],
+    label: str,
+) -> list[Rule]:
+    """One axis of a servo mount: MNT1_<axis>_MIN at most, _MAX at least, and its output.
+
+    A servo mount maps MNT1_<axis>_MIN..MAX onto its output's SERVOn_MIN..MAX pulses: they are
+    the servo's calibration, which a person measures; and which output drives which axis only a
+    person knows: never --apply'd.
+    """
+    angle, servo = what
+    return [
+        Rule(
+            (f"MNT1_{axis}_MIN",),
+            round(limits_deg[0], 2),
+            f"the {angle} at its lowest pulse, as measured: it must reach {reach[0]}, or "
+            f"narrow the {servo}",
+            bound="at_most",
+            fix="by_hand",
+        ),
+        Rule(
+            (f"MNT1_{axis}_MAX",),
+            round(limits_deg[1], 2),
+            f"the {angle} at its highest pulse, as measured: it must reach {reach[1]}, or "
+            f"narrow the {servo}",
+            bound="at_least",
+            fix="by_hand",
+        ),
+        Rule(
+            tuple(f"SERVO{n}_FUNCTION" for n in range(1, SERVO_OUTPUTS + 1)),
+            function,
+            f"the output the {servo} servo is wired to drives the mount's {servo}",
+            bound="any_equal",
+            label=label,
+            fix="by_hand",
+        ),
+    ]
 
 
 def rules(
@@ -178,34 +236,30 @@ def rules(
     if not rov and mount is not None:
         out += [
             Rule(("MNT1_TYPE",), MOUNT_TYPE_SERVO, "the sonar's tilt servo (reboot needed)"),
-            # A servo mount maps MNT1_PITCH_MIN..MAX onto its output's SERVOn_MIN..MAX pulses:
-            # they are the servo's calibration, which a person measures; never --apply'd.
-            Rule(
-                ("MNT1_PITCH_MIN",),
-                round(mount.lowest_deg, 2),
-                "the servo's pitch at its lowest pulse, as measured: it must reach the "
-                "follower's furthest tilt down (sonar_tilt zero less tilt max_deg), or "
-                "narrow the tilt",
-                bound="at_most",
-                fix="by_hand",
-            ),
-            Rule(
-                ("MNT1_PITCH_MAX",),
-                round(mount.highest_deg, 2),
-                "the servo's pitch at its highest pulse, as measured: it must reach the "
-                "furthest tilt up (zero less tilt min_deg), or narrow the tilt",
-                bound="at_least",
-                fix="by_hand",
-            ),
-            Rule(
-                tuple(f"SERVO{n}_FUNCTION" for n in range(1, SERVO_OUTPUTS + 1)),
+            *_servo_axis_rules(
+                "PITCH",
+                (mount.lowest_deg, mount.highest_deg),
                 SERVO_FUNCTION_MOUNT_TILT,
-                "the output the servo is wired to drives the mount's tilt",
-                bound="any_equal",
+                what=("servo's pitch", "tilt"),
+                reach=(
+                    "the follower's furthest tilt down (sonar_tilt zero less tilt max_deg)",
+                    "the furthest tilt up (zero less tilt min_deg)",
+                ),
                 label="SERVOn_FUNCTION",
-                fix="by_hand",
             ),
         ]
+    if not rov and mount is not None and mount.yaws_deg is not None:
+        out += _servo_axis_rules(
+            "YAW",
+            mount.yaws_deg,
+            SERVO_FUNCTION_MOUNT_PAN,
+            what=("pan servo's yaw", "pan"),
+            reach=(
+                "the follower's furthest pan right (less the pan's max_deg)",
+                "the furthest pan left (less the pan's min_deg)",
+            ),
+            label="SERVOn_FUNCTION (pan)",
+        )
     return out
 
 

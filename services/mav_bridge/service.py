@@ -175,6 +175,10 @@ class SonarTiltBridgeConfig(ConfigSection, frozen=True, kw_only=True):
     # servo's zero: where the sonar mount's `pitch_deg` was measured. The tilt is the angle
     # down from there.
     zero_pitch_deg: Annotated[float, msgspec.Meta(ge=-180.0, le=180.0)]
+    # servo: the mount has a pan servo too (the sonar mount's `pan`; ArduPilot's mount yaw):
+    # the follower's pan goes out as the yaw (the vehicle's frame), the reported yaw comes back
+    # as `pan_rad`. none: the yaw is sent ahead (0) and the pan reported as 0.
+    pan: Literal["none", "servo"] = "none"
     status_hz: Annotated[float, msgspec.Meta(gt=0.0, le=100.0)] = 20.0
     # A new angle goes out when it moved this far from the last sent, or after resend_s.
     deadband_deg: Annotated[float, msgspec.Meta(ge=0.0, le=10.0)] = 0.25
@@ -317,8 +321,8 @@ class Bridge:
         # The drive direction ArduRover was last told (None: not since it took GUIDED, whose
         # entry sets forward, or since the link came back).
         self._asv_direction: DriveDirection | None = None
-        # Role asv with a tilt servo: the last angle sent (deg, MAVLink's) and when.
-        self._tilt_sent: tuple[float, float] | None = None
+        # Role asv with a tilt servo: the last pitch and yaw sent (deg, MAVLink's) and when.
+        self._tilt_sent: tuple[float, float, float] | None = None
         self._outage_reasons: Counter[str] = Counter()
         self._announced: str | None = None
         self._last_statustext: dict[str, float] = {}
@@ -698,35 +702,48 @@ class Bridge:
         if not -math.pi / 2 <= tilt <= math.pi / 2:
             self.counts["tilt_refused_out_of_range"] += 1
             return
+        pan = 0.0
+        if self.config.sonar_tilt.pan == "servo":
+            if message.yaw_rad is None:
+                # Against north: the pan on the hull would need the heading at that instant.
+                self.counts["tilt_refused_yaw_earth_frame"] += 1
+                return
+            pan = -message.yaw_rad  # MAVLink's yaw is right +, the pan left +
         self.counts["tilt_reports"] += 1
         self.tilt_pub.put(
             SonarTilt(
                 stamp_ns=self.clock.to_unix_ns(message.time_boot_ms),
                 seq=self.tilt_pub.next_seq(),
                 tilt_rad=tilt,
+                pan_rad=pan,
             )
         )
 
-    def _send_tilt(self, tilt_rad: float) -> None:
-        """The follower's angle to the mount (the caller holds the lock; GUIDED only).
+    def _send_tilt(self, tilt_rad: float, pan_rad: float | None) -> None:
+        """The follower's angles to the mount (the caller holds the lock; GUIDED only).
 
         ArduPilot holds a mount's pitch against the horizon: the follower's angle is the one
         for a level ASV, so it is the horizon's too, and the servo keeps it through the waves.
+        The pan (a mount with one; None: ahead) goes out as the yaw in the vehicle's frame.
         """
         servo = self.config.sonar_tilt
         if servo is None:
             self.counts["commands_tilt_no_servo"] += 1
             return
         pitch_deg = servo.zero_pitch_deg - math.degrees(tilt_rad)
+        yaw_deg = 0.0
+        if servo.pan == "servo" and pan_rad is not None:
+            yaw_deg = -math.degrees(pan_rad)
         now = time.monotonic()
         if self._tilt_sent is not None:
-            last_deg, at = self._tilt_sent
-            if abs(pitch_deg - last_deg) < servo.deadband_deg and now - at < servo.resend_s:
+            last_pitch, last_yaw, at = self._tilt_sent
+            moved = max(abs(pitch_deg - last_pitch), abs(yaw_deg - last_yaw))
+            if moved < servo.deadband_deg and now - at < servo.resend_s:
                 return
         self.link.send_gimbal_pitch(
-            target_system=self.config.mavlink.target_system, pitch_deg=pitch_deg
+            target_system=self.config.mavlink.target_system, pitch_deg=pitch_deg, yaw_deg=yaw_deg
         )
-        self._tilt_sent = (pitch_deg, now)
+        self._tilt_sent = (pitch_deg, yaw_deg, now)
         self.counts["commands_sent_tilt"] += 1
 
     def _publish_depth(self, message: ScaledPressure) -> None:
@@ -877,7 +894,7 @@ class Bridge:
             self.counts["commands_sent_target"] += 1
             self._asv_target_xy = goal_xy
         if self.config.role == "asv" and command.sonar_tilt_rad is not None:
-            self._send_tilt(command.sonar_tilt_rad)
+            self._send_tilt(command.sonar_tilt_rad, command.sonar_pan_rad)
         # Every command is logged; the mission's twice-a-second repeats at debug level.
         logger.log(
             logging.DEBUG if command.reason == "repeat" else logging.INFO,

@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from capsd.mounts import SonarTiltConfig
+from capsd.mounts import SonarPanConfig, SonarTiltConfig
 from capsd.simulator.tilt_servo import TiltServo
 
 
@@ -40,3 +40,19 @@ def test_it_holds_its_angle_against_the_horizon_taking_the_hull_s_pitch_out() ->
     servo.command(0.0, -55.0)  # 10 deg down from the zero, against the horizon
     hull_nose_down = math.radians(1.0)
     assert servo.tilt_rad(5.0, hull_pitch_rad=hull_nose_down) == pytest.approx(math.radians(9.0))
+
+
+def test_a_pan_servo_takes_the_yaw_right_positive_and_turns_left_positive_at_its_rate() -> None:
+    servo = TiltServo(SonarTiltConfig(), zero_pitch_deg=-45.0, pan=SonarPanConfig(rate_deg_s=60.0))
+    servo.command(0.0, -45.0, -30.0)  # MAVLink: 30 deg to the left
+    assert servo.reported_yaw_rad() == pytest.approx(math.radians(-30.0))  # at once
+    assert servo.pan_rad(0.25) == pytest.approx(math.radians(15.0))  # 60 deg/s
+    assert servo.pan_rad(1.0) == pytest.approx(math.radians(30.0))
+    servo.command(2.0, float("nan"), 120.0)  # past the right limit (90); the pitch kept
+    assert servo.pan_rad(10.0) == pytest.approx(math.radians(-90.0))
+    assert servo.tilt_rad(10.0) == pytest.approx(0.0)
+    # Without a pan servo a yaw is nobody's.
+    plain = TiltServo(SonarTiltConfig(), zero_pitch_deg=-45.0)
+    plain.command(0.0, -45.0, 40.0)
+    assert plain.pan_rad(5.0) == 0.0
+    assert plain.reported_yaw_rad() == 0.0

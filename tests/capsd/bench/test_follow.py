@@ -6,18 +6,11 @@ import math
 from pathlib import Path
 from typing import Literal
 
-import msgspec
 import numpy as np
-import pytest
-from hypothesis import assume, given, settings
-from hypothesis import strategies as st
 
-from capsd.bench.follow import FollowRun, _in_view, pan_tilt_aim, run_mission
+from capsd.bench.follow import FollowRun, _in_view, run_mission
 from capsd.geometry import Transform
-from capsd.harness import follow_config
 from capsd.mounts import SonarMountConfig
-from capsd.services.asv_follow.station import StationPlanner
-from capsd.sonar_geometry import to_polar
 
 REPO = Path(__file__).resolve().parents[3]
 
@@ -81,45 +74,11 @@ def test_a_sonar_on_a_tilt_servo_keeps_the_rov_centred() -> None:
     assert spread[1] < 4.0
 
 
-@settings(max_examples=60, deadline=None)
-@given(
-    asv=st.tuples(st.floats(2.0, 26.0), st.floats(2.0, 14.0)),
-    heading=st.floats(-math.pi, math.pi),
-    rov=st.tuples(st.floats(1.0, 27.0), st.floats(1.0, 15.0), st.floats(-7.5, -1.0)),
-)
-def test_the_what_if_pan_and_tilt_put_the_rov_on_the_boresight(
-    asv: tuple[float, float], heading: float, rov: tuple[float, float, float]
-) -> None:
-    """Wherever the hull faces: the pan turned to it, the ROV at azimuth 0 and elevation 0."""
-    config = follow_config("nfp", tilt="servo")
-    planner = StationPlanner(config.sonar, config.tank, config.station.settings())
-    look = np.array(rov)
-    pan, _ = pan_tilt_aim(planner, np.array(asv), heading, look, pan_now_rad=0.0)
-    _, tilt = pan_tilt_aim(planner, np.array(asv), heading, look, pan_now_rad=pan)
-    assert config.sonar.tilt is not None
-    lo, hi = math.radians(config.sonar.tilt.min_deg), math.radians(config.sonar.tilt.max_deg)
-    assume(lo + 1e-6 < tilt < hi - 1e-6)  # the servo's range not in the way
-    panned = msgspec.structs.replace(config.sonar, yaw_deg=config.sonar.yaw_deg + math.degrees(pan))
-    body = Transform.from_euler_zyx(
-        (asv[0], asv[1], 0.0), yaw_rad=heading, pitch_rad=0.0, roll_rad=0.0
-    )
-    sonar = body.compose(panned.transform(tilt_rad=tilt))
-    _, azimuth, elevation = to_polar("conical", sonar.inverse().apply(look))
-    target = math.radians(config.station.target_elevation_deg)
-    assert abs(azimuth) < 1e-6
-    assert elevation == pytest.approx(target, abs=1e-6)
-
-
-def test_a_what_if_pan_keeps_the_rov_in_view_where_a_steered_hull_turns_off_it() -> None:
+def test_a_pan_servo_keeps_the_rov_in_view_where_a_steered_hull_turns_off_it() -> None:
     """The mockup, seed 0: the hull's one crossing of the run no longer loses the ROV."""
     tilt_only = _fly("mockup", 900.0, tilt="servo")
-    panned = _fly("mockup", 900.0, tilt="servo", pan="what-if")
+    panned = _fly("mockup", 900.0, tilt="pan-tilt")
     assert tilt_only.losses  # the crossing (the hull's way across the ROV's bearing)
     assert panned.state == "done"
     assert panned.in_view / panned.steps >= 0.99 > tilt_only.in_view / tilt_only.steps
     assert not panned.losses
-
-
-def test_a_what_if_pan_needs_the_tilt_servo() -> None:
-    with pytest.raises(ValueError, match="tilt servo"):
-        _fly("mockup", 10.0, pan="what-if")

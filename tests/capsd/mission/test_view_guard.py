@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from capsd.geometry import Transform
 from capsd.mission.view_guard import elevation_margin_rad, view_margin_rad
-from capsd.mounts import SonarMountConfig, SonarTiltConfig
+from capsd.mounts import SonarMountConfig, SonarPanConfig, SonarTiltConfig
 
 # A level ASV at the origin facing +x; the sonar at its origin, pitched 45 deg down.
 MOUNT = SonarMountConfig(position_m=(0.0, 0.0, 0.0), pitch_deg=45.0, vertical_aperture_deg=20.0)
@@ -64,3 +64,13 @@ def test_a_sonar_on_a_tilt_servo_is_judged_at_the_servo_s_zero() -> None:
         elevation_margin_rad(asv=ASV, mount=MOUNT, rov_m=rov)
     )
     assert elevation_margin_rad(asv=ASV, mount=servo, rov_m=rov) < 0.0
+
+
+def test_a_sonar_on_a_pan_servo_is_judged_where_the_pan_is() -> None:
+    """A ROV abeam, 45 deg down: outside the fan's view ahead, mid aperture panned to it."""
+    servos = msgspec.structs.replace(MOUNT, tilt=SonarTiltConfig(), pan=SonarPanConfig())
+    rov = np.array([0.0, 3.0, -3.0])  # to port
+    ahead = elevation_margin_rad(asv=ASV, mount=servos, rov_m=rov)
+    panned = elevation_margin_rad(asv=ASV, mount=servos, rov_m=rov, pan_rad=math.pi / 2)
+    assert ahead < 0.0
+    assert panned == pytest.approx(HALF, abs=1e-9)

@@ -924,3 +924,28 @@ def test_a_servo_looks_where_a_rov_that_lost_its_fix_holds_not_at_the_stations_l
     held = rov + velocity * 1.0
     assert lost.sonar_tilt_rad == pytest.approx(planner.tilt_rad(START, 0.0, held))
     assert lost.sonar_tilt_rad != pytest.approx(planner.tilt_rad(START, 0.0, lead), abs=1e-3)
+
+
+def test_a_pan_servo_is_told_the_pan_that_faces_the_rov_and_the_tilt_for_it() -> None:
+    """The ROV abeam of the hull: the pan turns to it; without a pan servo none is told."""
+    servos = msgspec.convert({"tilt": {}, "pan": {}}, SonarMountConfig)
+    planner = StationPlanner(servos, TankBounds(), StationSettings())
+    follower = Follower(planner, FollowSettings())
+    follower.on_pose(START, 0.0)
+    follower.on_mode("GUIDED")
+    rov = np.array([10.3, 12.0, -3.5])  # 4 m to port
+    follower.on_fix(0.0, rov)
+    target = follower.step(0.0)
+    assert target is not None
+    assert target.sonar_pan_rad is not None
+    assert target.sonar_tilt_rad is not None
+    pan, tilt = planner.pan_tilt_rad(START, 0.0, rov)
+    assert target.sonar_pan_rad == pytest.approx(pan)
+    assert math.degrees(pan) == pytest.approx(90.0, abs=1.0)
+    assert target.sonar_tilt_rad == pytest.approx(tilt)
+    told = _follower()
+    told.on_mode("GUIDED")
+    told.on_fix(0.0, rov)
+    plain = told.step(0.0)
+    assert plain is not None
+    assert plain.sonar_pan_rad is None

@@ -8,7 +8,7 @@ from typing import Literal
 import msgspec
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from capsd.geometry import Transform, wrap_angle
@@ -603,4 +603,40 @@ def test_no_servo_no_tilt_and_the_stations_are_chosen_for_its_zero() -> None:
     assert steeper < b.view.elevation_rad
     assert tilted.tilt_rad(nearer, b.heading_rad, rov) == pytest.approx(
         b.view.elevation_rad - steeper, abs=1e-6
+    )
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    asv=st.tuples(st.floats(2.0, 26.0), st.floats(2.0, 14.0)),
+    heading=st.floats(-math.pi, math.pi),
+    rov=st.tuples(st.floats(1.0, 27.0), st.floats(1.0, 15.0), st.floats(-7.5, -1.0)),
+)
+def test_the_pan_and_tilt_put_the_rov_on_the_boresight_wherever_the_hull_faces(
+    asv: tuple[float, float], heading: float, rov: tuple[float, float, float]
+) -> None:
+    """Within the servos' ranges: the ROV at azimuth 0 and the target elevation."""
+    mount = msgspec.convert({"tilt": {}, "pan": {}}, SonarMountConfig)
+    planner = StationPlanner(mount, TANK, StationSettings(target_elevation_rad=-0.05))
+    look = np.array(rov)
+    pan, tilt = planner.pan_tilt_rad(np.array(asv), heading, look)
+    assert mount.tilt is not None
+    assert mount.pan is not None
+    limits = (mount.tilt.min_deg, mount.tilt.max_deg), (mount.pan.min_deg, mount.pan.max_deg)
+    for angle, (lo, hi) in zip((tilt, pan), limits, strict=True):
+        assume(math.radians(lo) + 1e-6 < angle < math.radians(hi) - 1e-6)
+    body = Transform.from_euler_zyx(
+        (asv[0], asv[1], 0.0), yaw_rad=heading, pitch_rad=0.0, roll_rad=0.0
+    )
+    sonar = body.compose(mount.transform(tilt_rad=tilt, pan_rad=pan))
+    _, azimuth, elevation = to_polar("conical", sonar.inverse().apply(look))
+    assert abs(azimuth) < 1e-6
+    assert elevation == pytest.approx(-0.05, abs=1e-6)
+    # Without a pan servo: the tilt alone, as before.
+    plain = StationPlanner(
+        msgspec.structs.replace(mount, pan=None), TANK, StationSettings(target_elevation_rad=-0.05)
+    )
+    assert plain.pan_tilt_rad(np.array(asv), heading, look) == (
+        0.0,
+        plain.tilt_rad(np.array(asv), heading, look),
     )

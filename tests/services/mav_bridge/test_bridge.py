@@ -24,7 +24,7 @@ from capsd.config import BusConfig
 from capsd.geometry import matrix_to_quat
 from capsd.health import query_health
 from capsd.keys import is_concrete
-from capsd.mounts import SonarTiltConfig
+from capsd.mounts import SonarPanConfig, SonarTiltConfig
 from capsd.ned import TankToNed
 from capsd.payloads import (
     AsvPose,
@@ -637,6 +637,40 @@ def test_the_simulated_ardurover_is_configured_as_the_check_wants() -> None:
     assert AsvLimits().arrive_radius_m == ROVER_CONFIGURED_PARAMS["WP_RADIUS"]
 
 
+def test_mav_check_wants_a_pan_servos_output_and_its_yaw_travel() -> None:
+    """A pan of +-90 deg (left +): MNT1_YAW_MIN at most -90, MAX at least 90, an output on 6."""
+    from capsd.services.mav_bridge.check import MountRange, evaluate, rules
+
+    mount = MountRange.of(
+        zero_pitch_deg=-45.0, tilt_min_deg=-15.0, tilt_max_deg=40.0, pan_deg=(-90.0, 90.0)
+    )
+    assert mount.yaws_deg == (-90.0, 90.0)
+
+    def failing(params: dict[str, float]) -> list[str]:
+        wanted = rules(yaw_source="vision", position_noise_m=0.05, delay_ms=None,
+                       autopilot="ardurover", mount=mount)  # fmt: skip
+        return [f.name for f in evaluate(params, wanted) if not f.ok]
+
+    assert failing(ROVER_CONFIGURED_PARAMS) == []  # the demo's stand-in (`--sonar-tilt pan-tilt`)
+    narrow = ROVER_CONFIGURED_PARAMS | {"MNT1_YAW_MAX": 60.0}  # a linkage with too little travel
+    assert failing(narrow) == ["MNT1_YAW_MAX"]
+    unwired = ROVER_CONFIGURED_PARAMS | {"SERVO10_FUNCTION": 0.0}
+    assert failing(unwired) == ["SERVOn_FUNCTION (pan)"]
+
+
+def test_mav_check_refuses_a_pan_the_bridge_and_the_follower_disagree_on(tmp_path: Path) -> None:
+    """The follower aims a pan the bridge would never send (or the other way): refused."""
+    bridge, follow = _servo_configs(tmp_path)
+    config = yaml.safe_load(follow.read_text())
+    config["sonar"]["pan"] = {}
+    follow.write_text(yaml.safe_dump(config))
+    result = _capsd("mav", "check", "--connect", "tcp:127.0.0.1:1", "--role", "asv",
+                    "--bridge-config", str(bridge), "--follow-config", str(follow))  # fmt: skip
+    assert result.returncode == 2, result.stderr
+    assert "sonar_tilt.pan" in result.stderr
+    assert "asv_bridge.yaml" in result.stderr
+
+
 def test_gps_input_output_and_requested_rates(
     spawn: Callable[..., Proc],
     client: zenoh.Session,
@@ -1110,9 +1144,10 @@ def test_the_asv_role_drives_the_sonar_tilt_servo_in_guided_and_publishes_its_an
     servo = TiltServo(SonarTiltConfig(), zero_pitch_deg=-45.0)
     told: list[float] = []
 
-    def on_pitch(pitch_deg: float) -> None:
+    def on_pitch(pitch_deg: float, yaw_deg: float) -> None:
         told.append(pitch_deg)
-        servo.command(time.monotonic(), pitch_deg)
+        assert yaw_deg == 0.0  # no pan: ahead
+        servo.command(time.monotonic(), pitch_deg, yaw_deg)
 
     with AutopilotStandIn(
         free_port(),
@@ -1182,5 +1217,59 @@ def test_the_asv_role_drives_the_sonar_tilt_servo_in_guided_and_publishes_its_an
         sent, reported = (health.counters.get(k, 0) for k in ("commands_sent_tilt", "tilt_reports"))
         assert sent >= 2  # 10 deg, then the limit
         assert reported >= 3
+        tilt_sub.undeclare()
+        commands.undeclare()
+
+
+def test_the_asv_role_drives_a_pan_servo_with_the_tilt_and_publishes_both_angles(
+    spawn: Callable[..., Proc], client: zenoh.Session, endpoint: str, tmp_path: Path
+) -> None:
+    """A mount with a pan (`sonar_tilt.pan: servo`): both angles out and back.
+
+    The follower's pan (left +) goes out as MAVLink's yaw in the vehicle's frame (right +) and
+    comes back as `pan_rad`.
+    """
+    servo = TiltServo(SonarTiltConfig(), zero_pitch_deg=-45.0, pan=SonarPanConfig())
+    told: list[tuple[float, float]] = []
+
+    def on_gimbal(pitch_deg: float, yaw_deg: float) -> None:
+        told.append((pitch_deg, yaw_deg))
+        servo.command(time.monotonic(), pitch_deg, yaw_deg)
+
+    with AutopilotStandIn(
+        free_port(),
+        mode="GUIDED",
+        autopilot="ardurover",
+        params=CONFIGURED_PARAMS,
+        on_gimbal_pitch=on_gimbal,
+        gimbal_pitch_rad=servo.reported_pitch_rad,
+        gimbal_yaw_rad=servo.reported_yaw_rad,
+    ) as rover:
+        config = _asv_bridge_config(
+            tmp_path, endpoint, rover.port, "sonar_tilt:\n  zero_pitch_deg: -45.0\n  pan: servo\n"
+        )
+        tilts, tilt_sub = _collect(client, topics.SONAR_TILT.key("tank", "asv"), SonarTilt)
+        spawn("run", "mav_bridge", "--config", str(config))
+        key = SiteKey.load(_key_path(tmp_path), config_key="fix_key")
+        commands = client.declare_publisher(
+            topics.ASV_COMMAND.key("tank", "topside"),
+            encoding=zenoh.Encoding(Codec(VehicleCommand).encoding),
+        )
+
+        def panned() -> bool:
+            command = VehicleCommand(
+                stamp_ns=time.time_ns(), seq=0, mission="follow", kind="goto",
+                position_m=(10.0, 8.0, 0.0), sonar_tilt_rad=math.radians(10.0),
+                sonar_pan_rad=math.radians(70.0),
+            )  # fmt: skip
+            data = Codec(VehicleCommand).encode(command)
+            tag = key.tag(topics.ASV_COMMAND.key("tank", "topside"), data)
+            commands.put(data, attachment=time.time_ns().to_bytes(8, "little") + tag)
+            time.sleep(0.1)
+            return bool(tilts) and tilts[-1].pan_rad == pytest.approx(math.radians(70.0), abs=1e-6)
+
+        wait_for(panned, timeout_s=20, what="the pan at 70 deg to port, reported")
+        assert told[-1] == pytest.approx((-55.0, -70.0))
+        assert tilts[-1].tilt_rad == pytest.approx(math.radians(10.0), abs=1e-6)
         tilt_sub.undeclare()
         commands.undeclare()
