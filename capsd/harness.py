@@ -306,8 +306,9 @@ def write_configs(
     mounts = _calibrated(run, folder, duration_s=calibration_s) if calibration == "dive" else {}
     # What every service that looks through the sonar is told: the tape's, or the dive's fit.
     told = {"sonar": mounts.get("sonar", mount)} if mount or mounts else {}
-    if "tilt" in mount:  # the dive calibrates the servo's zero; the servo itself is the site's
-        told["sonar"] = {**told["sonar"], "tilt": mount["tilt"]}
+    for servo in ("tilt", "pan"):  # the dive calibrates the servos' zeros; they are the site's
+        if servo in mount:
+            told["sonar"] = {**told["sonar"], servo: mount[servo]}
     start = Simulation(run, horizon_s=10)
     # The person putting the ASV in the water knows roughly which way it points: 20 deg off.
     heading = math.degrees(matrix_to_euler_zyx(start.asv_pose(0.0).rotation)[0]) + 20.0
@@ -409,13 +410,13 @@ def _calibrated(run: Any, folder: Path, *, duration_s: float) -> dict[str, Any]:
     from capsd.progress import Progress
 
     # The dive is its own run: no live autopilots (the demo's ports), the ASV turns on the spot,
-    # a tilt servo held at its zero (no one drives it: the sonar is then a fixed one).
+    # the servos held at their zeros (no one drives them: the sonar is then a fixed one).
     offline = msgspec.structs.replace(
         run,
         guided=None,
         asv_guided=None,
         asv_mode="spin",
-        sonar=msgspec.structs.replace(run.sonar, tilt=None),
+        sonar=msgspec.structs.replace(run.sonar, tilt=None, pan=None),
     )
     manoeuvres = 2 + len(profile_standoffs_m(offline, offline.sonar))
     print(

@@ -80,3 +80,27 @@ def test_the_depth_gate_looks_through_the_tanks_sonar_mount(tmp_path: Path) -> N
 def test_a_perfect_installation_is_not_calibrated(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="calibrates a realistic installation"):
         _configs(tmp_path / "off", install_errors="off", calibration="dive")
+
+
+def test_a_pan_tilt_mount_reaches_every_service_that_looks_through_it(tmp_path: Path) -> None:
+    """`--sonar-tilt pan-tilt`: the services are told both servos.
+
+    Also after a calibration dive (which holds them at their zeros and fits the mount there).
+    """
+    followed = _configs(
+        tmp_path / "followed", tank="mockup", sonar_tilt="pan-tilt", asv="follow",
+        asv_mav_port=5761, rov_start_m=(3.8, 1.0, -1.0),
+    )  # fmt: skip
+    dived = _configs(tmp_path / "dived", sonar_tilt="pan-tilt", calibration="dive",
+                     calibration_s=30.0)  # fmt: skip
+    told = [
+        (configs, name) for configs in (followed, dived) for name in ("locator", "sonar_detect")
+    ]
+    told.append((followed, "asv_follow"))
+    for configs, name in told:
+        body = configs[name]["depth_gate"] if name == "sonar_detect" else configs[name]
+        mount = msgspec.convert(body["sonar"], SonarMountConfig)
+        assert mount.tilt is not None, name
+        assert mount.pan is not None, name
+    assert followed["asv_bridge"]["sonar_tilt"]["pan"] == "servo"
+    assert msgspec.convert(followed["sim"]["sonar"], SonarMountConfig).pan is not None
