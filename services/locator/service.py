@@ -53,6 +53,7 @@ from capsd.services.locator.relocation import LastSeen, Relocation, RelocationSe
 from capsd.services.locator.timeline import Lookup, Timeline
 from capsd.services.locator.tracker import Association, Tracker, TrackerSettings
 from capsd.services.locator.waiting import PoseWait
+from capsd.servo_motion import ServoMotion, ServoState
 from capsd.signing import SiteKey
 from capsd.sonar_geometry import to_polar
 from capsd.sound_speed import SoundSpeedError, relative_sigma, speed_of_sound_m_s
@@ -308,17 +309,6 @@ def _lerp_depth(a: DepthSample, b: DepthSample, f: float) -> DepthSample:
     return a[0] + f * (b[0] - a[0]), b[1], a[2] + f * (b[2] - a[2])
 
 
-ServoAngles = tuple[float, float]  # the sonar's tilt and pan (rad), as SonarTilt reports them
-
-
-def _hold_servos(a: ServoAngles, b: ServoAngles, f: float) -> ServoAngles:
-    # Between two reports the servos moved from one to the other; past the newest they hold
-    # (the autopilot reports the angles it drives them to, which stay until told again).
-    if f >= 1.0:
-        return b
-    return a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1])
-
-
 def _vec3(v: Array) -> tuple[float, float, float]:
     return (float(v[0]), float(v[1]), float(v[2]))
 
@@ -340,11 +330,14 @@ class Locator:
         # a pan servo's to the yaw).
         self.mount = config.sonar.transform()
         tilt = config.sonar.tilt
-        self.tilts: Timeline[ServoAngles] | None = (
+        # Each report is where the servos are driven to; they slew there (capsd.servo_motion).
+        self.servo_motion = ServoMotion(config.sonar)
+        self._servo_state: ServoState | None = None
+        self.tilts: Timeline[ServoState] | None = (
             None
             if tilt is None
             else Timeline(
-                _hold_servos,
+                self.servo_motion.between,
                 capacity=int(config.inputs.buffer_s * 100),
                 max_extrapolation_ns=int(tilt.max_age_s * 1e9),
             )
@@ -434,7 +427,10 @@ class Locator:
             return
         self._note_arrival(tilt.stamp_ns)
         pan = tilt.pan_rad if self.config.sonar.pan is not None else 0.0
-        self.tilts.add(tilt.stamp_ns, (tilt.tilt_rad, pan))
+        state = self.servo_motion.report(self._servo_state, tilt.stamp_ns, tilt.tilt_rad, pan)
+        if self._servo_state is None or state.stamp_ns >= self._servo_state.stamp_ns:
+            self._servo_state = state
+        self.tilts.add(tilt.stamp_ns, state)
 
     def on_depth(self, depth: RovDepth) -> None:
         self._note_arrival(depth.stamp_ns)
@@ -639,7 +635,7 @@ class Locator:
             tilted = tilt.value is not None
             if tilt.value is not None:
                 self.mount = self.config.sonar.transform(
-                    tilt_rad=tilt.value[0], pan_rad=tilt.value[1]
+                    tilt_rad=tilt.value.tilt_rad, pan_rad=tilt.value.pan_rad
                 )
         for name, lookup in inputs:
             if lookup.failure is not None:

@@ -40,6 +40,7 @@ from capsd.services.sonar_detect.depth_gate import DepthGate
 from capsd.services.sonar_detect.range_bias import DEFAULT_TABLE as DEFAULT_RANGE_BIAS
 from capsd.services.sonar_detect.range_bias import RangeBias
 from capsd.services.sonar_detect.range_bias import load as load_range_bias
+from capsd.servo_motion import ServoMotion, ServoState
 
 logger = logging.getLogger(__name__)
 
@@ -254,7 +255,24 @@ class GateInputs:
         self._mount = config.sonar.transform()
         self.pose: AsvPose | None = None
         self.depth: RovDepth | None = None
-        self.tilt: SonarTilt | None = None  # where the sonar sits on a tilt servo
+        self._tilt: SonarTilt | None = None  # the servos' newest report
+        # ... and where they are then, slewing to the angles reported (capsd.servo_motion).
+        self._motion = ServoMotion(config.sonar)
+        self.servos: ServoState | None = None
+
+    @property
+    def tilt(self) -> SonarTilt | None:
+        """The sonar's servos' newest report (a mount with a tilt servo)."""
+        return self._tilt
+
+    @tilt.setter
+    def tilt(self, report: SonarTilt | None) -> None:
+        if report is None:
+            self._tilt, self.servos = None, None
+            return
+        pan = report.pan_rad if self.config.sonar.pan is not None else 0.0
+        state = self._motion.report(self.servos, report.stamp_ns, report.tilt_rad, pan)
+        self._tilt, self.servos = report, state
 
     def gate(self, stamp_ns: int) -> DepthGate | None:
         """The gate for a ping, or None when off or without fresh inputs."""
@@ -268,11 +286,16 @@ class GateInputs:
         mount = self._mount
         if c.sonar.tilt is not None:
             # On a servo, no gate without its angle: a guessed elevation would reject the ROV.
-            tilt = self.tilt
-            if tilt is None or abs(stamp_ns - tilt.stamp_ns) > c.sonar.tilt.max_age_s * 1e9:
+            tilt, servos = self.tilt, self.servos
+            if (
+                tilt is None
+                or servos is None
+                or abs(stamp_ns - tilt.stamp_ns) > c.sonar.tilt.max_age_s * 1e9
+            ):
                 return None
-            pan = tilt.pan_rad if c.sonar.pan is not None else 0.0
-            mount = c.sonar.transform(tilt_rad=tilt.tilt_rad, pan_rad=pan)
+            # Where the servos are at the ping, slewing towards the angles reported.
+            at = self._motion.at(servos, max(stamp_ns, servos.stamp_ns))
+            mount = c.sonar.transform(tilt_rad=at.tilt_rad, pan_rad=at.pan_rad)
         asv = Transform(quat_to_matrix(np.array(pose.orientation_xyzw)), np.array(pose.position_m))
         return c.gate_at(asv.compose(mount), -depth.depth_m)
 

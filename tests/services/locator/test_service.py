@@ -600,3 +600,29 @@ def test_a_sonar_on_a_pan_servo_is_fixed_through_the_pan_reported_for_its_ping()
         tilt_only.on_tilt(SonarTilt(stamp_ns=stamp, seq=k, tilt_rad=tilt, pan_rad=pan))
     other = tilt_only.locate(_ping(SECOND, echo), seq=0)
     assert other.raw_position_m is None or not np.allclose(other.raw_position_m, rov, atol=0.05)
+
+
+def test_a_ping_while_the_pan_slews_is_fixed_through_where_the_pan_is_not_where_it_goes() -> None:
+    """Told 50 deg at 1 s, a 60 deg/s pan is at 12 deg at 1.2 s: the echo is fixed through 12."""
+    servo = msgspec.convert(
+        {"pitch_deg": 20.0, "tilt": {"max_age_s": 0.5}, "pan": {"rate_deg_s": 60.0}},
+        SonarMountConfig,
+    )
+    locator = _locator(sonar=servo)
+    _feed_inputs(locator, until_s=2.0)
+    tilt = math.radians(12.0)
+    for k in range(0, 16):  # 10 reports a second from 0.5 s: 0 deg, then 50 deg from 1.0 s
+        stamp = SECOND // 2 + k * SECOND // 10
+        pan = 0.0 if stamp < SECOND else math.radians(50.0)
+        locator.on_tilt(SonarTilt(stamp_ns=stamp, seq=k, tilt_rad=tilt, pan_rad=pan))
+    at = math.radians(12.0)  # 0.2 s at 60 deg/s
+    seen_by = Transform(np.eye(3), ASV).compose(servo.transform(tilt_rad=tilt, pan_rad=at))
+    bearing = at + math.radians(4.0)
+    rov = ASV + np.array([3.0 * math.cos(bearing), 3.0 * math.sin(bearing), 0.0])
+    rov[2] = ROV[2]
+    r, azimuth, _ = to_polar(servo.beam_model, seen_by.inverse().apply(rov))
+    echo = Detection(range_m=r, azimuth_rad=azimuth, range_sigma_m=0.01,
+                     azimuth_sigma_rad=math.radians(0.2), confidence=0.9)  # fmt: skip
+    fix = locator.locate(_ping(SECOND + SECOND // 5, echo), seq=0)
+    assert fix.raw_position_m is not None
+    assert np.allclose(fix.raw_position_m, rov, atol=1e-6)

@@ -1,0 +1,77 @@
+"""Where a sonar mount's servos are, from the angles its autopilot says it drives them to.
+
+A servo mount has no feedback: ArduPilot reports the angle it drives each servo to, at once,
+while the servo slews there at its own rate. A ping taken while it slews, fixed through the
+reported angle, is fixed through where the servo is going, not where it is: for a pan, the
+fix turns by the difference, the follower turns the pan after it, and the two chase each
+other off the ROV (the mockup's pan-tilt demo, session 44: 3.6 % good fixes). So each report
+is taken as a new target from its stamp on, and the servo as moving towards the previous
+target at its rate until then (the simulator's servo, capsd.simulator.tilt_servo, moves so).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from capsd.mounts import SonarMountConfig
+
+
+@dataclass(frozen=True)
+class ServoState:
+    """At `stamp_ns`: where the servos are (tilt, pan; rad) and where they are driven to."""
+
+    stamp_ns: int
+    tilt_rad: float
+    pan_rad: float
+    tilt_to_rad: float
+    pan_to_rad: float
+
+
+def _toward(at: float, to: float, rate_rad_s: float, dt_s: float) -> float:
+    """From `at` towards `to` at `rate_rad_s` for `dt_s` (an infinite rate: there at once)."""
+    if dt_s <= 0.0:
+        return at
+    if math.isinf(rate_rad_s):
+        return to
+    most = rate_rad_s * dt_s
+    return at + max(-most, min(most, to - at))
+
+
+class ServoMotion:
+    """The servos' rates (the mount's `tilt` and `pan`); `report` and `at` model their moves."""
+
+    def __init__(self, mount: SonarMountConfig):
+        self.tilt_rate_rad_s = (
+            math.inf if mount.tilt is None else math.radians(mount.tilt.rate_deg_s)
+        )
+        self.pan_rate_rad_s = math.inf if mount.pan is None else math.radians(mount.pan.rate_deg_s)
+
+    def at(self, state: ServoState, stamp_ns: int) -> ServoState:
+        """The servos at `stamp_ns` (at or after `state`'s stamp), driven to `state`'s targets."""
+        dt = max(0.0, (stamp_ns - state.stamp_ns) / 1e9)
+        return ServoState(
+            stamp_ns,
+            _toward(state.tilt_rad, state.tilt_to_rad, self.tilt_rate_rad_s, dt),
+            _toward(state.pan_rad, state.pan_to_rad, self.pan_rate_rad_s, dt),
+            state.tilt_to_rad,
+            state.pan_to_rad,
+        )
+
+    def report(
+        self, previous: ServoState | None, stamp_ns: int, tilt_rad: float, pan_rad: float
+    ) -> ServoState:
+        """The servos at a report, driven to the reported angles from now on.
+
+        Moved since `previous` towards its targets (None, or a report older than it: taken as
+        where it says).
+        """
+        if previous is None or stamp_ns < previous.stamp_ns:
+            return ServoState(stamp_ns, tilt_rad, pan_rad, tilt_rad, pan_rad)
+        moved = self.at(previous, stamp_ns)
+        return ServoState(stamp_ns, moved.tilt_rad, moved.pan_rad, tilt_rad, pan_rad)
+
+    def between(self, a: ServoState, b: ServoState, fraction: float) -> ServoState:
+        """The servos at `fraction` of the way from report `a` to report `b` (past `b` too)."""
+        stamp = a.stamp_ns + round(fraction * (b.stamp_ns - a.stamp_ns))
+        return self.at(a, stamp) if stamp <= b.stamp_ns else self.at(b, stamp)
