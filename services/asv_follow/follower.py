@@ -209,6 +209,7 @@ class Follower:
         self._arrived_s: float | None = None  # when the carrot reached the look's station
         self._aim: Array | None = None  # where the station was chosen to look
         self._held: Array | None = None  # without a fresh fix: where the ROV holds
+        self._pan_told: float | None = None  # the pan servo's angle last asked for
         self._last_step_s: float | None = None
         self.leg_end: Array | None = None  # where the ROV's mission sends it now (W)
         self._direction: DriveDirection = "forward"  # steered: how the hull drives its way
@@ -339,7 +340,7 @@ class Follower:
         else:
             state = "following" if fresh else "holding"
         self._walk(dt, fresh=fresh)
-        tilt, pan = self._sonar_angles(fresh=fresh)
+        tilt, pan = self._sonar_angles(fresh=fresh, dt=dt)
         return Target(
             self._carrot.copy(),
             self._carrot_heading,
@@ -350,12 +351,18 @@ class Follower:
             pan,
         )
 
-    def _sonar_angles(self, *, fresh: bool) -> tuple[float | None, float | None]:
+    def _sonar_angles(self, *, fresh: bool, dt: float) -> tuple[float | None, float | None]:
         """The servos' angles (tilt, pan) for the ROV now (or where it is looked for).
 
         Seen from the ASV now. Where the ROV is, not where the station was chosen for (its
         lead): the servos are fast and the fix is what must stay in the aperture. Held (None)
         with nothing to look at; the pan None without a pan servo.
+
+        The pan faces the fix itself, without the tilt's velocity lead, and is asked to turn
+        no faster than the servo does (`dt` since the last step): a pan turns the sonar's
+        azimuth, and a fix whose azimuth is a little off (the servo reported where it goes,
+        not where it is) moves the fix, its tracked velocity, the lead and so the pan the same
+        way; the first mockup pan-tilt demo's pan ran 57 deg off a ROV 4 deg off the bow so.
         """
         if self.planner.tilt is None or self.asv_xy is None or self.rov_m is None:
             return None, None
@@ -366,8 +373,14 @@ class Follower:
             look = self.rov_m if lost is None else lost
         if self.planner.pan is None:
             return self.planner.tilt_rad(self.asv_xy, self.asv_heading, look), None
-        pan, tilt = self.planner.pan_tilt_rad(self.asv_xy, self.asv_heading, look)
-        return tilt, pan
+        facing = self.rov_m if fresh else look
+        wanted, _ = self.planner.pan_tilt_rad(self.asv_xy, self.asv_heading, facing)
+        if self._pan_told is not None:
+            most = math.radians(self.planner.pan.rate_deg_s) * dt
+            wanted = self._pan_told + max(-most, min(most, wanted - self._pan_told))
+        self._pan_told = wanted
+        _, tilt = self.planner.pan_tilt_rad(self.asv_xy, self.asv_heading, look, pan_now_rad=wanted)
+        return tilt, wanted
 
     def _look_point(self, *, fresh: bool) -> Array | None:
         """Where the ROV is (ahead, with a fresh fix) or is looked for (`_lost_look`)."""
