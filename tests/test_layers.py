@@ -35,6 +35,7 @@ CORE = frozenset(
         "capsd.ros_messages",
         "capsd.runner",
         "capsd.sdnotify",
+        "capsd.servo_motion",
         "capsd.signing",
         "capsd.sonar_geometry",
         "capsd.sonar_image",

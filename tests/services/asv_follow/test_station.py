@@ -8,7 +8,7 @@ from typing import Literal
 import msgspec
 import numpy as np
 import pytest
-from hypothesis import assume, given, settings
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from capsd.geometry import Transform, wrap_angle
@@ -610,26 +610,34 @@ def test_no_servo_no_tilt_and_the_stations_are_chosen_for_its_zero() -> None:
 @given(
     asv=st.tuples(st.floats(2.0, 26.0), st.floats(2.0, 14.0)),
     heading=st.floats(-math.pi, math.pi),
-    rov=st.tuples(st.floats(1.0, 27.0), st.floats(1.0, 15.0), st.floats(-7.5, -1.0)),
+    off_deg=st.floats(-85.0, 85.0),
+    distance=st.floats(0.5, 15.0),
+    depression_deg=st.floats(20.0, 65.0),
 )
 def test_the_pan_and_tilt_put_the_rov_on_the_boresight_wherever_the_hull_faces(
-    asv: tuple[float, float], heading: float, rov: tuple[float, float, float]
-) -> None:
+    asv: tuple[float, float], heading: float, off_deg: float, distance: float,
+    depression_deg: float,
+) -> None:  # fmt: skip
     """Within the servos' ranges: the ROV at azimuth 0 and the target elevation."""
     mount = msgspec.convert({"tilt": {}, "pan": {}}, SonarMountConfig)
     planner = StationPlanner(mount, TANK, StationSettings(target_elevation_rad=-0.05))
-    look = np.array(rov)
+    # The ROV `off_deg` off the bow from the sonar, `depression_deg` down: both servos reach it.
+    sonar = planner.sonar_xy(np.array(asv), heading)
+    bearing = heading + math.radians(off_deg)
+    look = np.array(
+        [
+            sonar[0] + distance * math.cos(bearing),
+            sonar[1] + distance * math.sin(bearing),
+            planner.sonar_z - distance * math.tan(math.radians(depression_deg)),
+        ]
+    )
     pan, tilt = planner.pan_tilt_rad(np.array(asv), heading, look)
-    assert mount.tilt is not None
-    assert mount.pan is not None
-    limits = (mount.tilt.min_deg, mount.tilt.max_deg), (mount.pan.min_deg, mount.pan.max_deg)
-    for angle, (lo, hi) in zip((tilt, pan), limits, strict=True):
-        assume(math.radians(lo) + 1e-6 < angle < math.radians(hi) - 1e-6)
+    assert pan == pytest.approx(math.radians(off_deg), abs=1e-9)
     body = Transform.from_euler_zyx(
         (asv[0], asv[1], 0.0), yaw_rad=heading, pitch_rad=0.0, roll_rad=0.0
     )
-    sonar = body.compose(mount.transform(tilt_rad=tilt, pan_rad=pan))
-    _, azimuth, elevation = to_polar("conical", sonar.inverse().apply(look))
+    seen = body.compose(mount.transform(tilt_rad=tilt, pan_rad=pan))
+    _, azimuth, elevation = to_polar("conical", seen.inverse().apply(look))
     assert abs(azimuth) < 1e-6
     assert elevation == pytest.approx(-0.05, abs=1e-6)
     # Without a pan servo: the tilt alone, as before.
