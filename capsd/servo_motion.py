@@ -28,7 +28,7 @@ class ServoState:
     pan_to_rad: float
 
 
-def _toward(at: float, to: float, rate_rad_s: float, dt_s: float) -> float:
+def toward(at: float, to: float, rate_rad_s: float, dt_s: float) -> float:
     """From `at` towards `to` at `rate_rad_s` for `dt_s` (an infinite rate: there at once)."""
     if dt_s <= 0.0:
         return at
@@ -52,8 +52,8 @@ class ServoMotion:
         dt = max(0.0, (stamp_ns - state.stamp_ns) / 1e9)
         return ServoState(
             stamp_ns,
-            _toward(state.tilt_rad, state.tilt_to_rad, self.tilt_rate_rad_s, dt),
-            _toward(state.pan_rad, state.pan_to_rad, self.pan_rate_rad_s, dt),
+            toward(state.tilt_rad, state.tilt_to_rad, self.tilt_rate_rad_s, dt),
+            toward(state.pan_rad, state.pan_to_rad, self.pan_rate_rad_s, dt),
             state.tilt_to_rad,
             state.pan_to_rad,
         )

@@ -21,6 +21,7 @@ import math
 import threading
 
 from capsd.mounts import SonarPanConfig, SonarTiltConfig
+from capsd.servo_motion import toward
 
 
 class TiltServo:
@@ -45,14 +46,14 @@ class TiltServo:
         self.commands = 0
 
     def _at(self, t_s: float) -> float:
-        most = math.radians(self.servo.rate_deg_s) * max(0.0, t_s - self._t0)
-        return self._from + max(-most, min(most, self._to - self._from))
+        rate = math.radians(self.servo.rate_deg_s)
+        return toward(self._from, self._to, rate, t_s - self._t0)
 
     def _pan_at(self, t_s: float) -> float:
         if self.pan is None:
             return 0.0
-        most = math.radians(self.pan.rate_deg_s) * max(0.0, t_s - self._pan_t0)
-        return self._pan_from + max(-most, min(most, self._pan_to - self._pan_from))
+        rate = math.radians(self.pan.rate_deg_s)
+        return toward(self._pan_from, self._pan_to, rate, t_s - self._pan_t0)
 
     def pan_rad(self, t_s: float) -> float:
         """Where the pan servo truly is at sim time `t_s` (left +; 0 without one)."""

@@ -362,7 +362,7 @@ class Follower:
         no faster than the servo does (`dt` since the last step): a pan turns the sonar's
         azimuth, and a fix whose azimuth is a little off (the servo reported where it goes,
         not where it is) moves the fix, its tracked velocity, the lead and so the pan the same
-        way; the first mockup pan-tilt demo's pan ran 57 deg off a ROV 4 deg off the bow so.
+        way; a mockup pan-tilt demo's pan ran 57 deg off a ROV 4 deg off the bow so.
         """
         if self.planner.tilt is None or self.asv_xy is None or self.rov_m is None:
             return None, None

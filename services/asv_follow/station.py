@@ -260,15 +260,15 @@ class StationPlanner:
         leaves the ROV off its boresight, nearer in the boresight's plane (`tilt_rad`'s
         azimuth). Stations stay chosen at both servos' zero (`tilt_rad`): the pan only keeps
         the sonar on the ROV while a steered hull's way crosses its bearing (`capsd bench
-        follow --sonar-pan what-if`: the mockup's one loss a run).
+        follow --sonar-tilt pan-tilt`: the mockup's one loss a run).
         """
         if self.pan is None or self.tilt is None:
             return 0.0, self.tilt_rad(asv_xy, heading_rad, rov_m)
         sonar = self.sonar_xy(asv_xy, heading_rad)
         dx, dy = float(rov_m[0] - sonar[0]), float(rov_m[1] - sonar[1])
-        pan = self.pan.clamp_rad(wrap_angle(math.atan2(dy, dx) - heading_rad - self.mount_yaw))
-        at = pan if pan_now_rad is None else pan_now_rad
-        off = wrap_angle(math.atan2(dy, dx) - heading_rad - self.mount_yaw - at)
+        off_bow = wrap_angle(math.atan2(dy, dx) - heading_rad - self.mount_yaw)
+        pan = self.pan.clamp_rad(off_bow)
+        off = wrap_angle(off_bow - (pan if pan_now_rad is None else pan_now_rad))
         forward = math.hypot(dx, dy) * math.cos(off)
         drop = self.sonar_z - float(rov_m[2])
         wanted = math.atan2(drop, forward) + self.settings.target_elevation_rad - self.pitch

@@ -332,7 +332,6 @@ class Locator:
         tilt = config.sonar.tilt
         # Each report is where the servos are driven to; they slew there (capsd.servo_motion).
         self.servo_motion = ServoMotion(config.sonar)
-        self._servo_state: ServoState | None = None
         self.tilts: Timeline[ServoState] | None = (
             None
             if tilt is None
@@ -427,10 +426,10 @@ class Locator:
             return
         self._note_arrival(tilt.stamp_ns)
         pan = tilt.pan_rad if self.config.sonar.pan is not None else 0.0
-        state = self.servo_motion.report(self._servo_state, tilt.stamp_ns, tilt.tilt_rad, pan)
-        if self._servo_state is None or state.stamp_ns >= self._servo_state.stamp_ns:
-            self._servo_state = state
-        self.tilts.add(tilt.stamp_ns, state)
+        newest = self.tilts.latest().value  # a report older than it is taken as it says
+        self.tilts.add(
+            tilt.stamp_ns, self.servo_motion.report(newest, tilt.stamp_ns, tilt.tilt_rad, pan)
+        )
 
     def on_depth(self, depth: RovDepth) -> None:
         self._note_arrival(depth.stamp_ns)

@@ -286,12 +286,8 @@ class GateInputs:
         mount = self._mount
         if c.sonar.tilt is not None:
             # On a servo, no gate without its angle: a guessed elevation would reject the ROV.
-            tilt, servos = self.tilt, self.servos
-            if (
-                tilt is None
-                or servos is None
-                or abs(stamp_ns - tilt.stamp_ns) > c.sonar.tilt.max_age_s * 1e9
-            ):
+            servos = self.servos
+            if servos is None or abs(stamp_ns - servos.stamp_ns) > c.sonar.tilt.max_age_s * 1e9:
                 return None
             # Where the servos are at the ping, slewing towards the angles reported.
             at = self._motion.at(servos, max(stamp_ns, servos.stamp_ns))

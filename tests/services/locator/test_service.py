@@ -568,6 +568,24 @@ def test_a_sonar_on_a_tilt_servo_is_fixed_through_the_angle_reported_for_its_pin
     assert "sonar_tilt_too_new" in stale.no_fix_reason
 
 
+def _seen_through_servos(
+    servo: SonarMountConfig, tilt: float, pan: float, off_deg: float
+) -> tuple[np.ndarray, Detection, float]:
+    """A ROV 3 m off, `off_deg` beyond the panned boresight's bearing, at ROV's depth.
+
+    Where it is, its echo through the servos at `tilt` and `pan` (a level ASV at ASV), and its
+    elevation in the sonar.
+    """
+    seen_by = Transform(np.eye(3), ASV).compose(servo.transform(tilt_rad=tilt, pan_rad=pan))
+    bearing = pan + math.radians(off_deg)
+    rov = ASV + np.array([3.0 * math.cos(bearing), 3.0 * math.sin(bearing), 0.0])
+    rov[2] = ROV[2]
+    r, azimuth, elevation = to_polar(servo.beam_model, seen_by.inverse().apply(rov))
+    echo = Detection(range_m=r, azimuth_rad=azimuth, range_sigma_m=0.01,
+                     azimuth_sigma_rad=math.radians(0.2), confidence=0.9)  # fmt: skip
+    return rov, echo, elevation
+
+
 def test_a_sonar_on_a_pan_servo_is_fixed_through_the_pan_reported_for_its_ping() -> None:
     """A pan turns the sonar about the body's z through its mount: the fix follows the pan."""
     servo = msgspec.convert(
@@ -576,15 +594,7 @@ def test_a_sonar_on_a_pan_servo_is_fixed_through_the_pan_reported_for_its_ping()
     locator = _locator(sonar=servo)
     _feed_inputs(locator, until_s=2.0)
     tilt, pan = math.radians(12.0), math.radians(50.0)
-    asv = Transform(np.eye(3), ASV)
-    seen_by = asv.compose(servo.transform(tilt_rad=tilt, pan_rad=pan))
-    # The ROV 3 m off along the panned boresight's bearing, a little off it.
-    bearing = pan + math.radians(6.0)
-    rov = ASV + np.array([3.0 * math.cos(bearing), 3.0 * math.sin(bearing), 0.0])
-    rov[2] = ROV[2]
-    r, azimuth, elevation = to_polar(servo.beam_model, seen_by.inverse().apply(rov))
-    echo = Detection(range_m=r, azimuth_rad=azimuth, range_sigma_m=0.01,
-                     azimuth_sigma_rad=math.radians(0.2), confidence=0.9)  # fmt: skip
+    rov, echo, elevation = _seen_through_servos(servo, tilt, pan, off_deg=6.0)
     assert abs(elevation) < math.radians(10.0)
     for k in range(0, 21):
         stamp = SECOND // 2 + k * SECOND // 10
@@ -616,13 +626,7 @@ def test_a_ping_while_the_pan_slews_is_fixed_through_where_the_pan_is_not_where_
         pan = 0.0 if stamp < SECOND else math.radians(50.0)
         locator.on_tilt(SonarTilt(stamp_ns=stamp, seq=k, tilt_rad=tilt, pan_rad=pan))
     at = math.radians(12.0)  # 0.2 s at 60 deg/s
-    seen_by = Transform(np.eye(3), ASV).compose(servo.transform(tilt_rad=tilt, pan_rad=at))
-    bearing = at + math.radians(4.0)
-    rov = ASV + np.array([3.0 * math.cos(bearing), 3.0 * math.sin(bearing), 0.0])
-    rov[2] = ROV[2]
-    r, azimuth, _ = to_polar(servo.beam_model, seen_by.inverse().apply(rov))
-    echo = Detection(range_m=r, azimuth_rad=azimuth, range_sigma_m=0.01,
-                     azimuth_sigma_rad=math.radians(0.2), confidence=0.9)  # fmt: skip
+    rov, echo, _ = _seen_through_servos(servo, tilt, at, off_deg=4.0)
     fix = locator.locate(_ping(SECOND + SECOND // 5, echo), seq=0)
     assert fix.raw_position_m is not None
     assert np.allclose(fix.raw_position_m, rov, atol=1e-6)
