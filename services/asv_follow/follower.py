@@ -41,6 +41,11 @@ the way the hull is asked for the way's heading, its bow's or (backing away from
 MAV_CMD_DO_SET_REVERSE) its stern's, chosen as the way to a station starts (turning first is
 turning to the way) and, once the carrot is at the station, to face the ROV; the carrot is not
 pushed off a near ROV (each push a new way to steer for: it re-stations instead).
+
+A sonar on a tilt servo is told the tilt for where the ROV will be `tilt_lead_s` on; without
+a fresh fix the tilt nods about where the ROV is looked for (`nod_*`), first the way the
+fixes' tilt last went. On a pan servo too, the pan faces the ROV, and the hull at its station
+turns `pan_abeam_rad` off it: the sonar ahead of the origin stays off a near ROV.
 """
 
 from __future__ import annotations
@@ -103,6 +108,11 @@ ACROSS_SLACK_M = 0.5
 # A ROV holding on its leg is expected to go on at this (a plan's default speed_m_s).
 LEG_SPEED_M_S = 0.25
 ALONG_SIGHT_COS = math.cos(math.radians(45.0))  # ... where its leg runs along the sight
+# The way a fresh fix's tilt went: judged over this long, a change under this is none.
+NOD_TREND_S = 0.5
+# A hull turned off the ROV keeps its pan at least this far inside the servo's range.
+ABEAM_PAN_MARGIN_DEG = 15.0
+NOD_TREND_MIN_RAD = math.radians(0.5)
 
 
 @dataclass(frozen=True)
@@ -136,6 +146,18 @@ class FollowSettings:
     # A tilt servo is aimed where the ROV will be this far ahead, at its tracked velocity: the
     # fix's age, the command's way through the ASV's bridge and autopilot, the servo's slew.
     tilt_lead_s: float = 0.5
+    # Without a fresh fix a tilt servo nods about where the ROV is looked for: this far either
+    # side (None: the vertical aperture's half, so the sweep covers twice the aperture), at
+    # this rate (half a 30 deg/s servo's), first the way the fixes last went. Where the ROV
+    # was lost it is not in the aperture, and its elevation is what a small tank's fixes lose
+    # first (a mockup pan-tilt demo, seed 0: the ROV 8-11 deg below the boresight for 10 s,
+    # the last fixes biased 0.2 m past it, the servo aimed there).
+    nod_amplitude_rad: float | None = None
+    nod_rate_rad_s: float = math.radians(15.0)
+    # With a pan servo the hull at its station is turned this far off facing the ROV (the pan
+    # faces it), kept within the slack (`Follower._abeam`); 0: it faces the ROV.
+    pan_abeam_rad: float = math.radians(60.0)
+    pan_abeam_slack_rad: float = math.radians(20.0)
 
 
 @dataclass(frozen=True)
@@ -210,6 +232,11 @@ class Follower:
         self._aim: Array | None = None  # where the station was chosen to look
         self._held: Array | None = None  # without a fresh fix: where the ROV holds
         self._pan_told: float | None = None  # the pan servo's angle last asked for
+        # The tilt a fresh fix last asked for, when, and which way it went (down +1, up -1):
+        # a nod starts that way.
+        self._tilt_wanted: tuple[float, float] | None = None
+        self._tilt_trend = 1.0
+        self._abeam_heading: float | None = None  # the hull's heading off the ROV (`_abeam`)
         self._last_step_s: float | None = None
         self.leg_end: Array | None = None  # where the ROV's mission sends it now (W)
         self._direction: DriveDirection = "forward"  # steered: how the hull drives its way
@@ -340,7 +367,7 @@ class Follower:
         else:
             state = "following" if fresh else "holding"
         self._walk(dt, fresh=fresh)
-        tilt, pan = self._sonar_angles(fresh=fresh, dt=dt)
+        tilt, pan = self._sonar_angles(now_s, fresh=fresh, dt=dt)
         return Target(
             self._carrot.copy(),
             self._carrot_heading,
@@ -351,7 +378,9 @@ class Follower:
             pan,
         )
 
-    def _sonar_angles(self, *, fresh: bool, dt: float) -> tuple[float | None, float | None]:
+    def _sonar_angles(
+        self, now_s: float, *, fresh: bool, dt: float
+    ) -> tuple[float | None, float | None]:
         """The servos' angles (tilt, pan) for the ROV now (or where it is looked for).
 
         Seen from the ASV now. Where the ROV is, not where the station was chosen for (its
@@ -372,15 +401,48 @@ class Follower:
             lost = self._lost_look()
             look = self.rov_m if lost is None else lost
         if self.planner.pan is None:
-            return self.planner.tilt_rad(self.asv_xy, self.asv_heading, look), None
-        facing = self.rov_m if fresh else look
-        wanted, _ = self.planner.pan_tilt_rad(self.asv_xy, self.asv_heading, facing)
-        if self._pan_told is not None:
-            most = math.radians(self.planner.pan.rate_deg_s) * dt
-            wanted = self._pan_told + max(-most, min(most, wanted - self._pan_told))
-        self._pan_told = wanted
-        _, tilt = self.planner.pan_tilt_rad(self.asv_xy, self.asv_heading, look, pan_now_rad=wanted)
-        return tilt, wanted
+            pan = None
+            tilt = self.planner.tilt_rad(self.asv_xy, self.asv_heading, look)
+        else:
+            facing = self.rov_m if fresh else look
+            pan, _ = self.planner.pan_tilt_rad(self.asv_xy, self.asv_heading, facing)
+            if self._pan_told is not None:
+                most = math.radians(self.planner.pan.rate_deg_s) * dt
+                pan = self._pan_told + max(-most, min(most, pan - self._pan_told))
+            self._pan_told = pan
+            _, tilt = self.planner.pan_tilt_rad(
+                self.asv_xy, self.asv_heading, look, pan_now_rad=pan
+            )
+        return self._nodded(now_s, tilt, fresh=fresh), pan
+
+    def _nodded(self, now_s: float, tilt_rad: float, *, fresh: bool) -> float:
+        """The tilt, nodding about `tilt_rad` without a fresh fix (FollowSettings.nod_*).
+
+        A triangle wave: from the look's tilt first the way the fresh fixes' tilt last went,
+        out to the amplitude, over to the other side and back, for as long as the fix is lost.
+        """
+        assert self.planner.tilt is not None
+        if fresh:
+            if self._tilt_wanted is not None:
+                was_s, was = self._tilt_wanted
+                if now_s - was_s >= NOD_TREND_S:
+                    if abs(tilt_rad - was) >= NOD_TREND_MIN_RAD:
+                        self._tilt_trend = 1.0 if tilt_rad > was else -1.0
+                    self._tilt_wanted = (now_s, tilt_rad)
+            else:
+                self._tilt_wanted = (now_s, tilt_rad)
+            return tilt_rad
+        s = self.settings
+        amplitude = s.nod_amplitude_rad
+        if amplitude is None:
+            amplitude = self.planner.half_aperture
+        if amplitude <= 0.0:
+            return tilt_rad
+        # Time since the fix went stale, in quarter periods of the triangle (amplitude each).
+        phase = (now_s - self.fix_s - s.fix_timeout_s) * s.nod_rate_rad_s / amplitude
+        phase %= 4.0
+        offset = phase if phase <= 1.0 else (2.0 - phase if phase <= 3.0 else phase - 4.0)
+        return self.planner.tilt.clamp_rad(tilt_rad + self._tilt_trend * amplitude * offset)
 
     def _look_point(self, *, fresh: bool) -> Array | None:
         """Where the ROV is (ahead, with a fresh fix) or is looked for (`_lost_look`)."""
@@ -459,9 +521,51 @@ class Follower:
         if float(np.linalg.norm(offset)) < self.planner.settings.hull_radius_m:
             return self.station.heading_rad
         facing = wrap_angle(math.atan2(offset[1], offset[0]) - self.planner.mount_yaw)
+        if arrived and self.planner.pan is not None and self.settings.pan_abeam_rad > 0.0:
+            return self._abeam(facing)
         if arrived and abs(wrap_angle(facing - self._carrot_heading)) < FACE_WITHIN_RAD:
             return self._carrot_heading  # no chasing of the fixes' jitter
         return facing
+
+    def _abeam(self, facing_rad: float) -> float:
+        """With a pan servo, at the station: the hull `pan_abeam_rad` off facing the ROV.
+
+        The side nearer the hull's heading; kept while the pan it needs stays within
+        `pan_abeam_slack_rad` of that (no chasing); a hull already so keeps its heading. The
+        sonar sits ahead of the hull's origin: a hull facing the ROV brings it that much
+        nearer, one turned away keeps it at the station's distance, where a near ROV is still
+        found (a mockup pan-tilt demo: the detector lost 25-45 % of the pings under 0.95 m,
+        1 % over 1.0 m).
+        """
+        assert self.planner.pan is not None
+        s = self.settings
+        margin = math.radians(ABEAM_PAN_MARGIN_DEG)
+        reach = (
+            min(s.pan_abeam_rad, math.radians(self.planner.pan.max_deg) - margin),
+            min(s.pan_abeam_rad, -math.radians(self.planner.pan.min_deg) - margin),
+        )
+
+        def within_slack(heading_rad: float) -> bool:
+            pan = wrap_angle(facing_rad - heading_rad)  # the pan that heading needs
+            return any(
+                most > 0.0 and abs(side * pan - most) <= s.pan_abeam_slack_rad
+                for side, most in zip((1.0, -1.0), reach, strict=True)
+            )
+
+        # The heading chosen is kept while it serves; a hull that already serves keeps its own.
+        for kept in (self._abeam_heading, self._carrot_heading):
+            if kept is not None and within_slack(kept):
+                self._abeam_heading = kept
+                return kept
+        headings = [
+            wrap_angle(facing_rad - side * most)
+            for side, most in zip((1.0, -1.0), reach, strict=True)
+            if most > 0.0
+        ]
+        if not headings:
+            return facing_rad
+        self._abeam_heading = min(headings, key=lambda h: abs(wrap_angle(h - self._carrot_heading)))
+        return self._abeam_heading
 
     def _leg_path(self) -> Array | None:
         """Points (every PATH_STEP_M) along the ROV's mission leg, up to `path_ahead_m` on.

@@ -126,6 +126,13 @@ class MotionConfig(ConfigSection, frozen=True, kw_only=True):
     # A sonar on a tilt servo is aimed where the ROV will be this far ahead (its tracked
     # velocity): the fix's age, the way through the bridge and autopilot, the servo's slew.
     tilt_lead_s: Annotated[float, msgspec.Meta(ge=0.0, le=5.0)] = 0.5
+    # Without a fresh fix the tilt servo nods this far either side of where the ROV is looked
+    # for (None: half the vertical aperture; 0: no nod), at this rate.
+    nod_amplitude_deg: Annotated[float, msgspec.Meta(ge=0.0, le=45.0)] | None = None
+    nod_rate_deg_s: Annotated[float, msgspec.Meta(gt=0.0, le=180.0)] = 15.0
+    # With a pan servo the hull at its station turns this far off facing the ROV, the pan
+    # facing it (the sonar, ahead of the hull's origin, kept off a near ROV); 0: it faces it.
+    pan_abeam_deg: Annotated[float, msgspec.Meta(ge=0.0, le=90.0)] = 60.0
 
     def settings(self) -> FollowSettings:
         return FollowSettings(
@@ -145,6 +152,11 @@ class MotionConfig(ConfigSection, frozen=True, kw_only=True):
             stop_within_s=self.stop_within_s,
             lost_drift_m_s=self.lost_drift_m_s,
             tilt_lead_s=self.tilt_lead_s,
+            nod_amplitude_rad=(
+                None if self.nod_amplitude_deg is None else math.radians(self.nod_amplitude_deg)
+            ),
+            nod_rate_rad_s=math.radians(self.nod_rate_deg_s),
+            pan_abeam_rad=math.radians(self.pan_abeam_deg),
         )
 
     def drive_settings(self, station: StationSettings) -> StationSettings:

@@ -905,10 +905,15 @@ def test_a_servo_is_told_the_angle_for_the_rov_half_a_second_on_from_where_the_a
 
 
 def test_a_servo_looks_where_a_rov_that_lost_its_fix_holds_not_at_the_stations_lead() -> None:
-    """The station was chosen for the ROV 0.75 m on; lost, the ROV stops 0.25 m on."""
+    """The station was chosen for the ROV 0.75 m on; lost, the ROV stops 0.25 m on.
+
+    (The look's centre: without the nod about it.)
+    """
     servo = msgspec.convert({"tilt": {}}, SonarMountConfig)
     planner = StationPlanner(servo, TankBounds(), StationSettings())
-    follower = Follower(planner, FollowSettings(lead_s=3.0, stop_within_s=1.0))
+    follower = Follower(
+        planner, FollowSettings(lead_s=3.0, stop_within_s=1.0, nod_amplitude_rad=0.0)
+    )
     follower.on_pose(START, 0.0)
     follower.on_mode("GUIDED")
     rov, velocity = np.array([16.0, 8.0, -3.5]), np.array([0.25, 0.0, 0.0])
@@ -924,6 +929,123 @@ def test_a_servo_looks_where_a_rov_that_lost_its_fix_holds_not_at_the_stations_l
     held = rov + velocity * 1.0
     assert lost.sonar_tilt_rad == pytest.approx(planner.tilt_rad(START, 0.0, held))
     assert lost.sonar_tilt_rad != pytest.approx(planner.tilt_rad(START, 0.0, lead), abs=1e-3)
+
+
+def test_a_servo_nods_about_the_look_while_the_fix_is_lost_first_the_way_the_rov_went() -> None:
+    """The ROV closing (its tilt growing: below the boresight next), then lost: the tilt goes
+    down to the look's tilt plus the half aperture, over to minus it and back, at the nod's
+    rate; a fresh fix ends it."""
+    servo = msgspec.convert({"tilt": {}}, SonarMountConfig)
+    planner = StationPlanner(servo, TankBounds(), StationSettings())
+    settings = FollowSettings(
+        stop_within_s=0.0, nod_rate_rad_s=math.radians(10.0), reacquire_after_s=30.0
+    )
+    follower = Follower(planner, settings)
+    follower.on_pose(START, 0.0)
+    follower.on_mode("GUIDED")
+    t = 0.0
+    for x in np.arange(16.0, 15.0, -0.05):  # coming at the ASV: ever steeper
+        follower.on_fix(t, np.array([x, 8.0, -3.5]))
+        assert follower.step(t) is not None
+        t += 0.1
+    last_fix_s = t - 0.1
+    look = planner.tilt_rad(START, 0.0, follower.rov_m)
+    amplitude = planner.half_aperture
+    quarter_s = amplitude / settings.nod_rate_rad_s  # 1 s
+    told = {}
+    for after in (0.5, 1.0, 2.0, 3.0, 4.0, 5.0):
+        now = last_fix_s + settings.fix_timeout_s + after * quarter_s
+        target = follower.step(now)
+        assert target is not None
+        assert target.sonar_tilt_rad is not None
+        told[after] = target.sonar_tilt_rad
+    assert told[0.5] == pytest.approx(look + 0.5 * amplitude, abs=1e-6)  # down first
+    assert told[1.0] == pytest.approx(look + amplitude, abs=1e-6)
+    assert told[2.0] == pytest.approx(look, abs=1e-6)
+    assert told[3.0] == pytest.approx(look - amplitude, abs=1e-6)
+    assert told[4.0] == pytest.approx(look, abs=1e-6)
+    assert told[5.0] == pytest.approx(look + amplitude, abs=1e-6)
+    # Found again: the look itself.
+    now = last_fix_s + 10.0
+    follower.on_fix(now, follower.rov_m)
+    found = follower.step(now)
+    assert found is not None
+    assert found.sonar_tilt_rad == pytest.approx(planner.tilt_rad(START, 0.0, follower.rov_m))
+
+
+def test_a_nod_starts_up_where_the_rov_was_going_up_the_aperture() -> None:
+    """The ROV going away (the tilt shallower): the nod's first half goes up."""
+    servo = msgspec.convert({"tilt": {}}, SonarMountConfig)
+    planner = StationPlanner(servo, TankBounds(), StationSettings())
+    settings = FollowSettings(stop_within_s=0.0)
+    follower = Follower(planner, settings)
+    follower.on_pose(START, 0.0)
+    follower.on_mode("GUIDED")
+    t = 0.0
+    for x in np.arange(14.0, 15.0, 0.05):
+        follower.on_fix(t, np.array([x, 8.0, -3.5]))
+        assert follower.step(t) is not None
+        t += 0.1
+    look = planner.tilt_rad(START, 0.0, follower.rov_m)
+    target = follower.step(t - 0.1 + settings.fix_timeout_s + 0.2)
+    assert target is not None
+    assert target.sonar_tilt_rad is not None
+    assert target.sonar_tilt_rad == pytest.approx(look - 0.2 * settings.nod_rate_rad_s, abs=1e-6)
+
+
+def test_with_a_pan_the_hull_at_its_station_turns_off_the_rov_and_the_pan_faces_it() -> None:
+    """At its station the hull settles 60 deg off facing the ROV (the sonar ahead of the
+    origin kept off the ROV), the pan 60 deg the other way; a hull already 50 deg off stays."""
+    servos = msgspec.convert({"tilt": {}, "pan": {}}, SonarMountConfig)
+    planner = StationPlanner(servos, TankBounds(), StationSettings())
+    rov = np.array([14.0, 8.0, -3.5])
+    follower = Follower(planner, FollowSettings())
+    follower.on_pose(START, 0.0)
+    follower.on_mode("GUIDED")
+    follower.on_fix(0.0, rov)
+    assert follower.step(0.0) is not None
+    station = follower.station
+    assert station is not None
+    facing = planner.facing(station.position_xy, rov)
+    heading, t = station.heading_rad, 0.0
+    target = None
+    for _ in range(150):  # 15 s: the hull follows its target's heading at once
+        t += 0.1
+        follower.on_pose(station.position_xy, heading)
+        follower.on_fix(t, rov)
+        target = follower.step(t)
+        assert target is not None
+        heading = target.heading_rad
+    assert target is not None
+    assert target.sonar_pan_rad is not None
+    off = wrap_angle(facing - target.heading_rad)
+    assert math.degrees(abs(off)) == pytest.approx(60.0, abs=0.5)
+    pan, _ = planner.pan_tilt_rad(station.position_xy, target.heading_rad, rov)
+    assert target.sonar_pan_rad == pytest.approx(pan, abs=1e-6)
+    assert math.degrees(abs(pan)) > 55.0
+    # A hull 50 deg off (within the 20 deg slack of 60): kept, no turn.
+    kept = Follower(planner, FollowSettings())
+    kept.on_pose(station.position_xy, wrap_angle(facing - math.radians(50.0)))
+    kept.on_mode("GUIDED")
+    kept.station = station
+    kept.on_fix(0.0, rov)
+    told = kept.step(0.0)
+    assert told is not None
+    assert told.heading_rad == pytest.approx(wrap_angle(facing - math.radians(50.0)))
+    # Without the pan servo the hull faces the ROV.
+    tilt_only = Follower(
+        StationPlanner(
+            msgspec.convert({"tilt": {}}, SonarMountConfig), TankBounds(), StationSettings()
+        ),
+        FollowSettings(),
+    )
+    tilt_only.on_pose(station.position_xy, facing)
+    tilt_only.on_mode("GUIDED")
+    tilt_only.station = station
+    tilt_only.on_fix(0.0, rov)
+    faced = tilt_only.step(0.0)
+    assert faced is not None
+    assert faced.heading_rad == pytest.approx(facing, abs=math.radians(3.0))
 
 
 def test_a_pan_servo_is_told_the_pan_that_faces_the_rov_and_the_tilt_for_it() -> None:
