@@ -30,6 +30,9 @@ def test_in_view_is_the_aperture_and_the_fan() -> None:
     assert not _in_view(mount, sonar, at(mid * 0.6, 0.0))  # under the aperture
     assert not _in_view(mount, sonar, at(mid * 2.0, 0.0))  # above it
     assert not _in_view(mount, sonar, at(mid, 90.0))  # off the fan
+    # A detector that misses a near ROV (`--detect-from`): the ROV is 5.74 m off.
+    assert _in_view(mount, sonar, at(mid, 0.0), from_m=5.7)
+    assert not _in_view(mount, sonar, at(mid, 0.0), from_m=5.8)
 
 
 def _fly(tank: Literal["nfp", "mockup"], duration_s: float, **options: object) -> FollowRun:
@@ -53,6 +56,9 @@ def test_a_mockup_mission_starts_in_view_and_is_scored() -> None:
     # Each step in view has the ROV's elevation, inside the 20 deg aperture.
     assert len(run.elevations_deg) == run.in_view
     assert max(abs(e) for e in run.elevations_deg) <= 10.0
+    # ... and its range from the sonar: the ROV 1 m deep under a sonar 0.2 m deep, in a 4.8 m tank.
+    assert len(run.ranges_m) == run.in_view
+    assert 0.7 < min(run.ranges_m) <= max(run.ranges_m) < 4.8
 
 
 def test_an_asv_held_at_its_start_does_not_move() -> None:
