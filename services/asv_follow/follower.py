@@ -112,6 +112,7 @@ ALONG_SIGHT_COS = math.cos(math.radians(45.0))  # ... where its leg runs along t
 NOD_TREND_S = 0.5
 # A hull turned off the ROV keeps its pan at least this far inside the servo's range.
 ABEAM_PAN_MARGIN_DEG = 15.0
+PAN_SETTLED_RAD = math.radians(1.0)  # a pan turning onto the bearing stops this near it
 NOD_TREND_MIN_RAD = math.radians(0.5)
 
 
@@ -158,6 +159,11 @@ class FollowSettings:
     # faces it), kept within the slack (`Follower._abeam`); 0: it faces the ROV.
     pan_abeam_rad: float = math.radians(60.0)
     pan_abeam_slack_rad: float = math.radians(20.0)
+    # The pan is held while the ROV's bearing stays this near it, then turned onto the bearing:
+    # the fan is 130 deg wide, and every turn of the servo moves the fixes (its slew is
+    # modelled from reports up to a report period late: a mockup demo's fixes scattered 8-11 mm
+    # across the line of sight with the pan still, 27-57 mm with it turning 2-15 deg in 0.5 s).
+    pan_dead_band_rad: float = math.radians(15.0)
 
 
 @dataclass(frozen=True)
@@ -232,6 +238,7 @@ class Follower:
         self._aim: Array | None = None  # where the station was chosen to look
         self._held: Array | None = None  # without a fresh fix: where the ROV holds
         self._pan_told: float | None = None  # the pan servo's angle last asked for
+        self._panning = False  # ... and it is on its way to the ROV's bearing (out of the band)
         # The tilt a fresh fix last asked for, when, and which way it went (down +1, up -1):
         # a nod starts that way.
         self._tilt_wanted: tuple[float, float] | None = None
@@ -387,11 +394,12 @@ class Follower:
         lead): the servos are fast and the fix is what must stay in the aperture. Held (None)
         with nothing to look at; the pan None without a pan servo.
 
-        The pan faces the fix itself, without the tilt's velocity lead, and is asked to turn
-        no faster than the servo does (`dt` since the last step): a pan turns the sonar's
-        azimuth, and a fix whose azimuth is a little off (the servo reported where it goes,
-        not where it is) moves the fix, its tracked velocity, the lead and so the pan the same
-        way; a mockup pan-tilt demo's pan ran 57 deg off a ROV 4 deg off the bow so.
+        The pan faces the fix itself (held within `pan_dead_band_rad` of it), without the
+        tilt's velocity lead, and is asked to turn no faster than the servo does (`dt` since
+        the last step): a pan turns the sonar's azimuth, and a fix whose azimuth is a little
+        off (the servo reported where it goes, not where it is) moves the fix, its tracked
+        velocity, the lead and so the pan the same way; a mockup pan-tilt demo's pan ran 57
+        deg off a ROV 4 deg off the bow so.
         """
         if self.planner.tilt is None or self.asv_xy is None or self.rov_m is None:
             return None, None
@@ -407,8 +415,13 @@ class Follower:
             facing = self.rov_m if fresh else look
             pan, _ = self.planner.pan_tilt_rad(self.asv_xy, self.asv_heading, facing)
             if self._pan_told is not None:
-                most = math.radians(self.planner.pan.rate_deg_s) * dt
-                pan = self._pan_told + max(-most, min(most, pan - self._pan_told))
+                off = pan - self._pan_told
+                if not self._panning and abs(off) <= self.settings.pan_dead_band_rad:
+                    pan = self._pan_told  # the fan is wide: hold the pan still
+                else:
+                    self._panning = abs(off) > PAN_SETTLED_RAD
+                    most = math.radians(self.planner.pan.rate_deg_s) * dt
+                    pan = self._pan_told + max(-most, min(most, off))
             self._pan_told = pan
             _, tilt = self.planner.pan_tilt_rad(
                 self.asv_xy, self.asv_heading, look, pan_now_rad=pan

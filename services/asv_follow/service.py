@@ -132,6 +132,8 @@ class MotionConfig(ConfigSection, frozen=True, kw_only=True):
     nod_rate_deg_s: Annotated[float, msgspec.Meta(gt=0.0, le=180.0)] = 15.0
     # With a pan servo the hull at its station turns this far off facing the ROV, the pan
     # facing it (the sonar, ahead of the hull's origin, kept off a near ROV); 0: it faces it.
+    # The pan servo holds while the ROV's bearing stays this near its boresight (0: tracks it).
+    pan_dead_band_deg: Annotated[float, msgspec.Meta(ge=0.0, le=60.0)] = 15.0
     pan_abeam_deg: Annotated[float, msgspec.Meta(ge=0.0, le=90.0)] = 60.0
 
     def settings(self) -> FollowSettings:
@@ -157,6 +159,7 @@ class MotionConfig(ConfigSection, frozen=True, kw_only=True):
             ),
             nod_rate_rad_s=math.radians(self.nod_rate_deg_s),
             pan_abeam_rad=math.radians(self.pan_abeam_deg),
+            pan_dead_band_rad=math.radians(self.pan_dead_band_deg),
         )
 
     def drive_settings(self, station: StationSettings) -> StationSettings:

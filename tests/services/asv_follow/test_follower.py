@@ -932,9 +932,11 @@ def test_a_servo_looks_where_a_rov_that_lost_its_fix_holds_not_at_the_stations_l
 
 
 def test_a_servo_nods_about_the_look_while_the_fix_is_lost_first_the_way_the_rov_went() -> None:
-    """The ROV closing (its tilt growing: below the boresight next), then lost: the tilt goes
-    down to the look's tilt plus the half aperture, over to minus it and back, at the nod's
-    rate; a fresh fix ends it."""
+    """Lost, the tilt nods about the look, first the way the ROV went (down: it closed in).
+
+    Out to the look's tilt plus the half aperture, over to minus it and back, at the nod's
+    rate; a fresh fix ends it.
+    """
     servo = msgspec.convert({"tilt": {}}, SonarMountConfig)
     planner = StationPlanner(servo, TankBounds(), StationSettings())
     settings = FollowSettings(
@@ -994,8 +996,10 @@ def test_a_nod_starts_up_where_the_rov_was_going_up_the_aperture() -> None:
 
 
 def test_with_a_pan_the_hull_at_its_station_turns_off_the_rov_and_the_pan_faces_it() -> None:
-    """At its station the hull settles 60 deg off facing the ROV (the sonar ahead of the
-    origin kept off the ROV), the pan 60 deg the other way; a hull already 50 deg off stays."""
+    """At its station the hull settles 60 deg off facing the ROV, the pan 60 deg the other way.
+
+    (The sonar ahead of the origin kept off the ROV.) A hull already 50 deg off stays.
+    """
     servos = msgspec.convert({"tilt": {}, "pan": {}}, SonarMountConfig)
     planner = StationPlanner(servos, TankBounds(), StationSettings())
     rov = np.array([14.0, 8.0, -3.5])
@@ -1046,6 +1050,55 @@ def test_with_a_pan_the_hull_at_its_station_turns_off_the_rov_and_the_pan_faces_
     faced = tilt_only.step(0.0)
     assert faced is not None
     assert faced.heading_rad == pytest.approx(facing, abs=math.radians(3.0))
+
+
+def test_a_pan_is_held_while_the_rov_stays_within_its_dead_band_then_turned_onto_it() -> None:
+    """The ROV's bearing 10 deg off the pan: held; 20 deg off: turned onto it, at its rate."""
+    servos = msgspec.convert({"tilt": {}, "pan": {}}, SonarMountConfig)
+    planner = StationPlanner(servos, TankBounds(), StationSettings())
+    settings = FollowSettings(pan_dead_band_rad=math.radians(15.0))
+    follower = Follower(planner, settings)
+    follower.on_pose(START, 0.0)
+    follower.on_mode("GUIDED")
+
+    def told_pan(t: float, bearing_deg: float, distance_m: float = 4.0) -> float:
+        b = math.radians(bearing_deg)
+        sonar = planner.sonar_xy(START, 0.0)
+        rov = np.array(
+            [sonar[0] + distance_m * math.cos(b), sonar[1] + distance_m * math.sin(b), -3.5]
+        )
+        follower.on_pose(START, 0.0)  # the hull kept where it is, facing +x
+        follower.on_fix(t, rov)
+        target = follower.step(t)
+        assert target is not None
+        assert target.sonar_pan_rad is not None
+        return math.degrees(target.sonar_pan_rad)
+
+    t = 0.0
+    for _ in range(30):  # 3 s: the pan turns onto the ROV 40 deg to port
+        t += 0.1
+        first = told_pan(t, 40.0)
+    assert first == pytest.approx(40.0, abs=1.0)
+    t += 0.1
+    assert told_pan(t, 50.0) == pytest.approx(first)  # 10 deg off: held
+    t += 0.1
+    turning = told_pan(t, 60.0)  # 20 deg off: on its way, no faster than 60 deg/s
+    assert first < turning <= first + 6.0 + 1e-6
+    for _ in range(10):
+        t += 0.1
+        turning = told_pan(t, 60.0)
+    assert turning == pytest.approx(60.0, abs=1.0)
+    # Without the dead band it follows every degree.
+    tracking = Follower(planner, FollowSettings(pan_dead_band_rad=0.0))
+    tracking.on_pose(START, 0.0)
+    tracking.on_mode("GUIDED")
+    follower = tracking
+    t = 10.0
+    for _ in range(30):
+        t += 0.1
+        told_pan(t, 40.0)
+    t += 0.1
+    assert told_pan(t, 45.0) == pytest.approx(45.0, abs=1.0)
 
 
 def test_a_pan_servo_is_told_the_pan_that_faces_the_rov_and_the_tilt_for_it() -> None:
