@@ -130,11 +130,12 @@ class MotionConfig(ConfigSection, frozen=True, kw_only=True):
     # for (None: half the vertical aperture; 0: no nod), at this rate.
     nod_amplitude_deg: Annotated[float, msgspec.Meta(ge=0.0, le=45.0)] | None = None
     nod_rate_deg_s: Annotated[float, msgspec.Meta(gt=0.0, le=180.0)] = 15.0
-    # With a pan servo the hull at its station turns this far off facing the ROV, the pan
-    # facing it (the sonar, ahead of the hull's origin, kept off a near ROV); 0: it faces it.
     # The pan servo holds while the ROV's bearing stays this near its boresight (0: tracks it).
     pan_dead_band_deg: Annotated[float, msgspec.Meta(ge=0.0, le=60.0)] = 15.0
-    pan_abeam_deg: Annotated[float, msgspec.Meta(ge=0.0, le=90.0)] = 60.0
+    # With a pan servo the hull at its station may turn this far off facing the ROV, the pan
+    # facing it (the sonar, ahead of the hull's origin, kept off a near ROV); 0: it faces it.
+    # Not by default: no better in the mockup demo than stations 1.2 m off (README, session 45).
+    pan_abeam_deg: Annotated[float, msgspec.Meta(ge=0.0, le=90.0)] = 0.0
 
     def settings(self) -> FollowSettings:
         return FollowSettings(

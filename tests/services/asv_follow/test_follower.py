@@ -1003,7 +1003,8 @@ def test_with_a_pan_the_hull_at_its_station_turns_off_the_rov_and_the_pan_faces_
     servos = msgspec.convert({"tilt": {}, "pan": {}}, SonarMountConfig)
     planner = StationPlanner(servos, TankBounds(), StationSettings())
     rov = np.array([14.0, 8.0, -3.5])
-    follower = Follower(planner, FollowSettings())
+    abeam = FollowSettings(pan_abeam_rad=math.radians(60.0))
+    follower = Follower(planner, abeam)
     follower.on_pose(START, 0.0)
     follower.on_mode("GUIDED")
     follower.on_fix(0.0, rov)
@@ -1028,7 +1029,7 @@ def test_with_a_pan_the_hull_at_its_station_turns_off_the_rov_and_the_pan_faces_
     assert target.sonar_pan_rad == pytest.approx(pan, abs=1e-6)
     assert math.degrees(abs(pan)) > 55.0
     # A hull 50 deg off (within the 20 deg slack of 60): kept, no turn.
-    kept = Follower(planner, FollowSettings())
+    kept = Follower(planner, abeam)
     kept.on_pose(station.position_xy, wrap_angle(facing - math.radians(50.0)))
     kept.on_mode("GUIDED")
     kept.station = station
