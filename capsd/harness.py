@@ -142,13 +142,10 @@ class Processes:
 # ASV rises above it (p90 +2.4 deg, `capsd bench follow`) to 8-9 m, where the detector misses
 # most (README, session 40): aimed 3 deg below the boresight, 7.7 m off, the upward tail stays
 # below the boresight (p90 -1 deg), 3 deg of margin still to the lower edge.
-# The mockup's stations keep the ROV 1.2 m off at least: the shipped detector loses a quarter
-# to half of the pings under 0.95 m (README, session 45; 1.3 m leaves no station for the
-# lawnmower's start).
 FOLLOW_STATION: dict[str, dict[str, float]] = {
     "nfp": {"target_elevation_deg": -3.0},
     "mockup": {
-        "min_range_m": 1.2,
+        "min_range_m": 1.0,
         "max_range_m": 6.0,
         "hull_radius_m": 0.3,
         "tracking_margin_m": 0.2,

@@ -46,7 +46,7 @@ A sonar on a tilt servo is told the tilt for where the ROV will be `tilt_lead_s`
 a fresh fix the tilt nods about where the ROV is looked for (`nod_*`), first the way the
 fixes' tilt last went. On a pan servo too, the pan faces the ROV (held while the ROV stays
 within `pan_dead_band_rad` of it), and the hull at its station may turn `pan_abeam_rad` off it
-(0 by default): the sonar ahead of the origin then stays off a near ROV.
+(60 deg by default): the sonar ahead of the origin then stays off a near ROV.
 """
 
 from __future__ import annotations
@@ -156,9 +156,9 @@ class FollowSettings:
     # the last fixes biased 0.2 m past it, the servo aimed there).
     nod_amplitude_rad: float | None = None
     nod_rate_rad_s: float = math.radians(15.0)
-    # With a pan servo the hull at its station may be turned this far off facing the ROV (the
-    # pan faces it), kept within the slack (`Follower._abeam`); 0: it faces the ROV.
-    pan_abeam_rad: float = 0.0
+    # With a pan servo the hull at its station is turned this far off facing the ROV (the pan
+    # faces it), kept within the slack (`Follower._abeam`); 0: it faces the ROV.
+    pan_abeam_rad: float = math.radians(60.0)
     pan_abeam_slack_rad: float = math.radians(20.0)
     # The pan is held while the ROV's bearing stays this near it, then turned onto the bearing:
     # the fan is 130 deg wide, and every turn of the servo moves the fixes (its slew is

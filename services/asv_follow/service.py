@@ -134,8 +134,7 @@ class MotionConfig(ConfigSection, frozen=True, kw_only=True):
     pan_dead_band_deg: Annotated[float, msgspec.Meta(ge=0.0, le=60.0)] = 15.0
     # With a pan servo the hull at its station may turn this far off facing the ROV, the pan
     # facing it (the sonar, ahead of the hull's origin, kept off a near ROV); 0: it faces it.
-    # Not by default: no better in the mockup demo than stations 1.2 m off (README, session 45).
-    pan_abeam_deg: Annotated[float, msgspec.Meta(ge=0.0, le=90.0)] = 0.0
+    pan_abeam_deg: Annotated[float, msgspec.Meta(ge=0.0, le=90.0)] = 60.0
 
     def settings(self) -> FollowSettings:
         return FollowSettings(

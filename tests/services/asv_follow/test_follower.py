@@ -951,7 +951,9 @@ def test_a_servo_nods_about_the_look_while_the_fix_is_lost_first_the_way_the_rov
         assert follower.step(t) is not None
         t += 0.1
     last_fix_s = t - 0.1
-    look = planner.tilt_rad(START, 0.0, follower.rov_m)
+    held = follower.rov_m
+    assert held is not None
+    look = planner.tilt_rad(START, 0.0, held)
     amplitude = planner.half_aperture
     quarter_s = amplitude / settings.nod_rate_rad_s  # 1 s
     told = {}
@@ -969,10 +971,10 @@ def test_a_servo_nods_about_the_look_while_the_fix_is_lost_first_the_way_the_rov
     assert told[5.0] == pytest.approx(look + amplitude, abs=1e-6)
     # Found again: the look itself.
     now = last_fix_s + 10.0
-    follower.on_fix(now, follower.rov_m)
+    follower.on_fix(now, held)
     found = follower.step(now)
     assert found is not None
-    assert found.sonar_tilt_rad == pytest.approx(planner.tilt_rad(START, 0.0, follower.rov_m))
+    assert found.sonar_tilt_rad == pytest.approx(planner.tilt_rad(START, 0.0, held))
 
 
 def test_a_nod_starts_up_where_the_rov_was_going_up_the_aperture() -> None:
@@ -988,6 +990,7 @@ def test_a_nod_starts_up_where_the_rov_was_going_up_the_aperture() -> None:
         follower.on_fix(t, np.array([x, 8.0, -3.5]))
         assert follower.step(t) is not None
         t += 0.1
+    assert follower.rov_m is not None
     look = planner.tilt_rad(START, 0.0, follower.rov_m)
     target = follower.step(t - 0.1 + settings.fix_timeout_s + 0.2)
     assert target is not None
