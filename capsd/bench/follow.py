@@ -109,13 +109,13 @@ def _in_view(
     mount: SonarMountConfig, sonar: Transform, rov_m: np.ndarray, *, from_m: float = MIN_RANGE_M
 ) -> bool:
     """Whether a perfect detector would see the ROV from this sonar pose."""
-    return _view_elevation(mount, sonar, rov_m, from_m=from_m) is not None
+    return _view(mount, sonar, rov_m, from_m=from_m) is not None
 
 
-def _view_elevation(
+def _view(
     mount: SonarMountConfig, sonar: Transform, rov_m: np.ndarray, *, from_m: float = MIN_RANGE_M
-) -> float | None:
-    """The ROV's elevation in the sonar (rad) where a perfect detector would see it, else None.
+) -> tuple[float, float] | None:
+    """The ROV's elevation (rad) and range (m) where a perfect detector would see it, else None.
 
     Seen from `from_m` out (a detector that misses a near ROV: `--detect-from`).
     """
@@ -129,7 +129,7 @@ def _view_elevation(
         and abs(azimuth) <= math.radians(HALF_FAN_DEG)
         and from_m <= r <= MAX_RANGE_M
     )
-    return elevation if seen else None
+    return (elevation, r) if seen else None
 
 
 def run_mission(
@@ -201,8 +201,8 @@ def run_mission(
         servo_rad = 0.0 if servo is None else servo.tilt_rad(t)
         pan_rad = 0.0 if servo is None else servo.pan_rad(t)
         sonar_pose = body.compose(mount.transform(tilt_rad=servo_rad, pan_rad=pan_rad))
-        elevation = _view_elevation(mount, sonar_pose, rov_m, from_m=detect_from_m)
-        seen = elevation is not None
+        view = _view(mount, sonar_pose, rov_m, from_m=detect_from_m)
+        seen = view is not None
         yaw = math.atan2(float(rotation[1, 0]), float(rotation[0, 0]))
         asv_xy = np.array(translation[:2])
         follower.on_pose(asv_xy, yaw)
@@ -272,10 +272,10 @@ def run_mission(
                 bounds.length_m - float(asv_xy[0]),
                 bounds.width_m - float(asv_xy[1]),
             )
-            if elevation is not None:
+            if view is not None:
                 out.in_view += 1
-                out.elevations_deg.append(math.degrees(elevation))
-                out.ranges_m.append(float(np.linalg.norm(rov_m - sonar_pose.translation)))
+                out.elevations_deg.append(math.degrees(view[0]))
+                out.ranges_m.append(view[1])
                 if planner.masked(asv_xy, yaw, rov_m):
                     out.in_view_masked += 1
             bearing = math.atan2(float(rov_m[1] - asv_xy[1]), float(rov_m[0] - asv_xy[0]))

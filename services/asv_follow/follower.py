@@ -111,10 +111,10 @@ LEG_SPEED_M_S = 0.25
 ALONG_SIGHT_COS = math.cos(math.radians(45.0))  # ... where its leg runs along the sight
 # The way a fresh fix's tilt went: judged over this long, a change under this is none.
 NOD_TREND_S = 0.5
-# A hull turned off the ROV keeps its pan at least this far inside the servo's range.
-ABEAM_PAN_MARGIN_DEG = 15.0
-PAN_SETTLED_RAD = math.radians(1.0)  # a pan turning onto the bearing stops this near it
 NOD_TREND_MIN_RAD = math.radians(0.5)
+# A hull turned off the ROV keeps its pan at least this far inside the servo's range.
+ABEAM_PAN_MARGIN_RAD = math.radians(15.0)
+PAN_SETTLED_RAD = math.radians(1.0)  # a pan turning onto the bearing stops this near it
 
 
 @dataclass(frozen=True)
@@ -553,10 +553,9 @@ class Follower:
         """
         assert self.planner.pan is not None
         s = self.settings
-        margin = math.radians(ABEAM_PAN_MARGIN_DEG)
         reach = (
-            min(s.pan_abeam_rad, math.radians(self.planner.pan.max_deg) - margin),
-            min(s.pan_abeam_rad, -math.radians(self.planner.pan.min_deg) - margin),
+            min(s.pan_abeam_rad, math.radians(self.planner.pan.max_deg) - ABEAM_PAN_MARGIN_RAD),
+            min(s.pan_abeam_rad, -math.radians(self.planner.pan.min_deg) - ABEAM_PAN_MARGIN_RAD),
         )
 
         def within_slack(heading_rad: float) -> bool:
