@@ -50,10 +50,20 @@ def _cmd_mission_check(args: argparse.Namespace) -> int:
 
     try:
         if args.tank is not None:
-            from capsd.harness import follow_config
+            from capsd.harness import SonarTilt, follow_config
 
-            config = follow_config(args.tank)
+            tilt: SonarTilt = args.sonar_tilt or "fixed"
+            config = follow_config(args.tank, tilt=tilt)
             source = f"the demo's for the simulated {args.tank} tank"
+            if tilt != "fixed":
+                source += (
+                    f", the sonar on {'a tilt servo' if tilt == 'servo' else 'pan-tilt servos'}"
+                )
+        elif args.sonar_tilt is not None:
+            return fail(
+                "--sonar-tilt goes with --tank (a site's follower config says its mount: `sonar`)",
+                EXIT_CONFIG,
+            )
         else:
             config = load_config(args.follow_config, FollowConfig)
             source = str(args.follow_config)
@@ -130,6 +140,13 @@ def register(sub: Subcommands) -> None:
         choices=("nfp", "mockup", "pond"),
         default=None,
         help="instead: the demo's follower settings for a simulated tank",
+    )
+    check.add_argument(
+        "--sonar-tilt",
+        choices=("fixed", "servo", "pan-tilt"),
+        default=None,
+        help="with --tank: the demo's sonar fixed (default), on a tilt servo, or on pan-tilt "
+        "servos (as `capsd demo --sonar-tilt`; a servo widens where the ASV can watch from)",
     )
     check.add_argument(
         "--sonar-pitch",

@@ -5,7 +5,8 @@ this tank, and how often must the ASV move? The plan's path (the ROV's way throu
 waypoints, from the first) is sampled every `path_step_m`; the places the ASV may be (a grid
 over the tank, kept as far from walls and keep-out boxes as the follower's stations,
 `StationPlanner.clear`) are tried, the hull turned to face each point (a steered hull watches
-by turning where it floats). A point is *seen* from a place where the follower's planner calls
+by turning where it floats) and a tilt servo, where the mount has one, turned where the
+follower turns it. A point is *seen* from a place where the follower's planner calls
 the view good (inside the aperture less its margin, in the range band, conditioning bounded);
 *clear* where, besides, no mapped fixture, floor or wall shares its range cell (`masked`: the
 detector may miss a ROV there).
@@ -27,6 +28,7 @@ import numpy as np
 import numpy.typing as npt
 
 from capsd.mission.plan import Waypoint
+from capsd.services.asv_follow.follower import ABEAM_PAN_MARGIN_RAD
 from capsd.services.asv_follow.station import StationPlanner
 
 Floats = npt.NDArray[np.float64]
@@ -120,8 +122,31 @@ def ring_m(planner: StationPlanner, point: Floats) -> tuple[float, float]:
     """Horizontal sonar-to-point distances where a faced point sits inside the margin."""
     if planner.sonar_z - float(point[2]) <= 0.0:
         return math.inf, -math.inf  # at or above the sonar: no place sees it
+    if planner.tilt is not None:
+        return 0.0, planner.settings.max_range_m  # the servo moves the ring: every place in range
     far = min(planner.farthest_distance(point), planner.settings.max_range_m)
     return planner.nearest_distance(point), far
+
+
+# With a pan servo the hull need not face the ROV: it is also tried turned this far off it,
+# either way, within the pan's range less the follower's margin (`ABEAM_PAN_MARGIN_RAD`): the
+# sonar sits ahead of the hull's origin, and a hull turned off the ROV keeps it further off.
+PAN_TURNS_DEG = (45.0, 90.0)
+
+
+def hull_turns(planner: StationPlanner) -> list[float]:
+    """The hull's headings off facing a point to try (radians, facing first)."""
+    turns = [0.0]
+    if planner.pan is None:
+        return turns
+    for deg in PAN_TURNS_DEG:
+        for side, most in ((1.0, -planner.pan.min_deg), (-1.0, planner.pan.max_deg)):
+            # A hull turned right of the ROV (-) needs the pan turned left (+) to face it.
+            limit = math.radians(most) - ABEAM_PAN_MARGIN_RAD
+            turn = min(math.radians(deg), limit)
+            if turn > 0.0 and side * turn not in turns:
+                turns.append(side * turn)
+    return turns
 
 
 def fewest_stops(seen: Bools) -> list[tuple[int, int, Ints]]:
@@ -254,6 +279,9 @@ def coverage(
     seen = np.zeros((len(path), len(xy)), dtype=bool)
     # How far off the target elevation: a stretch's place keeps it most central.
     off = np.zeros((len(path), len(xy)))
+    # Where a point is seen from a place: the hull's heading, the servos' tilt and pan.
+    servos: dict[tuple[int, int], tuple[float, float, float]] = {}
+    turns = hull_turns(planner)
     reach = float(np.linalg.norm(planner.mount_xy)) + 0.05
     target = planner.settings.target_elevation_rad
     for i, point in enumerate(path):
@@ -261,16 +289,27 @@ def coverage(
         # (the sonar's arm and a little slack either side) can see it: the rest need no look.
         lo, hi = ring_m(planner, point)
         distance = np.linalg.norm(xy - point[:2], axis=1)
-        for j in np.flatnonzero((distance >= lo - reach) & (distance <= hi + reach)):
-            view = planner.view(xy[j], planner.facing(xy[j], point), point)
-            if planner.view_is_good(view):
-                seen[i, j] = True
-                off[i, j] = abs(view.elevation_rad - target)
+        for j in (
+            int(k) for k in np.flatnonzero((distance >= lo - reach) & (distance <= hi + reach))
+        ):
+            facing = planner.facing(xy[j], point)
+            for turn in turns:
+                heading = facing + turn
+                reached, tilt, pan = planner.reached_view(xy[j], heading, point)
+                if planner.view_is_good(reached):
+                    seen[i, j] = True
+                    servos[(i, j)] = (heading, tilt, pan)
+                    # Off the target at the servos' zero (the follower's stations are chosen
+                    # there, the hull facing).
+                    view = planner.view(xy[j], facing, point)
+                    off[i, j] = abs(view.elevation_rad - target)
+                    break
         if on_point is not None:
             on_point(i + 1, len(path))
 
     def masked(i: int, j: int) -> bool:
-        return planner.masked(xy[j], planner.facing(xy[j], path[i]), path[i])
+        heading, tilt, pan = servos[(i, j)]
+        return planner.masked(xy[j], heading, path[i], tilt_rad=tilt, pan_rad=pan)
 
     clear_any = np.zeros(len(path), dtype=bool)
     for i in range(len(path)):

@@ -189,6 +189,7 @@ class StationPlanner:
         surface = [f for f in tank.fixtures if f.hi_m[2] > -0.5]  # what a hull can hit
         self.keep_out = tuple(surface) + settings.keep_out
         self.sonar_mount = sonar.transform()
+        self._sonar = sonar
         self.beam_model = sonar.beam_model
         self._echo_boxes = fixture_boxes(tank.fixtures, settings.mask_margin_m)
 
@@ -199,24 +200,34 @@ class StationPlanner:
         mx, my = self.mount_xy
         return np.array([asv_xy[0] + c * mx - s * my, asv_xy[1] + s * mx + c * my])
 
-    def view(self, asv_xy: Array, heading_rad: float, rov_m: Array) -> View:
+    def view(
+        self,
+        asv_xy: Array,
+        heading_rad: float,
+        rov_m: Array,
+        *,
+        tilt_rad: float = 0.0,
+        pan_rad: float = 0.0,
+    ) -> View:
         """Range, azimuth and elevation of the ROV from the ASV pose (level ASV).
 
         The azimuth is the horizontal bearing off the boresight; the elevation is the beam
         model's: in a conical beam a ROV off the boresight sits lower than one faced (25 deg
-        off, 45 deg down: 2.8 deg lower).
+        off, 45 deg down: 2.8 deg lower). `tilt_rad`, `pan_rad`: the servos' angles (added to
+        the pitch and the yaw; the sonar stays where the mount puts it on the hull).
         """
         sonar = self.sonar_xy(asv_xy, heading_rad)
         dx, dy = float(rov_m[0] - sonar[0]), float(rov_m[1] - sonar[1])
         horizontal = math.hypot(dx, dy)
         drop = self.sonar_z - float(rov_m[2])
         depression = math.atan2(drop, horizontal)
-        azimuth = wrap_angle(math.atan2(dy, dx) - heading_rad - self.mount_yaw)
+        azimuth = wrap_angle(math.atan2(dy, dx) - heading_rad - self.mount_yaw - pan_rad)
         slant = math.hypot(horizontal, drop)
         # The ROV in the sonar's frame, less its lateral part: x along the boresight, z down.
         forward = horizontal * math.cos(azimuth)
-        x = forward * math.cos(self.pitch) + drop * math.sin(self.pitch)
-        z = drop * math.cos(self.pitch) - forward * math.sin(self.pitch)
+        pitch = self.pitch + tilt_rad
+        x = forward * math.cos(pitch) + drop * math.sin(pitch)
+        z = drop * math.cos(pitch) - forward * math.sin(pitch)
         if self.beam_model == "conical":
             elevation = -math.atan2(z, x)
         else:
@@ -274,6 +285,19 @@ class StationPlanner:
         wanted = math.atan2(drop, forward) + self.settings.target_elevation_rad - self.pitch
         return pan, self.tilt.clamp_rad(wanted)
 
+    def reached_view(
+        self, asv_xy: Array, heading_rad: float, rov_m: Array
+    ) -> tuple[View, float, float]:
+        """The view with the servos where the follower turns them, and their (tilt, pan).
+
+        What a pre-dive check judges: a tilt servo keeps the ROV in the aperture from places
+        whose view at its zero misses it, a pan faces it from a hull turned off it
+        (`pan_tilt_rad`; without servos: the view, 0.0, 0.0).
+        """
+        pan, tilt = self.pan_tilt_rad(asv_xy, heading_rad, rov_m)
+        view = self.view(asv_xy, heading_rad, rov_m, tilt_rad=tilt, pan_rad=pan)
+        return view, tilt, pan
+
     def view_is_good(self, view: View) -> bool:
         """Inside the aperture (with the margin), the range band and the conditioning."""
         s = self.settings
@@ -304,15 +328,31 @@ class StationPlanner:
             for f in self.keep_out
         )
 
-    def masked(self, asv_xy: Array, heading_rad: float, rov_m: Array) -> bool:
-        """Whether a fixture, the floor or a wall shares the ROV's range cell at its bearing."""
+    def masked(
+        self,
+        asv_xy: Array,
+        heading_rad: float,
+        rov_m: Array,
+        *,
+        tilt_rad: float = 0.0,
+        pan_rad: float = 0.0,
+    ) -> bool:
+        """Whether a fixture, the floor or a wall shares the ROV's range cell at its bearing.
+
+        `tilt_rad`, `pan_rad`: the servos' angles (the aperture, and what it takes in, moves).
+        """
         body = Transform.from_euler_zyx(
             (float(asv_xy[0]), float(asv_xy[1]), 0.0),
             yaw_rad=heading_rad,
             pitch_rad=0.0,
             roll_rad=0.0,
         )
-        sonar = body.compose(self.sonar_mount)
+        mount = (
+            self.sonar_mount
+            if tilt_rad == 0.0 and pan_rad == 0.0
+            else self._sonar.transform(tilt_rad=tilt_rad, pan_rad=pan_rad)
+        )
+        sonar = body.compose(mount)
         r, azimuth, elevation = to_polar(self.beam_model, sonar.inverse().apply(rov_m))
         m = self.settings.mask_margin_m
         p = cell_points(

@@ -11,9 +11,10 @@ import pytest
 import yaml
 
 from capsd.config import load_config
-from capsd.harness import write_configs
+from capsd.harness import SonarTilt, follow_config, write_configs
 from capsd.mounts import SonarMountConfig
 from capsd.registry import service_of_config
+from capsd.services.asv_follow.service import Config as FollowConfig
 from capsd.simulator.config import Config as SimConfig
 from capsd.simulator.sim import Simulation
 from capsd.simulator.world import TankName
@@ -104,3 +105,23 @@ def test_a_pan_tilt_mount_reaches_every_service_that_looks_through_it(tmp_path: 
         assert mount.pan is not None, name
     assert followed["asv_bridge"]["sonar_tilt"]["pan"] == "servo"
     assert msgspec.convert(followed["sim"]["sonar"], SonarMountConfig).pan is not None
+
+
+@pytest.mark.parametrize(
+    ("tilt", "min_range_m", "abeam_deg"),
+    [("fixed", 1.0, 60.0), ("servo", 1.0, 60.0), ("pan-tilt", 1.2, 0.0)],
+)
+def test_the_mockup_follower_keeps_a_pan_tilt_sonar_further_off_the_rov_facing_it(
+    tmp_path: Path, tilt: SonarTilt, min_range_m: float, abeam_deg: float
+) -> None:
+    """The demo's follower and `follow_config` (benches, mission check) get the same rules."""
+    configs = _configs(
+        tmp_path / "followed", tank="mockup", sonar_tilt=tilt, asv="follow",
+        asv_mav_port=5761, rov_start_m=(3.8, 1.0, -1.0),
+    )  # fmt: skip
+    demo = load_config(tmp_path / "followed" / "asv_follow.yaml", FollowConfig)
+    assert configs["asv_follow"]["station"]["min_range_m"] == min_range_m
+    shared = follow_config("mockup", tilt=tilt)
+    for config in (demo, shared):
+        assert config.station.min_range_m == min_range_m
+        assert config.motion.pan_abeam_deg == abeam_deg

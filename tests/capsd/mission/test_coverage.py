@@ -7,6 +7,7 @@ import json
 import math
 from pathlib import Path
 
+import msgspec
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -14,8 +15,9 @@ from hypothesis import strategies as st
 
 from capsd.cli import main
 from capsd.harness import follow_config
-from capsd.mission.coverage import METRE_S, coverage, fewest_stops, sample_path
+from capsd.mission.coverage import METRE_S, coverage, fewest_stops, hull_turns, sample_path
 from capsd.mission.plan import Waypoint, load_plan
+from capsd.services.asv_follow.service import Config as FollowConfig
 from capsd.services.asv_follow.station import StationPlanner
 
 REPO = Path(__file__).resolve().parents[3]
@@ -197,3 +199,56 @@ def test_mission_check_says_when_the_asv_has_nowhere_to_be(
     out = capfd.readouterr().out
     assert "NO place in this 3 x 3 m tank" in out
     assert "fewest ASV stops: 0" in out
+
+
+def _planner_for(config: FollowConfig) -> StationPlanner:
+    return StationPlanner(
+        config.sonar, config.tank, config.motion.drive_settings(config.station.settings())
+    )
+
+
+def test_the_servos_see_the_mockup_plan_from_stations_further_off_than_a_fixed_sonar_can(
+    mockup: tuple[StationPlanner, list[Waypoint]],
+) -> None:
+    """The demo's pan-tilt rules keep the ROV 1.2 m off; a sonar fixed at 45 deg cannot."""
+    _, points = mockup
+    servos = follow_config("mockup", tilt="pan-tilt")
+    assert servos.station.min_range_m == 1.2
+    fixed = msgspec.structs.replace(follow_config("mockup"), station=servos.station)
+    blind = coverage(_planner_for(fixed), points, path_step_m=0.1, place_step_m=0.075)
+    assert not blind.seen_any.all()
+    planner = _planner_for(servos)
+    found = coverage(planner, points, path_step_m=0.1, place_step_m=0.075)
+    assert found.seen_any.all()
+    # What a seen point's view is with the servos where the follower turns them, from some
+    # heading of the hull the pan allows (facing, or turned off the ROV).
+    turns = hull_turns(planner)
+    assert turns[0] == 0.0
+    for i in range(0, len(found.path_m), 7):
+        point = found.path_m[i]
+        place = found.places_xy[int(np.flatnonzero(found.seen[i])[0])]
+        facing = planner.facing(place, point)
+        views = [planner.reached_view(place, facing + t, point)[0] for t in turns]
+        assert any(planner.view_is_good(v) and v.range_m >= 1.2 for v in views)
+
+
+def test_a_pan_lets_the_hull_turn_within_its_range_less_the_margin() -> None:
+    config = follow_config("mockup", tilt="pan-tilt")
+    assert config.sonar.pan is not None
+    pan = msgspec.structs.replace(config.sonar.pan, min_deg=-50.0, max_deg=90.0)
+    sonar = msgspec.structs.replace(config.sonar, pan=pan)
+    planner = StationPlanner(sonar, config.tank, config.station.settings())
+    turns = [round(math.degrees(t), 6) for t in hull_turns(planner)]
+    # Turned left (+) the pan turns right, to -50 deg at most: 35 deg with the margin.
+    assert turns == [0.0, 35.0, -45.0, -75.0]
+    assert hull_turns(_planner_for(follow_config("mockup", tilt="servo"))) == [0.0]
+
+
+def test_mission_check_takes_the_demos_servos_only_with_a_simulated_tank(
+    capfd: pytest.CaptureFixture[str],
+) -> None:
+    args = ["mission", "check", str(MOCKUP_PLAN), "--sonar-tilt", "pan-tilt"]
+    assert main(args) == 2
+    assert "--sonar-tilt goes with --tank" in capfd.readouterr().err
+    assert main([*args, "--tank", "mockup"]) == 0
+    assert "pan-tilt servos" in capfd.readouterr().out

@@ -648,3 +648,57 @@ def test_the_pan_and_tilt_put_the_rov_on_the_boresight_wherever_the_hull_faces(
         0.0,
         plain.tilt_rad(np.array(asv), heading, look),
     )
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    asv=st.tuples(st.floats(2.0, 26.0), st.floats(2.0, 14.0)),
+    heading=st.floats(-math.pi, math.pi),
+    rov=st.tuples(st.floats(1.0, 27.0), st.floats(1.0, 15.0), st.floats(-7.5, -1.0)),
+    tilt_deg=st.floats(-15.0, 40.0),
+    pan_deg=st.floats(-90.0, 90.0),
+    beam=st.sampled_from(["planar", "conical"]),
+)
+def test_the_view_and_the_mask_with_the_servos_turned_are_those_of_a_mount_turned_as_far(
+    asv: tuple[float, float], heading: float, rov: tuple[float, float, float],
+    tilt_deg: float, pan_deg: float, beam: Literal["planar", "conical"],
+) -> None:  # fmt: skip
+    """A servo's angle is the mount's pitch (tilt) or yaw (pan) plus it, the sonar unmoved."""
+    servos = msgspec.convert(
+        {"tilt": {}, "pan": {}, "beam_model": beam, "roll_deg": 0.0}, SonarMountConfig
+    )
+    turned = msgspec.structs.replace(
+        servos,
+        tilt=None,
+        pan=None,
+        pitch_deg=servos.pitch_deg + tilt_deg,
+        yaw_deg=servos.yaw_deg + pan_deg,
+    )
+    fixtures = (TankFixture(name="rack", lo_m=(8.0, 4.0, -8.0), hi_m=(12.0, 6.0, -5.0)),)
+    tank = msgspec.structs.replace(TANK, fixtures=fixtures)
+    a = StationPlanner(servos, tank, StationSettings())
+    b = StationPlanner(turned, tank, StationSettings())
+    at, there = np.array(asv), np.array(rov)
+    tilt, pan = math.radians(tilt_deg), math.radians(pan_deg)
+    va = a.view(at, heading, there, tilt_rad=tilt, pan_rad=pan)
+    vb = b.view(at, heading, there)
+    assert va.range_m == pytest.approx(vb.range_m, abs=1e-9)
+    assert wrap_angle(va.azimuth_rad - vb.azimuth_rad) == pytest.approx(0.0, abs=1e-9)
+    assert va.elevation_rad == pytest.approx(vb.elevation_rad, abs=1e-9)
+    assert a.masked(at, heading, there, tilt_rad=tilt, pan_rad=pan) == b.masked(at, heading, there)
+
+
+def test_the_reached_view_is_the_servos_aim_and_without_servos_the_view() -> None:
+    """What a pre-dive check judges: the ROV on the boresight at the target elevation."""
+    rov = np.array([14.0, 9.0, -3.0])
+    asv = np.array([9.0, 8.0])
+    fixed = _planner(target_elevation_rad=-0.05)
+    view, tilt, pan = fixed.reached_view(asv, 0.0, rov)
+    assert (tilt, pan) == (0.0, 0.0)
+    assert view == fixed.view(asv, 0.0, rov)
+    mount = msgspec.convert({"tilt": {}, "pan": {}}, SonarMountConfig)
+    servos = StationPlanner(mount, TANK, StationSettings(target_elevation_rad=-0.05))
+    view, tilt, pan = servos.reached_view(asv, 1.0, rov)  # the ROV about 49 deg off the bow
+    assert (pan, tilt) == servos.pan_tilt_rad(asv, 1.0, rov)
+    assert abs(view.azimuth_rad) < 1e-9
+    assert view.elevation_rad == pytest.approx(-0.05, abs=1e-9)
