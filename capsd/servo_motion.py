@@ -5,8 +5,15 @@ while the servo slews there at its own rate. A ping taken while it slews, fixed 
 reported angle, is fixed through where the servo is going, not where it is: for a pan, the
 fix turns by the difference, the follower turns the pan after it, and the two chase each
 other off the ROV (the mockup's pan-tilt demo, session 44: 3.6 % good fixes). So each report
-is taken as a new target from its stamp on, and the servo as moving towards the previous
-target at its rate until then (the simulator's servo, capsd.simulator.tilt_servo, moves so).
+is taken as a new target, and the servo as moving towards the previous target at its rate
+until then (the simulator's servo, capsd.simulator.tilt_servo, moves so).
+
+When did the servo take a new target? The autopilot reports at a steady rate (the bridge's
+`status_hz`, 20 Hz), so somewhere between the report before and the one that first says it:
+taken half way (at most MAX_BACKDATE_NS before the report). Taken at the report's stamp
+(session 45's model), the modelled slew ran up to a report period behind the servo: at 60 deg/s,
+3 deg of azimuth (a mockup demo's fixes scattered 27-57 mm across the line of sight while the
+pan turned, 8-11 mm with it still; README, session 45).
 """
 
 from __future__ import annotations
@@ -16,16 +23,24 @@ from dataclasses import dataclass
 
 from capsd.mounts import SonarMountConfig
 
+# A new target is taken at most this long before the report that first says it (a stream
+# slower than 5 Hz, or reports lost: the time is not known better than that).
+MAX_BACKDATE_NS = 100_000_000
+
 
 @dataclass(frozen=True)
 class ServoState:
-    """At `stamp_ns`: where the servos are (tilt, pan; rad) and where they are driven to."""
+    """At `stamp_ns`: where the servos are (tilt, pan; rad) and where they are driven to.
+
+    `since_ns`: when they took those targets, if after the report before (else `stamp_ns`).
+    """
 
     stamp_ns: int
     tilt_rad: float
     pan_rad: float
     tilt_to_rad: float
     pan_to_rad: float
+    since_ns: int | None = None
 
 
 def toward(at: float, to: float, rate_rad_s: float, dt_s: float) -> float:
@@ -61,17 +76,29 @@ class ServoMotion:
     def report(
         self, previous: ServoState | None, stamp_ns: int, tilt_rad: float, pan_rad: float
     ) -> ServoState:
-        """The servos at a report, driven to the reported angles from now on.
+        """The servos at a report, driven to the reported angles (see the module).
 
-        Moved since `previous` towards its targets (None, or a report older than it: taken as
-        where it says).
+        Moved since `previous` towards its targets until the new ones were taken, then towards
+        those (None, or a report older than it: taken as where it says).
         """
         if previous is None or stamp_ns < previous.stamp_ns:
             return ServoState(stamp_ns, tilt_rad, pan_rad, tilt_rad, pan_rad)
-        moved = self.at(previous, stamp_ns)
-        return ServoState(stamp_ns, moved.tilt_rad, moved.pan_rad, tilt_rad, pan_rad)
+        if (tilt_rad, pan_rad) == (previous.tilt_to_rad, previous.pan_to_rad):
+            moved = self.at(previous, stamp_ns)
+            return ServoState(stamp_ns, moved.tilt_rad, moved.pan_rad, tilt_rad, pan_rad)
+        since = stamp_ns - min((stamp_ns - previous.stamp_ns) // 2, MAX_BACKDATE_NS)
+        start = self.at(previous, since)
+        turned = ServoState(since, start.tilt_rad, start.pan_rad, tilt_rad, pan_rad)
+        moved = self.at(turned, stamp_ns)
+        return ServoState(stamp_ns, moved.tilt_rad, moved.pan_rad, tilt_rad, pan_rad, since)
 
     def between(self, a: ServoState, b: ServoState, fraction: float) -> ServoState:
         """The servos at `fraction` of the way from report `a` to report `b` (past `b` too)."""
         stamp = a.stamp_ns + round(fraction * (b.stamp_ns - a.stamp_ns))
-        return self.at(a, stamp) if stamp <= b.stamp_ns else self.at(b, stamp)
+        if stamp > b.stamp_ns:
+            return self.at(b, stamp)
+        if b.since_ns is None or stamp <= b.since_ns:
+            return self.at(a, stamp)
+        start = self.at(a, b.since_ns)  # b's targets taken: towards them from there
+        turned = ServoState(b.since_ns, start.tilt_rad, start.pan_rad, b.tilt_to_rad, b.pan_to_rad)
+        return self.at(turned, stamp)

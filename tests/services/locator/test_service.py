@@ -613,7 +613,10 @@ def test_a_sonar_on_a_pan_servo_is_fixed_through_the_pan_reported_for_its_ping()
 
 
 def test_a_ping_while_the_pan_slews_is_fixed_through_where_the_pan_is_not_where_it_goes() -> None:
-    """Told 50 deg at 1 s, a 60 deg/s pan is at 12 deg at 1.2 s: the echo is fixed through 12."""
+    """Told 50 deg after 0.9 s, reported at 1.0 s: a 60 deg/s pan is at 15 deg at 1.2 s.
+
+    (The new angle is taken half way between the reports, 0.95 s; capsd.servo_motion.)
+    """
     servo = msgspec.convert(
         {"pitch_deg": 20.0, "tilt": {"max_age_s": 0.5}, "pan": {"rate_deg_s": 60.0}},
         SonarMountConfig,
@@ -625,7 +628,7 @@ def test_a_ping_while_the_pan_slews_is_fixed_through_where_the_pan_is_not_where_
         stamp = SECOND // 2 + k * SECOND // 10
         pan = 0.0 if stamp < SECOND else math.radians(50.0)
         locator.on_tilt(SonarTilt(stamp_ns=stamp, seq=k, tilt_rad=tilt, pan_rad=pan))
-    at = math.radians(12.0)  # 0.2 s at 60 deg/s
+    at = math.radians(15.0)  # 0.25 s at 60 deg/s
     rov, echo, _ = _seen_through_servos(servo, tilt, at, off_deg=4.0)
     fix = locator.locate(_ping(SECOND + SECOND // 5, echo), seq=0)
     assert fix.raw_position_m is not None
