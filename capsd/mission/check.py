@@ -148,13 +148,18 @@ def report(
     s = config.station
     clearance = s.wall_clearance_m + s.hull_radius_m + s.tracking_margin_m
     seen, clear = found.seen_any, found.clear_any
+    preferred = (
+        ""
+        if s.preferred_min_range_m is None
+        else f" ({s.preferred_min_range_m:g} m or more where a station can keep it)"
+    )
     lines = [
         f"mission check: {title}, {len(points)} waypoints, {path_length_m(points):.1f} m of path "
         f"(looked at every {path_step_m:.2f} m or less)",
         f"  follower settings: {source}; sonar {sonar.pitch_deg:g} deg down, "
         f"{sonar.position_m[0]:.2f} m ahead of the ASV's origin, "
         f"{sonar.vertical_aperture_deg:g} deg aperture less {s.elevation_margin_deg:g} deg "
-        f"either side, range {s.min_range_m:g}-{s.max_range_m:g} m; ASV origin at least "
+        f"either side, range {s.min_range_m:g}-{s.max_range_m:g} m{preferred}; ASV origin at least "
         f"{clearance:.2f} m off the walls: {len(found.places_xy)} places tried",
         "  leg  from -> to                      length   seen  clear",
     ]

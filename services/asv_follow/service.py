@@ -46,6 +46,9 @@ class StationConfig(ConfigSection, frozen=True, kw_only=True):
     elevation_margin_deg: Degrees = 3.0
     min_range_m: Positive = 2.0
     max_range_m: Positive = 15.0
+    # Stations keep the ROV this far off where any can, `min_range_m` where none can (None:
+    # `min_range_m` alone): a detector that misses a ROV nearer than about a metre (the mockup).
+    preferred_min_range_m: Positive | None = None
     wall_clearance_m: Annotated[float, msgspec.Meta(ge=0.0, le=20.0)] = 1.0
     hull_radius_m: Annotated[float, msgspec.Meta(ge=0.0, le=10.0)] = 0.6
     tracking_margin_m: Annotated[float, msgspec.Meta(ge=0.0, le=10.0)] = 0.5
@@ -64,6 +67,11 @@ class StationConfig(ConfigSection, frozen=True, kw_only=True):
         super().__post_init__()
         if self.min_range_m >= self.max_range_m:
             raise ValueError("`min_range_m` must be below `max_range_m`")
+        preferred = self.preferred_min_range_m
+        if preferred is not None and not self.min_range_m <= preferred < self.max_range_m:
+            raise ValueError(
+                "`preferred_min_range_m` must be from `min_range_m` to below `max_range_m`"
+            )
 
     def settings(self) -> StationSettings:
         return StationSettings(
@@ -71,6 +79,7 @@ class StationConfig(ConfigSection, frozen=True, kw_only=True):
             elevation_margin_rad=math.radians(self.elevation_margin_deg),
             min_range_m=self.min_range_m,
             max_range_m=self.max_range_m,
+            preferred_min_range_m=self.preferred_min_range_m,
             wall_clearance_m=self.wall_clearance_m,
             hull_radius_m=self.hull_radius_m,
             tracking_margin_m=self.tracking_margin_m,

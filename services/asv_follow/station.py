@@ -121,6 +121,9 @@ class StationSettings:
     elevation_margin_rad: float = math.radians(3.0)
     min_range_m: float = 2.0
     max_range_m: float = 15.0
+    # Stations keep the ROV at least this far off where any can (None: `min_range_m`), and
+    # `min_range_m` off where none can (a lane through the middle of a small tank).
+    preferred_min_range_m: float | None = None
     wall_clearance_m: float = 1.0  # hull to wall
     hull_radius_m: float = 0.6  # origin to the hull's furthest point
     # The autopilot overshoots a target it was driven to (the simulated ArduRover by up to
@@ -298,12 +301,16 @@ class StationPlanner:
         view = self.view(asv_xy, heading_rad, rov_m, tilt_rad=tilt, pan_rad=pan)
         return view, tilt, pan
 
-    def view_is_good(self, view: View) -> bool:
-        """Inside the aperture (with the margin), the range band and the conditioning."""
+    def view_is_good(self, view: View, *, min_range_m: float | None = None) -> bool:
+        """Inside the aperture (with the margin), the range band and the conditioning.
+
+        The band from `min_range_m` (None: the settings') to the settings' `max_range_m`.
+        """
         s = self.settings
+        nearest = s.min_range_m if min_range_m is None else min_range_m
         return (
             abs(view.elevation_rad) <= self.half_aperture - s.elevation_margin_rad
-            and s.min_range_m <= view.range_m <= s.max_range_m
+            and nearest <= view.range_m <= s.max_range_m
             and view.conditioning <= s.max_conditioning
         )
 
@@ -397,8 +404,43 @@ class StationPlanner:
         it (another look at a ROV the sonar lost from there). `rov_velocity_m_s`: the ROV's
         tracked velocity (drift cost); `current_bearing_rad`: the bearing the current station
         looks along (switching cost); `path_m`: points (N x 3, W) the ROV flies through next
-        (path cost).
+        (path cost). Kept `preferred_min_range_m` off the ROV where a station can be, else
+        `min_range_m`.
         """
+        s = self.settings
+        floors = [s.min_range_m]
+        if s.preferred_min_range_m is not None:
+            floors.insert(0, s.preferred_min_range_m)
+        for floor in floors:
+            chosen = self._cheapest(
+                rov_m,
+                asv_xy,
+                heading_rad,
+                min_range_m=floor,
+                avoid_bearing_rad=avoid_bearing_rad,
+                avoid_within_rad=avoid_within_rad,
+                rov_velocity_m_s=rov_velocity_m_s,
+                current_bearing_rad=current_bearing_rad,
+                path_m=path_m,
+            )
+            if chosen is not None:
+                return chosen
+        return None
+
+    def _cheapest(
+        self,
+        rov_m: Array,
+        asv_xy: Array,
+        heading_rad: float,
+        *,
+        min_range_m: float,
+        avoid_bearing_rad: float | None,
+        avoid_within_rad: float,
+        rov_velocity_m_s: Array | None,
+        current_bearing_rad: float | None,
+        path_m: Array | None,
+    ) -> Station | None:
+        """`choose` with the ROV at least `min_range_m` off."""
         s = self.settings
         drop = self.sonar_z - float(rov_m[2])
         if drop <= 0.0:
@@ -413,7 +455,7 @@ class StationPlanner:
             if not self.clear(origin):
                 continue
             view = self.view(origin, heading, rov_m)
-            if not self.view_is_good(view):
+            if not self.view_is_good(view, min_range_m=min_range_m):
                 continue
             cost = (
                 s.elevation_cost_per_deg

@@ -108,11 +108,11 @@ def test_a_pan_tilt_mount_reaches_every_service_that_looks_through_it(tmp_path: 
 
 
 @pytest.mark.parametrize(
-    ("tilt", "min_range_m", "abeam_deg"),
-    [("fixed", 1.0, 60.0), ("servo", 1.0, 60.0), ("pan-tilt", 1.2, 0.0)],
+    ("tilt", "preferred_m", "abeam_deg"),
+    [("fixed", None, 60.0), ("servo", None, 60.0), ("pan-tilt", 1.2, 0.0)],
 )
 def test_the_mockup_follower_keeps_a_pan_tilt_sonar_further_off_the_rov_facing_it(
-    tmp_path: Path, tilt: SonarTilt, min_range_m: float, abeam_deg: float
+    tmp_path: Path, tilt: SonarTilt, preferred_m: float | None, abeam_deg: float
 ) -> None:
     """The demo's follower and `follow_config` (benches, mission check) get the same rules."""
     configs = _configs(
@@ -120,8 +120,9 @@ def test_the_mockup_follower_keeps_a_pan_tilt_sonar_further_off_the_rov_facing_i
         asv_mav_port=5761, rov_start_m=(3.8, 1.0, -1.0),
     )  # fmt: skip
     demo = load_config(tmp_path / "followed" / "asv_follow.yaml", FollowConfig)
-    assert configs["asv_follow"]["station"]["min_range_m"] == min_range_m
+    assert configs["asv_follow"]["station"].get("preferred_min_range_m") == preferred_m
     shared = follow_config("mockup", tilt=tilt)
     for config in (demo, shared):
-        assert config.station.min_range_m == min_range_m
+        assert config.station.min_range_m == 1.0
+        assert config.station.preferred_min_range_m == preferred_m
         assert config.motion.pan_abeam_deg == abeam_deg

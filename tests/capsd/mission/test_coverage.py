@@ -210,11 +210,15 @@ def _planner_for(config: FollowConfig) -> StationPlanner:
 def test_the_servos_see_the_mockup_plan_from_stations_further_off_than_a_fixed_sonar_can(
     mockup: tuple[StationPlanner, list[Waypoint]],
 ) -> None:
-    """The demo's pan-tilt rules keep the ROV 1.2 m off; a sonar fixed at 45 deg cannot."""
+    """With the ROV kept 1.2 m off, pan-tilt servos see the plan; a sonar fixed at 45 deg cannot.
+
+    (The demo's pan-tilt rules prefer 1.2 m, `preferred_min_range_m`; here it is the minimum.)
+    """
     _, points = mockup
-    servos = follow_config("mockup", tilt="pan-tilt")
-    assert servos.station.min_range_m == 1.2
-    fixed = msgspec.structs.replace(follow_config("mockup"), station=servos.station)
+    pan_tilt = follow_config("mockup", tilt="pan-tilt")
+    station = msgspec.structs.replace(pan_tilt.station, min_range_m=1.2)
+    servos = msgspec.structs.replace(pan_tilt, station=station)
+    fixed = msgspec.structs.replace(follow_config("mockup"), station=station)
     blind = coverage(_planner_for(fixed), points, path_step_m=0.1, place_step_m=0.075)
     assert not blind.seen_any.all()
     planner = _planner_for(servos)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Literal
 
@@ -702,3 +703,43 @@ def test_the_reached_view_is_the_servos_aim_and_without_servos_the_view() -> Non
     assert (pan, tilt) == servos.pan_tilt_rad(asv, 1.0, rov)
     assert abs(view.azimuth_rad) < 1e-9
     assert view.elevation_rad == pytest.approx(-0.05, abs=1e-9)
+
+
+def test_stations_keep_the_preferred_range_where_any_can_and_the_minimum_where_none_can() -> None:
+    """The mockup's pan-tilt rules: 1.2 m off where a station can be, 1.0 m on the middle lane."""
+    from capsd.harness import follow_config
+
+    config = follow_config("mockup", tilt="pan-tilt")
+    settings = config.motion.drive_settings(config.station.settings())
+    assert (settings.min_range_m, settings.preferred_min_range_m) == (1.0, 1.2)
+    planner = StationPlanner(config.sonar, config.tank, settings)
+    strict = StationPlanner(
+        config.sonar,
+        config.tank,
+        dataclasses.replace(settings, min_range_m=1.2, preferred_min_range_m=None),
+    )
+    asv = np.array([2.4, 1.8])
+    # A lane's end by the wall: stations 1.2 m off exist, and are taken.
+    end = np.array([3.8, 1.0, -1.0])
+    chosen = planner.choose(end, asv, 0.0)
+    assert chosen is not None
+    assert chosen.view.range_m >= 1.2
+    # Mid tank, on the lane through the ASV's box: none keeps 1.2 m, one keeps 1.0 m.
+    middle = np.array([2.2, 1.67, -1.0])
+    assert strict.choose(middle, asv, 0.0) is None
+    chosen = planner.choose(middle, asv, 0.0)
+    assert chosen is not None
+    assert 1.0 <= chosen.view.range_m < 1.2
+    assert planner.view_is_good(chosen.view)
+    assert not planner.view_is_good(chosen.view, min_range_m=1.2)
+
+
+def test_the_preferred_range_is_checked_against_the_band() -> None:
+    from capsd.errors import ConfigError
+    from capsd.services.asv_follow.service import StationConfig
+
+    with pytest.raises((ValueError, ConfigError), match="preferred_min_range_m"):
+        StationConfig(min_range_m=2.0, preferred_min_range_m=1.5)
+    with pytest.raises((ValueError, ConfigError), match="preferred_min_range_m"):
+        StationConfig(max_range_m=15.0, preferred_min_range_m=15.0)
+    assert StationConfig(preferred_min_range_m=2.5).settings().preferred_min_range_m == 2.5
