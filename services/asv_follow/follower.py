@@ -905,6 +905,8 @@ class Follower:
                     self.asv_xy, self.asv_heading, goal, current=self._direction
                 )
         turn = wrap_angle(heading - self._carrot_heading)
+        if look is not None and self.asv_xy is not None:
+            turn = self.planner.turn_keeping_view(self.asv_xy, self._carrot_heading, turn, look)
         max_turn = s.max_yaw_rate_rad_s * dt
         # Wrapped: turn after turn it would wind up past what a command may carry (+-7 rad;
         # a mockup run's bridge refused every command after 108 s).

@@ -52,6 +52,11 @@ from capsd.tank import TankBounds, TankFixture
 
 # Steered: a move whose way is further than this off the ROV's bearing turns the sonar off it.
 BLIND_OFF_RAD = math.radians(20.0)
+# A turn at least this large may go the long way round (`turn_keeping_view`); the extra
+# degrees count this much against the blind ones they save (a turn's time is not all lost).
+EITHER_WAY_RAD = math.radians(90.0)
+LONG_WAY_WEIGHT = 0.25
+TURN_STEP_RAD = math.radians(2.0)  # the turn looked at every this often
 # Steered: astern only where that faces the ROV this much better than ahead.
 REVERSE_BETTER_RAD = math.radians(20.0)
 # Steered: nearer than this is no move (the autopilot's arrival).
@@ -610,6 +615,39 @@ class StationPlanner:
         if abs(wrap_angle(hull - facing)) <= BLIND_OFF_RAD:
             return 0.0  # driving at the ROV, or backing away from it: still in view
         return turns / s.turn_rate_rad_s + length / s.transit_speed_m_s
+
+    def turn_keeping_view(
+        self, asv_xy: Array, heading_rad: float, turn_rad: float, rov_m: Array
+    ) -> float:
+        """`turn_rad` (from `heading_rad`, the shorter way), or the same heading the long way.
+
+        The long way where it keeps the ROV within the sonar's reach (BLIND_OFF_RAD either
+        side of the bow, and a pan servo's range) for more of the turn, by more than
+        LONG_WAY_WEIGHT of its extra degrees: a hull turning its stern to a new way with the
+        ROV on the far side of it swept the sonar away from the ROV for 150 deg, 10 s, where
+        the long way swept it across (a mockup pan-tilt demo, seed 1).
+        """
+        if abs(turn_rad) < EITHER_WAY_RAD:
+            return turn_rad
+        other = turn_rad - math.copysign(2.0 * math.pi, turn_rad)
+        bearing = math.atan2(float(rov_m[1] - asv_xy[1]), float(rov_m[0] - asv_xy[0]))
+        left = right = BLIND_OFF_RAD
+        if self.pan is not None:
+            left += math.radians(self.pan.max_deg)
+            right -= math.radians(self.pan.min_deg)
+
+        def blind_rad(turn: float) -> float:
+            steps = max(1, math.ceil(abs(turn) / TURN_STEP_RAD))
+            blind = 0
+            for k in range(steps + 1):
+                off = wrap_angle(bearing - self.mount_yaw - (heading_rad + turn * k / steps))
+                blind += not -right <= off <= left
+            return abs(turn) * blind / (steps + 1)
+
+        extra = abs(other) - abs(turn_rad)
+        if blind_rad(other) + LONG_WAY_WEIGHT * extra < blind_rad(turn_rad):
+            return other
+        return turn_rad
 
     def _candidates(
         self, rov_m: Array, asv_xy: Array, drop: float

@@ -743,3 +743,27 @@ def test_the_preferred_range_is_checked_against_the_band() -> None:
     with pytest.raises((ValueError, ConfigError), match="preferred_min_range_m"):
         StationConfig(max_range_m=15.0, preferred_min_range_m=15.0)
     assert StationConfig(preferred_min_range_m=2.5).settings().preferred_min_range_m == 2.5
+
+
+@pytest.mark.parametrize("pan", [True, False])
+def test_a_big_turn_goes_the_way_that_keeps_the_rov_in_reach(pan: bool) -> None:
+    """From 20 deg to -138 deg, the ROV at 145 deg: with a pan the long way (+202) keeps it.
+
+    (The pan holds the ROV from 55 deg on; without one the long way sees it for 40 deg only,
+    not worth its 44 extra degrees.)
+    """
+    mount = msgspec.convert({"tilt": {}, "pan": {}} if pan else {}, SonarMountConfig)
+    planner = StationPlanner(mount, TANK, StationSettings(drive="steered"))
+    asv = np.array([10.0, 8.0])
+    heading = math.radians(20.0)
+    short = wrap_angle(math.radians(-138.0) - heading)
+    assert short == pytest.approx(math.radians(-158.0))
+    behind = asv + 2.0 * np.array([math.cos(math.radians(145.0)), math.sin(math.radians(145.0))])
+    rov = np.array([behind[0], behind[1], -1.0])
+    turn = planner.turn_keeping_view(asv, heading, short, rov)
+    assert turn == pytest.approx(short + 2.0 * math.pi if pan else short)
+    # The ROV on the short way's side (at -60 deg): the short way.
+    side = asv + 2.0 * np.array([math.cos(math.radians(-60.0)), math.sin(math.radians(-60.0))])
+    assert planner.turn_keeping_view(asv, heading, short, np.array([*side, -1.0])) == short
+    # A turn under 90 deg is never made the long way.
+    assert planner.turn_keeping_view(asv, heading, math.radians(-80.0), rov) == math.radians(-80.0)
