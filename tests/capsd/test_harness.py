@@ -109,7 +109,7 @@ def test_a_pan_tilt_mount_reaches_every_service_that_looks_through_it(tmp_path: 
 
 @pytest.mark.parametrize(
     ("tilt", "preferred_m", "abeam_deg"),
-    [("fixed", None, 60.0), ("servo", None, 60.0), ("pan-tilt", 1.2, 60.0)],
+    [("fixed", None, 60.0), ("servo", None, 60.0), ("pan-tilt", 1.2, 0.0)],
 )
 def test_the_mockup_follower_keeps_a_pan_tilt_sonar_further_off_the_rov(
     tmp_path: Path, tilt: SonarTilt, preferred_m: float | None, abeam_deg: float
