@@ -87,9 +87,7 @@ class ServoMotion:
             moved = self.at(previous, stamp_ns)
             return ServoState(stamp_ns, moved.tilt_rad, moved.pan_rad, tilt_rad, pan_rad)
         since = stamp_ns - min((stamp_ns - previous.stamp_ns) // 2, MAX_BACKDATE_NS)
-        start = self.at(previous, since)
-        turned = ServoState(since, start.tilt_rad, start.pan_rad, tilt_rad, pan_rad)
-        moved = self.at(turned, stamp_ns)
+        moved = self._retargeted(previous, since, tilt_rad, pan_rad, stamp_ns)
         return ServoState(stamp_ns, moved.tilt_rad, moved.pan_rad, tilt_rad, pan_rad, since)
 
     def between(self, a: ServoState, b: ServoState, fraction: float) -> ServoState:
@@ -99,6 +97,13 @@ class ServoMotion:
             return self.at(b, stamp)
         if b.since_ns is None or stamp <= b.since_ns:
             return self.at(a, stamp)
-        start = self.at(a, b.since_ns)  # b's targets taken: towards them from there
-        turned = ServoState(b.since_ns, start.tilt_rad, start.pan_rad, b.tilt_to_rad, b.pan_to_rad)
-        return self.at(turned, stamp)
+        return self._retargeted(a, b.since_ns, b.tilt_to_rad, b.pan_to_rad, stamp)
+
+    def _retargeted(
+        self, before: ServoState, since_ns: int, tilt_to: float, pan_to: float, stamp_ns: int
+    ) -> ServoState:
+        """At `stamp_ns`: towards `before`'s targets until `since_ns`, then towards these."""
+        start = self.at(before, since_ns)
+        return self.at(
+            ServoState(since_ns, start.tilt_rad, start.pan_rad, tilt_to, pan_to), stamp_ns
+        )

@@ -28,8 +28,7 @@ import numpy as np
 import numpy.typing as npt
 
 from capsd.mission.plan import Waypoint
-from capsd.services.asv_follow.follower import ABEAM_PAN_MARGIN_RAD
-from capsd.services.asv_follow.station import StationPlanner
+from capsd.services.asv_follow.station import ABEAM_PAN_MARGIN_RAD, StationPlanner
 
 Floats = npt.NDArray[np.float64]
 Bools = npt.NDArray[np.bool_]
@@ -139,10 +138,10 @@ def hull_turns(planner: StationPlanner) -> list[float]:
     turns = [0.0]
     if planner.pan is None:
         return turns
+    left, right = planner.pan_room_rad(margin_rad=ABEAM_PAN_MARGIN_RAD)
     for deg in PAN_TURNS_DEG:
-        for side, most in ((1.0, -planner.pan.min_deg), (-1.0, planner.pan.max_deg)):
-            # A hull turned right of the ROV (-) needs the pan turned left (+) to face it.
-            limit = math.radians(most) - ABEAM_PAN_MARGIN_RAD
+        # A hull turned left of the ROV (+) needs the pan turned right to face it, and so on.
+        for side, limit in ((1.0, right), (-1.0, left)):
             turn = min(math.radians(deg), limit)
             if turn > 0.0 and side * turn not in turns:
                 turns.append(side * turn)

@@ -60,6 +60,7 @@ import numpy as np
 from capsd.geometry import Array, wrap_angle
 from capsd.payloads import DriveDirection
 from capsd.services.asv_follow.station import (
+    ABEAM_PAN_MARGIN_RAD,
     AROUND_STEP_RAD,
     STAY_M,
     Station,
@@ -112,8 +113,6 @@ ALONG_SIGHT_COS = math.cos(math.radians(45.0))  # ... where its leg runs along t
 # The way a fresh fix's tilt went: judged over this long, a change under this is none.
 NOD_TREND_S = 0.5
 NOD_TREND_MIN_RAD = math.radians(0.5)
-# A hull turned off the ROV keeps its pan at least this far inside the servo's range.
-ABEAM_PAN_MARGIN_RAD = math.radians(15.0)
 PAN_SETTLED_RAD = math.radians(1.0)  # a pan turning onto the bearing stops this near it
 
 
@@ -553,9 +552,10 @@ class Follower:
         """
         assert self.planner.pan is not None
         s = self.settings
-        reach = (
-            min(s.pan_abeam_rad, math.radians(self.planner.pan.max_deg) - ABEAM_PAN_MARGIN_RAD),
-            min(s.pan_abeam_rad, -math.radians(self.planner.pan.min_deg) - ABEAM_PAN_MARGIN_RAD),
+        # Turned right of the ROV (side +1) the pan turns left to face it, and the other way.
+        reach = tuple(
+            min(s.pan_abeam_rad, room)
+            for room in self.planner.pan_room_rad(margin_rad=ABEAM_PAN_MARGIN_RAD)
         )
 
         def within_slack(heading_rad: float) -> bool:

@@ -52,6 +52,8 @@ from capsd.tank import TankBounds, TankFixture
 
 # Steered: a move whose way is further than this off the ROV's bearing turns the sonar off it.
 BLIND_OFF_RAD = math.radians(20.0)
+# A hull turned off the ROV keeps its pan at least this far inside the servo's range.
+ABEAM_PAN_MARGIN_RAD = math.radians(15.0)
 # A turn at least this large may go the long way round (`turn_keeping_view`); the extra
 # degrees count this much against the blind ones they save (a turn's time is not all lost).
 EITHER_WAY_RAD = math.radians(90.0)
@@ -292,6 +294,15 @@ class StationPlanner:
         drop = self.sonar_z - float(rov_m[2])
         wanted = math.atan2(drop, forward) + self.settings.target_elevation_rad - self.pitch
         return pan, self.tilt.clamp_rad(wanted)
+
+    def pan_room_rad(self, *, margin_rad: float = 0.0) -> tuple[float, float]:
+        """How far the pan turns left and right of its zero, less `margin_rad` (0, 0: none)."""
+        if self.pan is None:
+            return 0.0, 0.0
+        return (
+            math.radians(self.pan.max_deg) - margin_rad,
+            -math.radians(self.pan.min_deg) - margin_rad,
+        )
 
     def reached_view(
         self, asv_xy: Array, heading_rad: float, rov_m: Array
@@ -631,10 +642,7 @@ class StationPlanner:
             return turn_rad
         other = turn_rad - math.copysign(2.0 * math.pi, turn_rad)
         bearing = math.atan2(float(rov_m[1] - asv_xy[1]), float(rov_m[0] - asv_xy[0]))
-        left = right = BLIND_OFF_RAD
-        if self.pan is not None:
-            left += math.radians(self.pan.max_deg)
-            right -= math.radians(self.pan.min_deg)
+        left, right = (BLIND_OFF_RAD + room for room in self.pan_room_rad())
 
         def blind_rad(turn: float) -> float:
             steps = max(1, math.ceil(abs(turn) / TURN_STEP_RAD))
