@@ -7,7 +7,9 @@ also just beyond the aperture's edge); only then (and at most every `replan_afte
 one chosen, from good fixes only, for where the ROV will be `lead_s` later at its tracked
 velocity (a ROV flying a survey leg would otherwise leave every station as soon as it is
 reached), but not past the waypoint its mission sent it to; of the stations, those that also see the
-next `path_ahead_m` of the ROV's leg are preferred (the planner's path cost).
+next `path_ahead_m` of the ROV's leg are preferred (the planner's path cost). A new station
+that looks at the ROV from the other side (its bearing turned more than `side_switch_rad`)
+keeps the choices to that side for `side_commit_s`, where another side has a station.
 Without a good fix for `fix_timeout_s` the ROV is looked for where it will hold: a ROV on a
 mission stops within a second of losing its fix, so the last good fix carried on at the
 tracked velocity for up to `stop_within_s`. If that point lies outside the station's view (the
@@ -29,7 +31,7 @@ way the hull is to face the ROV (or where it is looked for), at the station the 
 while the hull faces more than `turn_first_rad` off that heading the carrot turns where the
 hull is, and only then walks;
 a way that would pass over the ROV (to a station on its other side) goes round it, no nearer
-than where the ROV sits at the target elevation.
+than where the ROV sits at the target elevation, on the side it first took.
 
 That is the lateral drive (the planner's `drive`: an omni frame that moves any way with its
 heading kept). ArduRover's GUIDED drives a boat and an omni frame alike: a forward speed and a
@@ -114,6 +116,10 @@ ALONG_SIGHT_COS = math.cos(math.radians(45.0))  # ... where its leg runs along t
 NOD_TREND_S = 0.5
 NOD_TREND_MIN_RAD = math.radians(0.5)
 PAN_SETTLED_RAD = math.radians(1.0)  # a pan turning onto the bearing stops this near it
+# A way round the ROV keeps the side it took while its station stays this near where it was
+# (and the other way round turns at most ROUND_KEEP_MAX_RAD of bearing).
+ROUND_KEEP_M = 1.0
+ROUND_KEEP_MAX_RAD = math.radians(240.0)
 
 
 @dataclass(frozen=True)
@@ -164,6 +170,13 @@ class FollowSettings:
     # modelled from reports up to a report period late: a mockup demo's fixes scattered 8-11 mm
     # across the line of sight with the pan still, 27-57 mm with it turning 2-15 deg in 0.5 s).
     pan_dead_band_rad: float = math.radians(15.0)
+    # A station that looks at the ROV from the other side (its bearing turned more than
+    # `side_switch_rad`) is kept to that side for `side_commit_s`: where the ROV sits between
+    # two sides that both barely see it, each new choice otherwise went back to the side the
+    # hull had just left (a mockup pan-tilt demo, seed 2: 13 switches, 11 of them back within
+    # 6 s, the hull left midway 0.9 m off the ROV, which the detector then lost for 15 s).
+    side_commit_s: float = 10.0
+    side_switch_rad: float = math.radians(90.0)
 
 
 @dataclass(frozen=True)
@@ -230,6 +243,8 @@ class Follower:
         self._carrot_v = np.zeros(2)
         self._carrot_heading = 0.0
         self._last_plan_s = -math.inf
+        # The bearing a station last looked from before the side was switched, and when.
+        self._left_side: tuple[float, float] | None = None
         self.looks = 0  # stations chosen to look again at a lost ROV
         # Where this loss's looks saw no ROV, and from which bearing (W: x, y, bearing).
         self._seen: list[tuple[float, float, float]] = []
@@ -250,6 +265,8 @@ class Follower:
         self._direction_for: Array | None = None  # ... to this station
         self._sight_only = False  # steered: this station's way goes along the sight only
         self._sight_for: Array | None = None  # ... decided for this station
+        # The way round the ROV: which side (+1 left, -1 right) and to which station.
+        self._round: tuple[float, Array] | None = None
         self._leg_end_s = -math.inf
         self.next_leg_end: Array | None = None  # the waypoint after `leg_end`, where told
 
@@ -312,16 +329,7 @@ class Follower:
         ):
             assert self.rov_m is not None
             self._last_plan_s = now_s
-            chosen = self.planner.choose(
-                self._ahead(),
-                self._carrot,
-                self._carrot_heading,
-                rov_velocity_m_s=self._horizontal_velocity(),
-                current_bearing_rad=(
-                    None if self.station is None else self.planner.bearing(self.station)
-                ),
-                path_m=self._leg_path(),
-            )
+            chosen = self._choose_committed(now_s)
             if chosen is not None:
                 self.station = chosen
                 self._aim = self._ahead()
@@ -384,6 +392,40 @@ class Follower:
             tilt,
             pan,
         )
+
+    def _choose_committed(self, now_s: float) -> Station | None:
+        """A station for the ROV ahead, kept off the side left within `side_commit_s`.
+
+        Off it only while another side has a station; a choice that switches sides starts
+        the commitment again.
+        """
+        assert self.rov_m is not None
+        current = None if self.station is None else self.planner.bearing(self.station)
+
+        def choose(avoid_rad: float | None) -> Station | None:
+            assert self._carrot is not None
+            return self.planner.choose(
+                self._ahead(),
+                self._carrot,
+                self._carrot_heading,
+                avoid_bearing_rad=avoid_rad,
+                avoid_within_rad=self.settings.side_switch_rad,
+                rov_velocity_m_s=self._horizontal_velocity(),
+                current_bearing_rad=current,
+                path_m=self._leg_path(),
+            )
+
+        left = self._left_side
+        chosen = None
+        if left is not None and now_s - left[0] < self.settings.side_commit_s:
+            chosen = choose(left[1])
+        if chosen is None:
+            chosen = choose(None)
+        if chosen is not None and current is not None:
+            turned = abs(wrap_angle(self.planner.bearing(chosen) - current))
+            if turned > self.settings.side_switch_rad:
+                self._left_side = (now_s, current)
+        return chosen
 
     def _sonar_angles(
         self, now_s: float, *, fresh: bool, dt: float
@@ -484,7 +526,9 @@ class Follower:
         if look is None:
             return station_xy
         centre = look[:2]
-        turn = round_turn(self._carrot, station_xy, centre, within=AROUND_WITHIN)
+        turn = self._kept_round(
+            round_turn(self._carrot, station_xy, centre, within=AROUND_WITHIN), station_xy
+        )
         if turn == 0.0:
             return station_xy
         here = self._carrot - centre
@@ -508,6 +552,30 @@ class Follower:
         # keep-out box in the way: straight.
         point = self.planner.within_walls(point)
         return np.asarray(point) if self.planner.clear(point) else station_xy
+
+    def _kept_round(self, turn_rad: float, station_xy: Array) -> float:
+        """`turn_rad` round the ROV, the other way where that keeps the side the way took.
+
+        A station on the ROV's far side, nearly behind it, is as near round either side; the
+        side then turned with the point looked at (the fix's, then the held ROV's, a few cm
+        apart), and a steered hull backing round it was asked to face one way then the other
+        and never went (`capsd bench follow`, mockup pan-tilt, seed 3: 60 s at 0.9 m).
+        """
+        if turn_rad == 0.0:
+            self._round = None
+            return turn_rad
+        side = math.copysign(1.0, turn_rad)
+        if self._round is not None:
+            kept, to_xy = self._round
+            other = turn_rad + kept * 2.0 * math.pi
+            if (
+                side != kept
+                and float(np.linalg.norm(to_xy - station_xy)) <= ROUND_KEEP_M
+                and abs(other) <= ROUND_KEEP_MAX_RAD
+            ):
+                turn_rad, side = other, kept
+        self._round = (side, np.asarray(station_xy, dtype=np.float64).copy())
+        return turn_rad
 
     def _wanted_heading(self, *, fresh: bool) -> float:
         """The hull's heading now: the sonar on the ROV on the way and at the station.
@@ -854,7 +922,16 @@ class Follower:
         s = self.settings
         look = self._look_point(fresh=fresh)
         goal = self._around(look, self.station.position_xy)
-        if self.planner.settings.drive == "steered" and fresh and look is not None:
+        # Not on a way round the ROV: its first step is a little across the sight too, and
+        # along the sight the hull only backed into the wall's clearance, facing the ROV, then
+        # (the fix lost, 0.9 m off) turned to the way round, and back (`capsd bench follow`,
+        # mockup pan-tilt, seed 3: 40 s).
+        if (
+            self.planner.settings.drive == "steered"
+            and fresh
+            and look is not None
+            and self._round is None
+        ):
             # Decided as the way to a station starts: a way that starts far across goes all
             # the way (else it would stop ACROSS_SLACK_M short of its station).
             station_xy = self.station.position_xy

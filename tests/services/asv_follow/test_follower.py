@@ -1128,3 +1128,56 @@ def test_a_pan_servo_is_told_the_pan_that_faces_the_rov_and_the_tilt_for_it() ->
     plain = told.step(0.0)
     assert plain is not None
     assert plain.sonar_pan_rad is None
+
+
+def test_a_way_round_the_rov_keeps_its_side_while_the_fix_jitters_across_the_way(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A station right behind the ROV: fixes a few cm either side of the way do not swap sides.
+
+    A steered hull turns to its way before it goes; each swap was a half turn, and it never went.
+    """
+    planner = StationPlanner(
+        SonarMountConfig(),
+        TankBounds(length_m=40.0, width_m=30.0),
+        StationSettings(drive="steered"),
+    )
+    rov = np.array([16.0, 8.0, -3.5])
+    far_side = rov[:2] + np.array([6.0, 0.0])
+
+    def jittering(now: float) -> tuple[np.ndarray, None]:
+        return rov + np.array([0.0, 0.05 if int(now) % 2 else -0.05, 0.0]), None
+
+    def arrived() -> bool:
+        way = _drive(planner, START, 0.0, far_side, math.pi, steps=1500, fix=jittering)
+        return any(float(np.linalg.norm(xy - far_side)) < 0.05 for xy, _, _ in way)
+
+    assert arrived()  # within 150 s
+    monkeypatch.setattr(follower_module, "ROUND_KEEP_MAX_RAD", 0.0)  # each step chooses anew
+    assert not arrived()
+
+
+def test_a_station_on_the_other_side_is_kept_to_that_side_for_a_while() -> None:
+    """The ROV back where it was within `side_commit_s`: not seen from the side it was left for."""
+    planner = StationPlanner(SonarMountConfig(), TankBounds(), StationSettings())
+    east, west = np.array([16.0, 8.0, -3.5]), np.array([4.0, 8.0, -3.5])
+
+    def bearings(commit_s: float) -> list[float]:
+        settings = FollowSettings(side_commit_s=commit_s, side_switch_rad=math.radians(60.0))
+        follower = Follower(planner, settings)
+        follower.on_pose(START, 0.0)
+        follower.on_mode("GUIDED")
+        out = []
+        for now, rov in ((0.0, east), (2.5, west), (5.0, east)):
+            follower.on_fix(now, rov)
+            follower.step(now)
+            assert follower.station is not None
+            out.append(math.degrees(abs(planner.bearing(follower.station))))
+        return out
+
+    first, switched, back = bearings(10.0)
+    assert first < 60.0 < switched  # the side switched (the bearing turned more than 60 deg)
+    assert back > 60.0  # not back to the side it left
+    first, switched, back = bearings(0.0)
+    assert first < 60.0 < switched
+    assert back < 60.0  # without the commitment: the side it left, the nearer
