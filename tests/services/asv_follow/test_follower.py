@@ -14,7 +14,7 @@ from capsd.geometry import wrap_angle
 from capsd.mounts import SonarMountConfig
 from capsd.services.asv_follow import follower as follower_module
 from capsd.services.asv_follow.follower import Follower, FollowSettings, Target
-from capsd.services.asv_follow.station import Station, StationPlanner, StationSettings
+from capsd.services.asv_follow.station import STAY_M, Station, StationPlanner, StationSettings
 from capsd.tank import TankBounds
 
 START = np.array([10.0, 8.0])
@@ -1181,3 +1181,77 @@ def test_a_station_on_the_other_side_is_kept_to_that_side_for_a_while() -> None:
     first, switched, back = bearings(0.0)
     assert first < 60.0 < switched
     assert back < 60.0  # without the commitment: the side it left, the nearer
+
+
+def test_a_steered_hull_too_near_the_rov_leaves_by_the_end_it_turns_to_least() -> None:
+    """Nearer than stations keep it, neither end sees the ROV: the nearer end, not a half turn."""
+    planner = StationPlanner(
+        SonarMountConfig(),
+        TankBounds(length_m=40.0, width_m=30.0),
+        StationSettings(drive="steered"),
+    )
+    station_xy = START + np.array([3.0, 1.0])  # ahead, a little left: the bow's way
+
+    def first_direction(rov: np.ndarray) -> str:
+        follower = Follower(planner, FollowSettings())
+        follower.on_pose(START, 0.0)
+        follower.on_mode("GUIDED")
+        follower.on_fix(0.0, rov)
+        follower.step(0.0)
+        view = planner.view(station_xy, planner.facing(station_xy, rov), rov)
+        follower.station = Station(position_xy=station_xy, heading_rad=0.0, view=view)
+        follower._last_plan_s = math.inf  # keep this station
+        follower.on_fix(0.1, rov)
+        target = follower.step(0.1)
+        assert target is not None
+        return target.direction
+
+    near = np.array([START[0] - 0.3, START[1] - 1.0, -1.5])  # 1.5 m from the sonar facing it
+    assert planner.view(START, planner.facing(START, near), near).range_m < 2.0
+    assert first_direction(near) == "forward"
+    # Off by as much, far enough to be seen: the stern to the way, the sonar facing it.
+    far = np.array([START[0] - 1.0, START[1] - 4.0, -3.5])
+    assert first_direction(far) == "reverse"
+
+
+def test_a_station_moved_a_little_on_the_way_keeps_the_end_the_hull_drives(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A station re-chosen a few dm off: no half turn half way (the way's end chosen again)."""
+    planner = StationPlanner(
+        SonarMountConfig(),
+        TankBounds(length_m=40.0, width_m=30.0),
+        StationSettings(drive="steered"),
+    )
+    rov = np.array([START[0] + 3.0, START[1] + 4.0, -3.5])  # ahead on the left, then behind
+
+    def directions() -> tuple[str, str]:
+        follower = Follower(planner, FollowSettings())
+        follower.on_pose(START, 0.0)
+        follower.on_mode("GUIDED")
+        follower.on_fix(0.0, rov)
+        follower.step(0.0)
+        station_xy = START + np.array([8.0, 0.0])
+        view = planner.view(station_xy, planner.facing(station_xy, rov), rov)
+        follower.station = Station(position_xy=station_xy, heading_rad=0.0, view=view)
+        follower._last_plan_s = math.inf  # keep this station
+        xy, hull, now = START.copy(), 0.0, 0.0
+        while xy[0] < START[0] + 5.0:  # past the ROV: now the stern faces it better
+            now += 0.1
+            follower.on_fix(now, rov)
+            follower.on_pose(xy, hull)
+            target = follower.step(now)
+            assert target is not None
+            assert now < 60.0
+            xy, hull, before = target.position_xy, target.heading_rad, target.direction
+        moved = station_xy + np.array([0.0, 0.3])
+        follower.station = Station(position_xy=moved, heading_rad=0.0, view=view)
+        follower.on_fix(now + 0.1, rov)
+        follower.on_pose(xy, hull)
+        target = follower.step(now + 0.1)
+        assert target is not None
+        return before, target.direction
+
+    assert directions() == ("forward", "forward")
+    monkeypatch.setattr(follower_module, "DIRECTION_KEEP_M", STAY_M)
+    assert directions() == ("forward", "reverse")
