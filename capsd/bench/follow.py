@@ -383,5 +383,8 @@ def run(
                 f"{loss.hull_off_deg[1]:.0f} deg off the ROV's bearing"
             )
     if seeds > 1:
-        print(f"median in view over {seeds} seeds: {100 * float(np.median(shares)):.1f} %")
+        print(
+            f"median in view over {seeds} seeds: {100 * float(np.median(shares)):.1f} % "
+            f"(mean {100 * float(np.mean(shares)):.2f} %, lowest {100 * min(shares):.1f} %)"
+        )
     return 0

@@ -1040,13 +1040,18 @@ class Follower:
             self._keep_off()
 
     def _too_near(self, hull_xy: Array, look: Array) -> bool:
-        """Whether the ROV at `look` is nearer the sonar on the hull now than stations keep it.
+        """Whether the ROV at `look` is nearer the sonar, as the hull is now, than stations keep it.
 
-        (`min_range_m`: nearer, the detector misses it; with the hull facing it, the sonar is
-        at its nearest.)
+        (`min_range_m`: nearer, the detector misses it. The sonar where it is, not where a hull
+        facing the ROV would put it: that also sent hulls off ahead with a ROV still seen
+        astern, out of the pan's reach, and a detector that finds the ROV only within 35 deg of
+        the boresight lost more (`capsd bench follow`, the mockup's pan-tilt, 20 seeds: 96.2
+        against 95.3 %; 100.0 % both with the bench's 60 deg).)
         """
-        facing = self.planner.facing(hull_xy, look)
-        return self.planner.view(hull_xy, facing, look).range_m < self.planner.settings.min_range_m
+        return (
+            self.planner.view(hull_xy, self.asv_heading, look).range_m
+            < self.planner.settings.min_range_m
+        )
 
     def _sight(self, look: Array) -> Array | None:
         """The unit vector from the carrot along the line of sight to `look` (None: on it)."""

@@ -108,11 +108,11 @@ def test_a_pan_tilt_mount_reaches_every_service_that_looks_through_it(tmp_path: 
 
 
 @pytest.mark.parametrize(
-    ("tilt", "preferred_m", "abeam_deg"),
-    [("fixed", None, 60.0), ("servo", None, 60.0), ("pan-tilt", 1.2, 0.0)],
+    ("tilt", "min_m", "preferred_m", "abeam_deg"),
+    [("fixed", 1.0, None, 60.0), ("servo", 1.0, None, 60.0), ("pan-tilt", 1.1, 1.2, 0.0)],
 )
 def test_the_mockup_follower_keeps_a_pan_tilt_sonar_further_off_the_rov(
-    tmp_path: Path, tilt: SonarTilt, preferred_m: float | None, abeam_deg: float
+    tmp_path: Path, tilt: SonarTilt, min_m: float, preferred_m: float | None, abeam_deg: float
 ) -> None:
     """The demo's follower and `follow_config` (benches, mission check) get the same rules."""
     configs = _configs(
@@ -123,6 +123,6 @@ def test_the_mockup_follower_keeps_a_pan_tilt_sonar_further_off_the_rov(
     assert configs["asv_follow"]["station"].get("preferred_min_range_m") == preferred_m
     shared = follow_config("mockup", tilt=tilt)
     for config in (demo, shared):
-        assert config.station.min_range_m == 1.0
+        assert config.station.min_range_m == min_m
         assert config.station.preferred_min_range_m == preferred_m
         assert config.motion.pan_abeam_deg == abeam_deg

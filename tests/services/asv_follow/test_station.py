@@ -706,12 +706,12 @@ def test_the_reached_view_is_the_servos_aim_and_without_servos_the_view() -> Non
 
 
 def test_stations_keep_the_preferred_range_where_any_can_and_the_minimum_where_none_can() -> None:
-    """The mockup's pan-tilt rules: 1.2 m off where a station can be, 1.0 m on the middle lane."""
+    """The mockup's pan-tilt rules: 1.2 m off where a station can be, 1.1 m on the middle lane."""
     from capsd.harness import follow_config
 
     config = follow_config("mockup", tilt="pan-tilt")
     settings = config.motion.drive_settings(config.station.settings())
-    assert (settings.min_range_m, settings.preferred_min_range_m) == (1.0, 1.2)
+    assert (settings.min_range_m, settings.preferred_min_range_m) == (1.1, 1.2)
     planner = StationPlanner(config.sonar, config.tank, settings)
     strict = StationPlanner(
         config.sonar,
@@ -724,12 +724,12 @@ def test_stations_keep_the_preferred_range_where_any_can_and_the_minimum_where_n
     chosen = planner.choose(end, asv, 0.0)
     assert chosen is not None
     assert chosen.view.range_m >= 1.2
-    # Mid tank, on the lane through the ASV's box: none keeps 1.2 m, one keeps 1.0 m.
+    # Mid tank, on the lane through the ASV's box: none keeps 1.2 m, one keeps 1.1 m.
     middle = np.array([2.2, 1.67, -1.0])
     assert strict.choose(middle, asv, 0.0) is None
     chosen = planner.choose(middle, asv, 0.0)
     assert chosen is not None
-    assert 1.0 <= chosen.view.range_m < 1.2
+    assert 1.1 <= chosen.view.range_m < 1.2
     assert planner.view_is_good(chosen.view)
     assert not planner.view_is_good(chosen.view, min_range_m=1.2)
 
