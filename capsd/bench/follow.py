@@ -106,18 +106,29 @@ class FollowRun:
 
 
 def _in_view(
-    mount: SonarMountConfig, sonar: Transform, rov_m: np.ndarray, *, from_m: float = MIN_RANGE_M
+    mount: SonarMountConfig,
+    sonar: Transform,
+    rov_m: np.ndarray,
+    *,
+    from_m: float = MIN_RANGE_M,
+    within_deg: float = HALF_FAN_DEG,
 ) -> bool:
     """Whether a perfect detector would see the ROV from this sonar pose."""
-    return _view(mount, sonar, rov_m, from_m=from_m) is not None
+    return _view(mount, sonar, rov_m, from_m=from_m, within_deg=within_deg) is not None
 
 
 def _view(
-    mount: SonarMountConfig, sonar: Transform, rov_m: np.ndarray, *, from_m: float = MIN_RANGE_M
+    mount: SonarMountConfig,
+    sonar: Transform,
+    rov_m: np.ndarray,
+    *,
+    from_m: float = MIN_RANGE_M,
+    within_deg: float = HALF_FAN_DEG,
 ) -> tuple[float, float] | None:
     """The ROV's elevation (rad) and range (m) where a perfect detector would see it, else None.
 
-    Seen from `from_m` out (a detector that misses a near ROV: `--detect-from`).
+    Seen from `from_m` out (a detector that misses a near ROV: `--detect-from`) and within
+    `within_deg` of the boresight (one that misses it off the boresight: `--detect-within`).
     """
     p = sonar.inverse().apply(rov_m)
     try:
@@ -126,7 +137,7 @@ def _view(
         return None
     seen = (
         abs(elevation) <= math.radians(mount.vertical_aperture_deg) / 2.0
-        and abs(azimuth) <= math.radians(HALF_FAN_DEG)
+        and abs(azimuth) <= math.radians(within_deg)
         and from_m <= r <= MAX_RANGE_M
     )
     return (elevation, r) if seen else None
@@ -142,6 +153,7 @@ def run_mission(
     asv_mode: AsvMode = "follow",
     tilt: SonarTilt = "fixed",
     detect_from_m: float = MIN_RANGE_M,
+    detect_within_deg: float = HALF_FAN_DEG,
     progress: Progress | None = None,
 ) -> FollowRun:
     """Fly the plan once with the follower (or the ASV held at its start); see the module."""
@@ -201,7 +213,7 @@ def run_mission(
         servo_rad = 0.0 if servo is None else servo.tilt_rad(t)
         pan_rad = 0.0 if servo is None else servo.pan_rad(t)
         sonar_pose = body.compose(mount.transform(tilt_rad=servo_rad, pan_rad=pan_rad))
-        view = _view(mount, sonar_pose, rov_m, from_m=detect_from_m)
+        view = _view(mount, sonar_pose, rov_m, from_m=detect_from_m, within_deg=detect_within_deg)
         seen = view is not None
         yaw = math.atan2(float(rotation[1, 0]), float(rotation[0, 0]))
         asv_xy = np.array(translation[:2])
@@ -331,6 +343,7 @@ def run(
     asv_mode: AsvMode = "follow",
     tilt: SonarTilt = "fixed",
     detect_from_m: float = MIN_RANGE_M,
+    detect_within_deg: float = HALF_FAN_DEG,
 ) -> int:
     """Print one line per seed and the losses; the median share in view."""
     shares = []
@@ -339,7 +352,7 @@ def run(
         progress = Progress(duration_s, label=f"bench follow seed {seed}", unit=" s")
         r = run_mission(tank, plan_path, drive=drive, duration_s=duration_s, seed=seed,
                         asv_mode=asv_mode, tilt=tilt, detect_from_m=detect_from_m,
-                        progress=progress)  # fmt: skip
+                        detect_within_deg=detect_within_deg, progress=progress)  # fmt: skip
         progress.close()
         share = r.in_view / r.steps if r.steps else 0.0
         shares.append(share)

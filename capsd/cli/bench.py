@@ -187,6 +187,7 @@ def _cmd_bench_follow(args: argparse.Namespace) -> int:
         asv_mode=args.asv,
         tilt=args.sonar_tilt,
         detect_from_m=args.detect_from,
+        detect_within_deg=args.detect_within,
     )
 
 
@@ -484,6 +485,13 @@ def register(sub: Subcommands) -> None:
         default=0.3,
         help="metres: no fix of a ROV nearer the sonar than this (default 0.3; the shipped "
         "detector misses a quarter to half of the pings under 0.95 m in the mockup demo)",
+    )
+    bfollow.add_argument(
+        "--detect-within",
+        type=positive_float,
+        default=60.0,
+        help="degrees: no fix of a ROV further off the boresight than this (default 60; the "
+        "fan is 130 deg wide, and a detector may lose a ROV crossing its edges)",
     )
     bfollow.set_defaults(func=_cmd_bench_follow)
     blat = bench_sub.add_parser(

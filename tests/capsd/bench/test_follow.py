@@ -33,6 +33,10 @@ def test_in_view_is_the_aperture_and_the_fan() -> None:
     # A detector that misses a near ROV (`--detect-from`): the ROV is 5.74 m off.
     assert _in_view(mount, sonar, at(mid, 0.0), from_m=5.7)
     assert not _in_view(mount, sonar, at(mid, 0.0), from_m=5.8)
+    # One that misses it off the boresight (`--detect-within`).
+    assert _in_view(mount, sonar, at(mid, 12.0))
+    assert _in_view(mount, sonar, at(mid, 12.0), within_deg=15.0)
+    assert not _in_view(mount, sonar, at(mid, 12.0), within_deg=10.0)
 
 
 def _fly(tank: Literal["nfp", "mockup"], duration_s: float, **options: object) -> FollowRun:
