@@ -171,9 +171,9 @@ SonarTilt = Literal["fixed", "servo", "pan-tilt"]
 # the ROV is at most 1.13 m off; held to 1.2 m there, the follower kept a station from before,
 # 0.9 m off, and a demo lost the ROV for 70 s; 1.1 m rather than 1.0 since session 47: the
 # follower also leaves a ROV nearer than that the quickest way, and `capsd bench follow
-# --sonar-tilt pan-tilt`, 20 seeds, gives 100.0 % in view against 99.9 % with 1.0 m, 92.7
-# against 90.4 % with `--detect-from 1.05`), the hull facing it (`pan_abeam_deg` 0). Turned
-# 60 deg off it (the service's default) the sonar, 0.3 m ahead of the hull's origin, stays 0.15
+# --sonar-tilt pan-tilt`, 20 seeds, with 0b8447a's follower gave 100.0 % in view against 99.9 %
+# with 1.0 m, 92.7 against 90.4 % with `--detect-from 1.05`), the hull facing it
+# (`pan_abeam_deg` 0). Turned 60 deg off it (the service's default) the sonar, 0.3 m ahead of the hull's origin, stays 0.15
 # m further off, and `capsd bench follow --sonar-tilt pan-tilt --detect-from 0.95` prefers it
 # (97.2 % in view against 95.4 %), but the demo does not: seeds 0-4, 95.0 % good fixes a run
 # facing against 88.9 % turned (53.4 % on seed 4, the hull swinging between its two sides

@@ -345,7 +345,7 @@ def run(
     detect_from_m: float = MIN_RANGE_M,
     detect_within_deg: float = HALF_FAN_DEG,
 ) -> int:
-    """Print one line per seed and the losses; the median share in view."""
+    """Print one line per seed and the losses; the median, mean and lowest share in view."""
     shares = []
     mount_half_deg = follow_config(tank, drive=drive).sonar.vertical_aperture_deg / 2.0
     for seed in range(seeds):
