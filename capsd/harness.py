@@ -164,22 +164,22 @@ SONAR_PITCH_DEG: dict[str, float] = {"mockup": 45.0}
 SonarTilt = Literal["fixed", "servo", "pan-tilt"]
 
 
-# With the sonar on a pan and a tilt servo, what changes from FOLLOW_STATION. In the mockup
-# the detector misses a ROV nearer than about 1 m (README, session 45: 25 % of pings missed at
-# 0.90-0.95 m, 67 % under 0.9 m), so stations keep it 1.2 m off where any can, 1.1 m where none
-# can (`preferred_min_range_m`: on the plan's middle lanes, through the ASV's box, a hull facing
-# the ROV is at most 1.13 m off; held to 1.2 m there, the follower kept a station from before,
-# 0.9 m off, and a demo lost the ROV for 70 s; 1.1 m rather than 1.0 since session 47: the
-# follower also leaves a ROV nearer than that the quickest way, and `capsd bench follow
-# --sonar-tilt pan-tilt`, 20 seeds, with 0b8447a's follower gave 100.0 % in view against 99.9 %
-# with 1.0 m, 92.7 against 90.4 % with `--detect-from 1.05`), the hull facing it
-# (`pan_abeam_deg` 0). Turned 60 deg off it (the service's default) the sonar, 0.3 m ahead of the hull's origin, stays 0.15
-# m further off, and `capsd bench follow --sonar-tilt pan-tilt --detect-from 0.95` prefers it
-# (97.2 % in view against 95.4 %), but the demo does not: seeds 0-4, 95.0 % good fixes a run
-# facing against 88.9 % turned (53.4 % on seed 4, the hull swinging between its two sides
-# through facing), and the ROV waited for the ASV 42-81 s a run against 137-233 s (README,
-# session 46). A tilt servo alone loses more with stations further off (the hull turns to face,
-# the tilt cannot: `--sonar-tilt servo`, 90.3 % with 1.2 m stations against 94.5 %).
+# With the sonar on a pan and a tilt servo, what changes from FOLLOW_STATION. In the mockup the
+# detector misses a ROV nearer than about 1 m (README, session 45: 25 % of pings missed at 0.90-0.95
+# m, 67 % under 0.9 m), so stations keep it 1.2 m off where any can, 1.1 m where none can
+# (`preferred_min_range_m`: on the plan's middle lanes, through the ASV's box, a hull facing the ROV
+# is at most 1.13 m off; held to 1.2 m there, the follower kept a station from before, 0.9 m off,
+# and a demo lost the ROV for 70 s; 1.1 m rather than 1.0 since session 47: the follower also leaves
+# a ROV nearer than that the quickest way, and `capsd bench follow --sonar-tilt pan-tilt`, 20 seeds,
+# with 0b8447a's follower gave 100.0 % in view against 99.9 % with 1.0 m, 92.7 against 90.4 % with
+# `--detect-from 1.05`), the hull facing it (`pan_abeam_deg` 0). Turned 60 deg off it (the service's
+# default) the sonar, 0.3 m ahead of the hull's origin, stays 0.15 m further off, and `capsd bench
+# follow --sonar-tilt pan-tilt --detect-from 0.95` prefers it (97.2 % in view against 95.4 %), but
+# the demo does not: seeds 0-4, 95.0 % good fixes a run facing against 88.9 % turned (53.4 % on seed
+# 4, the hull swinging between its two sides through facing), and the ROV waited for the ASV 42-81 s
+# a run against 137-233 s (README, session 46). A tilt servo alone loses more with stations further
+# off (the hull turns to face, the tilt cannot: `--sonar-tilt servo`, 90.3 % with 1.2 m stations
+# against 94.5 %).
 PAN_TILT_STATION: dict[str, dict[str, float]] = {
     "mockup": {"preferred_min_range_m": 1.2, "min_range_m": 1.1}
 }
