@@ -601,8 +601,10 @@ class Follower:
         arrived = float(np.linalg.norm(self.station.position_xy - self.asv_xy)) <= ARRIVED_M
         if arrived:
             if not fresh or self.rov_m is None:
-                return self.station.heading_rad
-            look = self.rov_m
+                if self._reaches(look, self.station.heading_rad):
+                    return self.station.heading_rad
+            else:
+                look = self.rov_m
         offset = look[:2] - self.asv_xy
         # Under the hull there is no bearing to face. (Not "nearer than ARRIVED_M": in a small
         # tank the ROV is always that near, and the hull turned to a station's heading on the
@@ -615,6 +617,25 @@ class Follower:
         if arrived and abs(wrap_angle(facing - self._carrot_heading)) < FACE_WITHIN_RAD:
             return self._carrot_heading  # no chasing of the fixes' jitter
         return facing
+
+    def _reaches(self, look: Array, heading_rad: float) -> bool:
+        """Whether the sonar turns onto `look` from a hull on `heading_rad` (pan or fan).
+
+        Without a fresh fix a hull at its station holds the station's heading; where the ROV
+        is held beyond the pan's reach from there, it is never looked at until a search (a
+        mockup pan-tilt demo, seed 6: the ROV 115-140 deg off the bow, lost for 45 s).
+        """
+        assert self.asv_xy is not None
+        offset = look[:2] - self.asv_xy
+        if float(np.linalg.norm(offset)) < self.planner.settings.hull_radius_m:
+            return True
+        off_bow = wrap_angle(
+            math.atan2(offset[1], offset[0]) - heading_rad - self.planner.mount_yaw
+        )
+        if self.planner.pan is None:
+            return abs(off_bow) <= SEARCH_HALF_FAN_RAD
+        left, right = self.planner.pan_room_rad()
+        return -right <= off_bow <= left
 
     def _abeam(self, facing_rad: float) -> float:
         """With a pan servo, at the station: the hull `pan_abeam_rad` off facing the ROV.

@@ -1255,3 +1255,37 @@ def test_a_station_moved_a_little_on_the_way_keeps_the_end_the_hull_drives(
     assert directions() == ("forward", "forward")
     monkeypatch.setattr(follower_module, "DIRECTION_KEEP_M", STAY_M)
     assert directions() == ("forward", "reverse")
+
+
+def test_without_a_fix_a_hull_at_its_station_turns_to_where_the_pan_reaches_the_held_rov() -> None:
+    """The ROV held 130 deg off the station's heading (the pan turns 90): the hull turns.
+
+    Held 60 deg off, within the pan's reach: the station's heading is kept.
+    """
+    servos = msgspec.convert({"tilt": {}, "pan": {}}, SonarMountConfig)
+    planner = StationPlanner(servos, TankBounds(), StationSettings())
+
+    def heading_without_fix(off_bow_deg: float) -> float:
+        bearing = math.radians(off_bow_deg)
+        rov = np.array([START[0] + 3.0 * math.cos(bearing), START[1] + 3.0 * math.sin(bearing)])
+        rov_m = np.array([rov[0], rov[1], -2.0])
+        follower = Follower(planner, FollowSettings(pan_abeam_rad=0.0))
+        follower.on_pose(START, 0.0)
+        follower.on_mode("GUIDED")
+        follower.on_fix(0.0, rov_m)
+        follower.step(0.0)
+        view = planner.view(START, 0.0, rov_m)
+        follower.station = Station(position_xy=START.copy(), heading_rad=0.0, view=view)
+        follower._last_plan_s = math.inf  # keep this station, no search
+        target = None
+        for k in range(1, 101):  # 10 s without a fix (stale after fix_timeout_s)
+            follower.on_pose(START, 0.0)
+            target = follower.step(k * 0.1)
+        assert target is not None
+        assert target.state == "holding"
+        return target.heading_rad
+
+    assert heading_without_fix(60.0) == pytest.approx(0.0, abs=1e-9)
+    turned = heading_without_fix(130.0)
+    assert math.degrees(abs(wrap_angle(turned - math.radians(130.0)))) < 45.0
+    assert heading_without_fix(-130.0) < 0.0
