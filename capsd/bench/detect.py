@@ -63,10 +63,15 @@ from capsd.sonar_image import unit_image
 # follow_far: the far band (14-20 m). With the sonar 30 deg down, a ROV 14-20 m off is inside
 # the 20 deg aperture only 5-10 m below it; a team surveying a pond's far end mounts the sonar
 # shallower: here 12 deg down, the ASV following 16 m off.
-AsvMode = Literal["follow", "stationary", "follow_far"]
+# follow_near: the near band (0.5-1.5 m), as a small tank's ASV with a tilt servo sees a ROV
+# passing close: the ASV following 0.6 m off with its sonar 60 deg down (the mockup's ROV
+# then about a metre from the sonar, in the aperture part of the time).
+AsvMode = Literal["follow", "stationary", "follow_far", "follow_near"]
 Run = tuple[TankName, TrajectoryName, AsvMode, int]
 FAR_STANDOFF_M = 16.0
 FAR_PITCH_DEG = 12.0
+NEAR_STANDOFF_M = 0.6
+NEAR_PITCH_DEG = 60.0
 RUNS: tuple[Run, ...] = (
     ("nfp", "square", "follow", 101),
     ("nfp", "lawnmower", "follow", 102),
@@ -76,6 +81,13 @@ RUNS: tuple[Run, ...] = (
     ("mockup", "random", "follow", 105),
     ("nfp", "lawnmower", "follow_far", 107),
 )
+# `capsd bench detect --runs near`: held-out runs of the near band alone (seeds of their own).
+NEAR_RUNS: tuple[Run, ...] = (
+    ("mockup", "lawnmower", "follow_near", 108),
+    ("mockup", "random", "follow_near", 109),
+)
+RunSet = Literal["held-out", "near"]
+RUN_SETS: dict[RunSet, tuple[Run, ...]] = {"held-out": RUNS, "near": NEAR_RUNS}
 # The bench's default sample: from each run, a stretch at the start of its paths and two later
 # ones, so that the figures are not only those of the first seconds (where training runs that
 # are short and start at the paths' start see most; session 19 measured how that flatters them).
@@ -264,16 +276,21 @@ def sonar_only(
 
     `outside_knobs` (with variety "outside"): the knobs beyond the range trained on.
     """
-    far = asv_mode == "follow_far"
     mode: Literal["follow", "stationary"] = "stationary" if asv_mode == "stationary" else "follow"
     sonar = SonarMountConfig()
+    standoff_m: float | None = None
+    if asv_mode == "follow_far":
+        standoff_m, sonar = FAR_STANDOFF_M, msgspec.structs.replace(sonar, pitch_deg=FAR_PITCH_DEG)
+    elif asv_mode == "follow_near":
+        standoff_m = NEAR_STANDOFF_M
+        sonar = msgspec.structs.replace(sonar, pitch_deg=NEAR_PITCH_DEG)
     return Config(
         tank=tank,
         trajectory=trajectory,
         seed=seed,
         asv_mode=mode,
-        asv_standoff_m=FAR_STANDOFF_M if far else None,
-        sonar=msgspec.structs.replace(sonar, pitch_deg=FAR_PITCH_DEG) if far else sonar,
+        asv_standoff_m=standoff_m,
+        sonar=sonar,
         sonar_image=SonarImageConfig(
             variety=variety,
             look_seed=look_seed,
@@ -504,11 +521,13 @@ def run(
     depth_gate: DepthGateMode = "off",
     looks: tuple[Variety, ...] = LOOKS,
     outside_knobs: tuple[OutsideKnob, ...] | None = None,
+    runs: tuple[Run, ...] = RUNS,
 ) -> int:
     detectors = _detectors(which, weights, options=options)
     tallies = evaluate(
         detectors,
         duration_s=duration_s,
+        runs=runs,
         starts_s=starts_s,
         depth_gate=depth_gate,
         looks=looks,
@@ -517,7 +536,7 @@ def run(
     if json_out is not None:
         json_out.parent.mkdir(parents=True, exist_ok=True)
         figures = {
-            "runs": [list(r) for r in RUNS],
+            "runs": [list(r) for r in runs],
             "looks": list(looks),
             "duration_s_per_stretch": duration_s,
             "stretches_start_s_into_paths": list(starts_s),
@@ -529,10 +548,10 @@ def run(
         json_out.write_text(json.dumps(figures, indent=1) + "\n")
     print()
     print(
-        f"{len(RUNS)} held-out runs, {duration_s:g} s from each of "
+        f"{len(runs)} held-out runs, {duration_s:g} s from each of "
         + ", ".join(f"{s:g}" for s in starts_s)
         + f" s into their paths, in each look ({', '.join(looks)}): "
-        + ", ".join(f"{t}/{tr} ({m}) seed {s}" for t, tr, m, s in RUNS)
+        + ", ".join(f"{t}/{tr} ({m}) seed {s}" for t, tr, m, s in runs)
     )
     print(f"candidates with confidence >= {MIN_CONFIDENCE}; a match is within {MATCH_M} m")
     if depth_gate == "truth":

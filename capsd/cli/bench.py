@@ -96,6 +96,7 @@ def _cmd_bench_detect(args: argparse.Namespace) -> int:
         depth_gate=args.depth_gate,
         looks=tuple(dict.fromkeys(args.looks)) if args.looks else detect.LOOKS,
         outside_knobs=outside_knobs,
+        runs=detect.RUN_SETS[args.runs],
     )
 
 
@@ -254,6 +255,13 @@ def register(sub: Subcommands) -> None:
         "(default 0 120 240: the start and two later stretches)",
     )
     bdet.add_argument("--json", type=Path, default=None, help="also write the figures as JSON")
+    bdet.add_argument(
+        "--runs",
+        choices=["held-out", "near"],
+        default="held-out",
+        help="held-out: the bench's runs, 1.5-20 m; near: a small tank's ASV 0.6 m off the ROV, "
+        "its sonar 60 deg down, the ROV 0.5-1.5 m off (default: %(default)s)",
+    )
     bdet.add_argument(
         "--fixtures",
         type=Path,

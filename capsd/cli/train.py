@@ -97,6 +97,14 @@ def _cmd_train_detector(args: argparse.Namespace) -> int:
 
     if not 0.0 <= args.far_share <= 1.0:
         return fail(f"train detector: --far-share {args.far_share}: between 0 and 1", EXIT_CONFIG)
+    if not 0.0 <= args.near_share <= 1.0:
+        return fail(f"train detector: --near-share {args.near_share}: between 0 and 1", EXIT_CONFIG)
+    if args.far_share + args.near_share > 1.0:
+        return fail(
+            f"train detector: --far-share {args.far_share} and --near-share {args.near_share}: "
+            "together at most 1",
+            EXIT_CONFIG,
+        )
     if not 0.0 <= args.start_spread <= 1500.0:
         return fail(
             f"train detector: --start-spread {args.start_spread}: between 0 and 1500 s",
@@ -113,6 +121,7 @@ def _cmd_train_detector(args: argparse.Namespace) -> int:
         mining_runs=args.mining_runs,
         hard_runs=args.hard_runs,
         far_share=args.far_share,
+        near_share=args.near_share,
         start_spread_s=args.start_spread,
         hard_rounds=args.hard_rounds,
         hard_epochs=args.hard_epochs,
@@ -150,6 +159,13 @@ def register(sub: Subcommands) -> None:
         type=float,
         default=0.0,
         help="share of runs far off (the ROV 10-20 m away, the sonar 8-20 deg down; default 0)",
+    )
+    tdet.add_argument(
+        "--near-share",
+        type=float,
+        default=0.0,
+        help="share of runs near (the mockup, the ROV 0.5-1.5 m away, the sonar 45-75 deg down; "
+        "default 0)",
     )
     tdet.add_argument(
         "--range-input",

@@ -62,6 +62,11 @@ NEGATIVE_MIN_DISTANCE_M = 0.8
 # Far runs (plan_runs' far_share): how far the ASV follows and how shallow its sonar looks.
 FAR_STANDOFF_M = (11.0, 18.0)
 FAR_PITCH_DEG = (8.0, 20.0)
+# Near runs (plan_runs' near_share): the mockup, the ASV following this close, its sonar this
+# steeply down, so that the ROV is 0.5-1.5 m from the sonar (a small tank's ASV with a tilt
+# servo keeps it so: a BlueROV2 then fills up to 30 deg of the fan).
+NEAR_STANDOFF_M = (0.3, 1.0)
+NEAR_PITCH_DEG = (45.0, 75.0)
 
 
 @dataclass(frozen=True)
@@ -116,6 +121,7 @@ def plan_runs(
     duration_s: float,
     sonar_hz: float,
     far_share: float = 0.0,
+    near_share: float = 0.0,
     start_spread_s: float = 0.0,
 ) -> list[RunPlan]:
     """`runs` varied runs drawn from `seed` (both tanks, every trajectory, both ASV modes).
@@ -125,6 +131,8 @@ def plan_runs(
     A `far_share` of the runs (drawn from a stream of their own, so that 0 plans as before) is
     far instead: the nfp tank, the ASV following FAR_STANDOFF_M off with its sonar
     FAR_PITCH_DEG down, so that the ROV is in the aperture 10-20 m away.
+    A `near_share` (a stream of its own too) is near: the mockup, the ASV following
+    NEAR_STANDOFF_M off with its sonar NEAR_PITCH_DEG down, the ROV 0.5-1.5 m away.
     With `start_spread_s`, each run starts at a time drawn from 0 to that (a stream of its
     own again): short runs then see every part of the paths, not only their first seconds.
     """
@@ -161,6 +169,18 @@ def plan_runs(
                     asv_mode="follow",
                     standoff_m=float(far_rng.uniform(*FAR_STANDOFF_M)),
                     sonar_pitch_deg=float(far_rng.uniform(*FAR_PITCH_DEG)),
+                )
+    if near_share > 0.0:
+        near_rng = np.random.default_rng([seed, 0x9EA])
+        for k, plan in enumerate(plans):
+            # Drawn for every run (the plan the same whatever the far share), never a far one.
+            if near_rng.random() < near_share and plan.sonar_pitch_deg is None:
+                plans[k] = dataclasses.replace(
+                    plan,
+                    tank="mockup",
+                    asv_mode="follow",
+                    standoff_m=float(near_rng.uniform(*NEAR_STANDOFF_M)),
+                    sonar_pitch_deg=float(near_rng.uniform(*NEAR_PITCH_DEG)),
                 )
     if start_spread_s > 0.0:
         start_rng = np.random.default_rng([seed, 0x57A7])

@@ -79,6 +79,8 @@ class TrainConfig:
     hard_lr: float = 5e-4
     # The share of runs far off (the ROV 10-20 m away, the sonar shallower; data.plan_runs).
     far_share: float = 0.0
+    # The share of runs near (the ROV 0.5-1.5 m away, the sonar steeply down; data.plan_runs).
+    near_share: float = 0.0
     # Runs start at a time drawn from 0 to this into the vehicles' paths (data.plan_runs).
     start_spread_s: float = 0.0
     eval_duration_s: float = 20.0
@@ -319,6 +321,7 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
         duration_s=config.duration_s,
         sonar_hz=config.sonar_hz,
         far_share=config.far_share,
+        near_share=config.near_share,
         start_spread_s=config.start_spread_s,
     )
     samples = render(plans, workers=config.workers, inputs=config.inputs)
@@ -341,6 +344,7 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
         duration_s=config.duration_s,
         sonar_hz=config.sonar_hz,
         far_share=config.far_share,
+        near_share=config.near_share,
         start_spread_s=config.start_spread_s,
     )
     mined = render(
@@ -361,6 +365,7 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
             duration_s=config.duration_s,
             sonar_hz=config.sonar_hz,
             far_share=config.far_share,
+            near_share=config.near_share,
             start_spread_s=config.start_spread_s,
         )
         fresh = render(

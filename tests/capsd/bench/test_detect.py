@@ -244,3 +244,17 @@ def test_one_knob_outside_is_rendered_and_recorded(tmp_path: Path) -> None:
     assert figures["outside_knobs"] == ["water_db"]
     brightest = figures["groups"]["(no detector) the ROV brightest in its band / outside / all"]
     assert brightest["false_alarms_per_frame"] == 0.0
+
+
+def test_the_near_runs_score_a_rov_in_the_near_band(tmp_path: Path) -> None:
+    """`--runs near`: the near runs alone, the ROV 0.5-1.5 m off where it is seen."""
+    config = sonar_only("mockup", "lawnmower", "follow_near", 108)
+    assert config.sonar.pitch_deg == 60.0
+    assert config.asv_standoff_m == 0.6
+    out = tmp_path / "detect.json"
+    args = ["bench", "detect", "--detector", "classical", "--runs", "near", "--looks", "off"]
+    assert main([*args, "--duration", "4", "--start", "0", "--json", str(out)]) == 0
+    figures = json.loads(out.read_text())
+    assert [run[2] for run in figures["runs"]] == ["follow_near", "follow_near"]
+    bands = {name.split(" / ")[2] for name in figures["groups"]} & {"0.5-1.5 m", "1.5-4 m"}
+    assert bands == {"0.5-1.5 m"}

@@ -1,4 +1,4 @@
-"""The training plan: far runs and later starts on request, the plan otherwise as it was."""
+"""The training plan: far and near runs and later starts on request, else the plan as it was."""
 
 from __future__ import annotations
 
@@ -8,7 +8,13 @@ import math
 from capsd.bench.detect import band_of
 from capsd.simulator.config import OFFLINE_START_NS
 from capsd.simulator.sim import Simulation
-from capsd.train.data import FAR_PITCH_DEG, FAR_STANDOFF_M, plan_runs
+from capsd.train.data import (
+    FAR_PITCH_DEG,
+    FAR_STANDOFF_M,
+    NEAR_PITCH_DEG,
+    NEAR_STANDOFF_M,
+    plan_runs,
+)
 
 
 def test_far_runs_replace_a_share_and_leave_the_rest_as_planned() -> None:
@@ -52,6 +58,39 @@ def test_a_far_run_puts_the_rov_far_inside_the_aperture() -> None:
     ]
     assert far
     assert all(band_of(label.range_m) == "14-20 m" for label in far)
+
+
+def test_near_runs_replace_a_share_of_the_runs_that_are_not_far() -> None:
+    far = plan_runs(runs=40, seed=3, duration_s=10.0, sonar_hz=2.0, far_share=0.3)
+    both = plan_runs(runs=40, seed=3, duration_s=10.0, sonar_hz=2.0, far_share=0.3, near_share=0.5)
+    near = [k for k, (p, q) in enumerate(zip(far, both, strict=True)) if p != q]
+    assert 5 <= len(near) <= 25
+    for k in near:
+        p, q = far[k], both[k]
+        assert p.sonar_pitch_deg is None  # a far run stays far
+        assert (q.tank, q.asv_mode) == ("mockup", "follow")
+        assert q.standoff_m is not None
+        assert q.sonar_pitch_deg is not None
+        assert NEAR_STANDOFF_M[0] <= q.standoff_m <= NEAR_STANDOFF_M[1]
+        assert NEAR_PITCH_DEG[0] <= q.sonar_pitch_deg <= NEAR_PITCH_DEG[1]
+        assert (q.seed, q.variety) == (p.seed, p.variety)
+
+
+def test_a_near_run_puts_the_rov_near_the_sonar() -> None:
+    plan = dataclasses.replace(
+        plan_runs(runs=1, seed=5, duration_s=20.0, sonar_hz=5.0, near_share=1.0)[0],
+        trajectory="lawnmower",
+        standoff_m=0.6,
+        sonar_pitch_deg=60.0,
+    )
+    sim = Simulation(plan.config(), horizon_s=25.0)
+    seen = [
+        label
+        for _, _, label in sim.labelled_pings(start_ns=OFFLINE_START_NS, duration_s=20.0)
+        if label.visible and abs(label.elevation_rad) <= math.radians(10.0)
+    ]
+    assert len(seen) >= 20
+    assert all(band_of(label.range_m) == "0.5-1.5 m" for label in seen)
 
 
 def test_a_start_spread_moves_each_run_into_its_paths_and_leaves_the_rest_as_planned() -> None:
