@@ -27,11 +27,13 @@ The target sent to the autopilot is a carrot that walks from where the ASV was t
 towards the station, speed and acceleration limited, turning at a bounded rate; it starts where
 the ASV is when the pilot hands over (GUIDED) and nothing is sent in any other mode. On the
 way the hull is to face the ROV (or where it is looked for), at the station the ROV itself
-(without a fresh fix, the station's heading); ArduRover turns a hull only at its target, so
+(without a fresh fix, the station's heading, unless the ROV is held beyond the sonar's
+reach from it); ArduRover turns a hull only at its target, so
 while the hull faces more than `turn_first_rad` off that heading the carrot turns where the
 hull is, and only then walks;
 a way that would pass over the ROV (to a station on its other side) goes round it, no nearer
-than where the ROV sits at the target elevation, on the side it first took.
+than where the ROV sits at the target elevation, on the side it first took (straight where
+the walls stop it).
 
 That is the lateral drive (the planner's `drive`: an omni frame that moves any way with its
 heading kept). ArduRover's GUIDED drives a boat and an omni frame alike: a forward speed and a
@@ -50,7 +52,9 @@ A sonar on a tilt servo is told the tilt for where the ROV will be `tilt_lead_s`
 a fresh fix the tilt nods about where the ROV is looked for (`nod_*`), first the way the
 fixes' tilt last went. On a pan servo too, the pan faces the ROV (held while the ROV stays
 within `pan_dead_band_rad` of it), and the hull at its station may turn `pan_abeam_rad` off it
-(60 deg by default): the sonar ahead of the origin then stays off a near ROV.
+(60 deg by default): the sonar ahead of the origin then stays off a near ROV. With
+`pan_abeam_rad` 0 it faces the ROV, but where that would put the sonar nearer than
+`min_range_m` it turns as far off as the pan lets it (NEAR_ABEAM_RAD).
 """
 
 from __future__ import annotations
@@ -128,6 +132,10 @@ ROUND_KEEP_MAX_RAD = math.radians(240.0)
 # stopped for a half turn next to it (`capsd bench follow`, mockup pan-tilt, 20 seeds: in view
 # 96.9 -> 97.8 % a run).
 DIRECTION_KEEP_M = 0.5
+# How far off facing the ROV a pan-tilt hull at its station turns where facing it would put
+# the sonar too near (`Follower._near_facing`): as far as the pan's margin lets it.
+NEAR_ABEAM_RAD = math.radians(90.0)
+NEAR_ABEAM_LEAVE_M = 0.15
 
 
 @dataclass(frozen=True)
@@ -267,6 +275,7 @@ class Follower:
         self._tilt_wanted: tuple[float, float] | None = None
         self._tilt_trend = 1.0
         self._abeam_heading: float | None = None  # the hull's heading off the ROV (`_abeam`)
+        self._near = False  # `_near_facing` last said so
         self._last_step_s: float | None = None
         self.leg_end: Array | None = None  # where the ROV's mission sends it now (W)
         self._direction: DriveDirection = "forward"  # steered: how the hull drives its way
@@ -557,8 +566,14 @@ class Follower:
         ):
             point = centre + radius * direction
         # Never nearer a wall than a station may be (closer to the ROV there, if need be); a
-        # keep-out box in the way: straight.
+        # keep-out box in the way: straight. Nor where the carrot already is: a way round
+        # that the walls stop (the spiral's next point outside them, moved back onto the
+        # carrot) goes straight too (`capsd bench follow`, mockup pan-tilt, seed 9: the hull
+        # held at a corner of its box 28 s, the ROV lost 0.9 m off).
         point = self.planner.within_walls(point)
+        if float(np.linalg.norm(np.asarray(point) - self._carrot)) < STAY_M:
+            self._round = None
+            return station_xy
         return np.asarray(point) if self.planner.clear(point) else station_xy
 
     def _kept_round(self, turn_rad: float, station_xy: Array) -> float:
@@ -601,7 +616,7 @@ class Follower:
         arrived = float(np.linalg.norm(self.station.position_xy - self.asv_xy)) <= ARRIVED_M
         if arrived:
             if not fresh or self.rov_m is None:
-                if self._reaches(look, self.station.heading_rad):
+                if self._reaches(look, self.station.heading_rad) and not self._near_facing(look):
                     return self.station.heading_rad
             else:
                 look = self.rov_m
@@ -612,8 +627,11 @@ class Follower:
         if float(np.linalg.norm(offset)) < self.planner.settings.hull_radius_m:
             return self.station.heading_rad
         facing = wrap_angle(math.atan2(offset[1], offset[0]) - self.planner.mount_yaw)
-        if arrived and self.planner.pan is not None and self.settings.pan_abeam_rad > 0.0:
-            return self._abeam(facing)
+        if arrived and self.planner.pan is not None:
+            if self.settings.pan_abeam_rad > 0.0:
+                return self._abeam(facing, self.settings.pan_abeam_rad)
+            if self._near_facing(look):
+                return self._abeam(facing, NEAR_ABEAM_RAD)
         if arrived and abs(wrap_angle(facing - self._carrot_heading)) < FACE_WITHIN_RAD:
             return self._carrot_heading  # no chasing of the fixes' jitter
         return facing
@@ -637,8 +655,25 @@ class Follower:
         left, right = self.planner.pan_room_rad()
         return -right <= off_bow <= left
 
-    def _abeam(self, facing_rad: float) -> float:
-        """With a pan servo, at the station: the hull `pan_abeam_rad` off facing the ROV.
+    def _near_facing(self, look: Array) -> bool:
+        """Whether a pan-tilt hull facing `look` from where it is puts the sonar too near it.
+
+        Nearer than `min_range_m`, where the detector misses it: in a small tank's middle
+        the hull cannot get further off (a mockup pan-tilt demo, seed 3: the ROV 0.9 m from
+        the sonar of a hull facing it, lost 16 s). Turned NEAR_ABEAM_RAD off (`_abeam`), the
+        sonar ahead of the origin goes aside instead of nearer.
+        """
+        if self.planner.pan is None or self.asv_xy is None:
+            return False
+        facing = self.planner.facing(self.asv_xy, look)
+        # Left only NEAR_ABEAM_LEAVE_M further off: a ROV about that far would swing the hull
+        # between the two headings (a mockup demo: 20 s, the ROV at neither).
+        limit = self.planner.settings.min_range_m + (NEAR_ABEAM_LEAVE_M if self._near else 0.0)
+        self._near = self.planner.view(self.asv_xy, facing, look).range_m < limit
+        return self._near
+
+    def _abeam(self, facing_rad: float, abeam_rad: float) -> float:
+        """With a pan servo, at the station: the hull `abeam_rad` off facing the ROV.
 
         The side nearer the hull's heading; kept while the pan it needs stays within
         `pan_abeam_slack_rad` of that (no chasing); a hull already so keeps its heading. The
@@ -651,7 +686,7 @@ class Follower:
         s = self.settings
         # Turned right of the ROV (side +1) the pan turns left to face it, and the other way.
         reach = tuple(
-            min(s.pan_abeam_rad, room)
+            min(abeam_rad, room)
             for room in self.planner.pan_room_rad(margin_rad=ABEAM_PAN_MARGIN_RAD)
         )
 

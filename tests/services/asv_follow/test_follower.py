@@ -1289,3 +1289,75 @@ def test_without_a_fix_a_hull_at_its_station_turns_to_where_the_pan_reaches_the_
     turned = heading_without_fix(130.0)
     assert math.degrees(abs(wrap_angle(turned - math.radians(130.0)))) < 45.0
     assert heading_without_fix(-130.0) < 0.0
+
+
+def test_a_pan_tilt_hull_too_near_the_rov_at_its_station_turns_it_abeam() -> None:
+    """Facing the ROV would put the sonar nearer than `min_range_m`: the hull turns 75 deg off.
+
+    (The pan's 90 deg less its margin; the sonar ahead of the origin goes aside, not nearer.)
+    Further off, the hull faces the ROV.
+    """
+    servos = msgspec.convert({"tilt": {}, "pan": {}}, SonarMountConfig)
+    planner = StationPlanner(servos, TankBounds(), StationSettings())
+
+    def settled_off_facing(distance_m: float) -> float:
+        rov = np.array([START[0] + distance_m, START[1], -1.0])
+        follower = Follower(planner, FollowSettings(pan_abeam_rad=0.0))
+        follower.on_pose(START, 0.0)
+        follower.on_mode("GUIDED")
+        follower.on_fix(0.0, rov)
+        follower.step(0.0)
+        view = planner.view(START, 0.0, rov)
+        follower.station = Station(position_xy=START.copy(), heading_rad=0.0, view=view)
+        follower._last_plan_s = math.inf  # keep this station
+        heading, target = 0.0, None
+        for k in range(1, 101):  # 10 s, the hull following its target's heading at once
+            follower.on_pose(START, heading)
+            follower.on_fix(k * 0.1, rov)
+            target = follower.step(k * 0.1)
+            assert target is not None
+            heading = target.heading_rad
+        return math.degrees(abs(wrap_angle(heading - planner.facing(START, rov))))
+
+    near = 1.5  # the sonar 1.2 m off horizontally facing it, under 2 m slant
+    rov_near = np.array([START[0] + near, START[1], -1.0])
+    assert planner.view(START, 0.0, rov_near).range_m < planner.settings.min_range_m
+    assert settled_off_facing(near) == pytest.approx(75.0, abs=1.0)
+    assert settled_off_facing(4.0) < 3.0
+
+
+def test_a_way_round_the_rov_that_the_walls_stop_goes_straight() -> None:
+    """At a corner of the mockup's box the way round's next point is where the carrot is.
+
+    (`capsd bench follow`, mockup pan-tilt, seed 9: the carrot held there 28 s.) The carrot
+    goes on towards the station instead.
+    """
+    from capsd.harness import follow_config
+
+    config = follow_config("mockup", drive="steered", tilt="pan-tilt")
+    planner = StationPlanner(
+        config.sonar, config.tank, config.motion.drive_settings(config.station.settings())
+    )
+    corner = np.array([1.57, 2.10])
+    rov = np.array([2.16, 1.96, -1.01])
+    station_xy = np.array([3.29, 2.04])  # on the ROV's far side
+    follower = Follower(planner, config.motion.settings())
+    follower.on_pose(corner, math.radians(-15.0))
+    follower.on_mode("GUIDED")
+    follower.on_fix(0.0, rov)
+    follower.step(0.0)
+    view = planner.view(station_xy, planner.facing(station_xy, rov), rov)
+    follower.station = Station(position_xy=station_xy, heading_rad=math.pi, view=view)
+    follower._last_plan_s = math.inf  # keep this station
+    # The carrot at the box's north edge: north of it is outside the box.
+    assert planner.within_walls(corner + np.array([0.0, 0.3]))[1] == pytest.approx(
+        corner[1], abs=0.05
+    )
+    xy, hull = corner.copy(), math.radians(-15.0)
+    for k in range(1, 200):  # 20 s, the hull obeying its targets
+        follower.on_fix(k * 0.1, rov)
+        follower.on_pose(xy, hull)
+        target = follower.step(k * 0.1)
+        assert target is not None
+        xy, hull = target.position_xy, target.heading_rad
+    assert float(np.linalg.norm(xy - corner)) > 0.5
