@@ -1257,6 +1257,19 @@ def test_a_station_moved_a_little_on_the_way_keeps_the_end_the_hull_drives(
     assert directions() == ("forward", "reverse")
 
 
+def _facing_at_start(planner: StationPlanner, rov_m: np.ndarray) -> Follower:
+    """A follower (`pan_abeam_rad` 0) handed a station where the hull is, heading 0, kept."""
+    follower = Follower(planner, FollowSettings(pan_abeam_rad=0.0))
+    follower.on_pose(START, 0.0)
+    follower.on_mode("GUIDED")
+    follower.on_fix(0.0, rov_m)
+    follower.step(0.0)
+    view = planner.view(START, 0.0, rov_m)
+    follower.station = Station(position_xy=START.copy(), heading_rad=0.0, view=view)
+    follower._last_plan_s = math.inf  # keep this station, no search
+    return follower
+
+
 def test_without_a_fix_a_hull_at_its_station_turns_to_where_the_pan_reaches_the_held_rov() -> None:
     """The ROV held 130 deg off the station's heading (the pan turns 90): the hull turns.
 
@@ -1269,14 +1282,7 @@ def test_without_a_fix_a_hull_at_its_station_turns_to_where_the_pan_reaches_the_
         bearing = math.radians(off_bow_deg)
         rov = np.array([START[0] + 3.0 * math.cos(bearing), START[1] + 3.0 * math.sin(bearing)])
         rov_m = np.array([rov[0], rov[1], -2.0])
-        follower = Follower(planner, FollowSettings(pan_abeam_rad=0.0))
-        follower.on_pose(START, 0.0)
-        follower.on_mode("GUIDED")
-        follower.on_fix(0.0, rov_m)
-        follower.step(0.0)
-        view = planner.view(START, 0.0, rov_m)
-        follower.station = Station(position_xy=START.copy(), heading_rad=0.0, view=view)
-        follower._last_plan_s = math.inf  # keep this station, no search
+        follower = _facing_at_start(planner, rov_m)
         target = None
         for k in range(1, 101):  # 10 s without a fix (stale after fix_timeout_s)
             follower.on_pose(START, 0.0)
@@ -1302,14 +1308,7 @@ def test_a_pan_tilt_hull_too_near_the_rov_at_its_station_turns_it_abeam() -> Non
 
     def settled_off_facing(distance_m: float) -> float:
         rov = np.array([START[0] + distance_m, START[1], -1.0])
-        follower = Follower(planner, FollowSettings(pan_abeam_rad=0.0))
-        follower.on_pose(START, 0.0)
-        follower.on_mode("GUIDED")
-        follower.on_fix(0.0, rov)
-        follower.step(0.0)
-        view = planner.view(START, 0.0, rov)
-        follower.station = Station(position_xy=START.copy(), heading_rad=0.0, view=view)
-        follower._last_plan_s = math.inf  # keep this station
+        follower = _facing_at_start(planner, rov)
         heading, target = 0.0, None
         for k in range(1, 101):  # 10 s, the hull following its target's heading at once
             follower.on_pose(START, heading)
