@@ -160,28 +160,11 @@ def plan_runs(
             )
         )
     if far_share > 0.0:
-        far_rng = np.random.default_rng([seed, 0xFA4])
-        for k, plan in enumerate(plans):
-            if far_rng.random() < far_share:
-                plans[k] = dataclasses.replace(
-                    plan,
-                    tank="nfp",
-                    asv_mode="follow",
-                    standoff_m=float(far_rng.uniform(*FAR_STANDOFF_M)),
-                    sonar_pitch_deg=float(far_rng.uniform(*FAR_PITCH_DEG)),
-                )
+        far = np.random.default_rng([seed, 0xFA4])
+        plans = _placed(plans, far, far_share, "nfp", FAR_STANDOFF_M, FAR_PITCH_DEG)
     if near_share > 0.0:
-        near_rng = np.random.default_rng([seed, 0x9EA])
-        for k, plan in enumerate(plans):
-            # Drawn for every run (the plan the same whatever the far share), never a far one.
-            if near_rng.random() < near_share and plan.sonar_pitch_deg is None:
-                plans[k] = dataclasses.replace(
-                    plan,
-                    tank="mockup",
-                    asv_mode="follow",
-                    standoff_m=float(near_rng.uniform(*NEAR_STANDOFF_M)),
-                    sonar_pitch_deg=float(near_rng.uniform(*NEAR_PITCH_DEG)),
-                )
+        near = np.random.default_rng([seed, 0x9EA])
+        plans = _placed(plans, near, near_share, "mockup", NEAR_STANDOFF_M, NEAR_PITCH_DEG)
     if start_spread_s > 0.0:
         start_rng = np.random.default_rng([seed, 0x57A7])
         plans = [
@@ -189,6 +172,33 @@ def plan_runs(
             for plan in plans
         ]
     return plans
+
+
+def _placed(
+    plans: list[RunPlan],
+    rng: np.random.Generator,
+    share: float,
+    tank: TankName,
+    standoff_m: tuple[float, float],
+    pitch_deg: tuple[float, float],
+) -> list[RunPlan]:
+    """`plans` with a `share` of them (drawn from `rng`) moved to `tank`, far or near.
+
+    The ASV follows `standoff_m` off, its sonar `pitch_deg` down. A draw for every run, so the
+    plan is the same whatever came before; a run already moved (its pitch set) stays as it is.
+    """
+    out = []
+    for plan in plans:
+        if rng.random() < share and plan.sonar_pitch_deg is None:
+            plan = dataclasses.replace(
+                plan,
+                tank=tank,
+                asv_mode="follow",
+                standoff_m=float(rng.uniform(*standoff_m)),
+                sonar_pitch_deg=float(rng.uniform(*pitch_deg)),
+            )
+        out.append(plan)
+    return out
 
 
 @dataclass

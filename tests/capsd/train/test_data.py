@@ -6,6 +6,7 @@ import dataclasses
 import math
 
 from capsd.bench.detect import band_of
+from capsd.payloads import SonarLabel
 from capsd.simulator.config import OFFLINE_START_NS
 from capsd.simulator.sim import Simulation
 from capsd.train.data import (
@@ -13,6 +14,7 @@ from capsd.train.data import (
     FAR_STANDOFF_M,
     NEAR_PITCH_DEG,
     NEAR_STANDOFF_M,
+    RunPlan,
     plan_runs,
 )
 
@@ -42,6 +44,16 @@ def test_far_runs_replace_a_share_and_leave_the_rest_as_planned() -> None:
         )
 
 
+def _in_the_aperture(plan: RunPlan, *, duration_s: float) -> list[SonarLabel]:
+    """The labels of the run's first `duration_s` with the ROV's centre inside the aperture."""
+    sim = Simulation(plan.config(), horizon_s=duration_s + 5.0)
+    return [
+        label
+        for _, _, label in sim.labelled_pings(start_ns=OFFLINE_START_NS, duration_s=duration_s)
+        if label.visible and abs(label.elevation_rad) <= math.radians(10.0)
+    ]
+
+
 def test_a_far_run_puts_the_rov_far_inside_the_aperture() -> None:
     plan = dataclasses.replace(
         plan_runs(runs=1, seed=5, duration_s=4.0, sonar_hz=5.0, far_share=1.0)[0],
@@ -50,12 +62,7 @@ def test_a_far_run_puts_the_rov_far_inside_the_aperture() -> None:
         sonar_pitch_deg=12.0,
     )
     assert plan.config().sonar.pitch_deg == 12.0
-    sim = Simulation(plan.config(), horizon_s=8.0)
-    far = [
-        label
-        for _, _, label in sim.labelled_pings(start_ns=OFFLINE_START_NS, duration_s=4.0)
-        if label.visible and abs(label.elevation_rad) <= math.radians(10.0)
-    ]
+    far = _in_the_aperture(plan, duration_s=4.0)
     assert far
     assert all(band_of(label.range_m) == "14-20 m" for label in far)
 
@@ -83,12 +90,7 @@ def test_a_near_run_puts_the_rov_near_the_sonar() -> None:
         standoff_m=0.6,
         sonar_pitch_deg=60.0,
     )
-    sim = Simulation(plan.config(), horizon_s=25.0)
-    seen = [
-        label
-        for _, _, label in sim.labelled_pings(start_ns=OFFLINE_START_NS, duration_s=20.0)
-        if label.visible and abs(label.elevation_rad) <= math.radians(10.0)
-    ]
+    seen = _in_the_aperture(plan, duration_s=20.0)
     assert len(seen) >= 20
     assert all(band_of(label.range_m) == "0.5-1.5 m" for label in seen)
 
