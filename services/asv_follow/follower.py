@@ -644,12 +644,9 @@ class Follower:
         mockup pan-tilt demo, seed 6: the ROV 115-140 deg off the bow, lost for 45 s).
         """
         assert self.asv_xy is not None
-        offset = look[:2] - self.asv_xy
-        if float(np.linalg.norm(offset)) < self.planner.settings.hull_radius_m:
+        if float(np.linalg.norm(look[:2] - self.asv_xy)) < self.planner.settings.hull_radius_m:
             return True
-        off_bow = wrap_angle(
-            math.atan2(offset[1], offset[0]) - heading_rad - self.planner.mount_yaw
-        )
+        off_bow = wrap_angle(self.planner.facing(self.asv_xy, look) - heading_rad)
         if self.planner.pan is None:
             return abs(off_bow) <= SEARCH_HALF_FAN_RAD
         left, right = self.planner.pan_room_rad()
@@ -667,7 +664,7 @@ class Follower:
             return False
         facing = self.planner.facing(self.asv_xy, look)
         # Left only NEAR_ABEAM_LEAVE_M further off: a ROV about that far would swing the hull
-        # between the two headings (a mockup demo: 20 s, the ROV at neither).
+        # between the two headings, the ROV at neither (a mockup demo, seed 3: 78.68 %).
         limit = self.planner.settings.min_range_m + (NEAR_ABEAM_LEAVE_M if self._near else 0.0)
         self._near = self.planner.view(self.asv_xy, facing, look).range_m < limit
         return self._near
