@@ -417,7 +417,7 @@ def _score(tally: Tally, label: SonarLabel, found: list[Detection]) -> None:
 
 @dataclass(frozen=True)
 class CnnOptions:
-    """The service's `cnn.search_refines`, `cnn.track_hold_s` and `cnn.proposal_threshold`.
+    """The service's cnn settings the bench varies: search_refines, track_hold_s, thresholds.
 
     The threshold applies to the network searching every frame alone too: it is where its
     candidates come from (a network on a finer grid gives lower heat).
@@ -426,6 +426,7 @@ class CnnOptions:
     search_refines: Literal["proposals", "proposals_and_track"] = "proposals"
     track_hold_s: float = 0.0
     proposal_threshold: float = 0.1  # the service's default
+    track_proposal_threshold: float | None = 0.03  # the service's default (None: off)
 
 
 def _detectors(
@@ -449,6 +450,7 @@ def _detectors(
                 search_refines=options.search_refines,
                 track_hold_s=options.track_hold_s,
                 proposal_threshold=options.proposal_threshold,
+                track_proposal_threshold=options.track_proposal_threshold,
             )
             if path is not None:
                 service = replace(service, weights=path)
@@ -597,7 +599,8 @@ def sweep_prior(
         f"{duration_s:g} s from each of {', '.join(f'{s:g}' for s in starts_s)} s, "
         f"search refines {options.search_refines}, "
         f"track hold {options.track_hold_s:g} s, "
-        f"proposal threshold {options.proposal_threshold:g}"
+        f"proposal threshold {options.proposal_threshold:g}, "
+        f"near the track {options.track_proposal_threshold or 'off'}"
     )
     print(f"{'prior':>6} {'look':<8} {'detected':>9} {'FA/frame':>9}")
     for prior in priors:
@@ -607,6 +610,7 @@ def sweep_prior(
                 search_refines=options.search_refines,
                 track_hold_s=options.track_hold_s,
                 proposal_threshold=options.proposal_threshold,
+                track_proposal_threshold=options.track_proposal_threshold,
             )
         )
         tallies = evaluate(

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import itertools
+import math
 from pathlib import Path
 from typing import get_args
 
@@ -49,10 +50,23 @@ def _cmd_bench_detect(args: argparse.Namespace) -> int:
             f"bench detect: --proposal-threshold {args.proposal_threshold:g}: between 0 and 1",
             EXIT_CONFIG,
         )
+    track_bar: float | None = None
+    if args.track_proposal_threshold != "off":
+        try:
+            track_bar = float(args.track_proposal_threshold)
+        except ValueError:
+            track_bar = math.nan
+        if not 0.0 < track_bar < 1.0:
+            return fail(
+                f"bench detect: --track-proposal-threshold {args.track_proposal_threshold}: "
+                "between 0 and 1, or off",
+                EXIT_CONFIG,
+            )
     options = detect.CnnOptions(
         search_refines=args.search_refines,
         track_hold_s=args.track_hold,
         proposal_threshold=args.proposal_threshold,
+        track_proposal_threshold=track_bar,
     )
     starts = tuple(args.start) if args.start is not None else detect.BENCH_STARTS_S
     duration_s = args.duration if args.duration is not None else detect.BENCH_WINDOW_S
@@ -339,6 +353,13 @@ def register(sub: Subcommands) -> None:
         metavar="P",
         help="the service's cnn.proposal_threshold for the CNN, searching alone too (default: "
         "%(default)s)",
+    )
+    bdet.add_argument(
+        "--track-proposal-threshold",
+        default="0.03",
+        metavar="P",
+        help="the service's cnn.track_proposal_threshold for the CNN with its settings, a "
+        "number or off (default: %(default)s)",
     )
     bdet.set_defaults(func=_cmd_bench_detect)
     bft = bench_sub.add_parser(

@@ -81,6 +81,9 @@ class CnnConfig(ConfigSection, frozen=True, kw_only=True):
     # After pings without a confident ROV, keep refining where it last was for this long
     # (without the prior); 0: forget it at the first miss.
     track_hold_s: Annotated[float, msgspec.Meta(ge=0.0, le=10.0)] = 0.0
+    # In a whole-frame search, a proposal within 0.3 m of the last ping's confident ROV needs
+    # only this much heat (a near ROV's heat sits under proposal_threshold); null: none.
+    track_proposal_threshold: Annotated[float, msgspec.Meta(gt=0.0, lt=1.0)] | None = 0.03
     threads: Annotated[int, msgspec.Meta(ge=1, le=64)] = 1
     # by_elevation: with the depth gate, a near ROV's range corrected for where it lies in the
     # vertical aperture and how steeply the sonar looks down at it (capsd.services.sonar_detect
@@ -239,6 +242,7 @@ def make_detector(config: Config) -> Detector:
         track_prior_logit=c.track_prior_logit,
         search_refines=c.search_refines,
         track_hold_s=c.track_hold_s,
+        track_proposal_threshold=c.track_proposal_threshold,
         track_confidence=config.min_confidence,
     )
     try:

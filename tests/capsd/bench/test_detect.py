@@ -133,6 +133,16 @@ def test_a_proposal_threshold_outside_0_to_1_is_refused(
     assert "--proposal-threshold" in capfd.readouterr().err
 
 
+@pytest.mark.parametrize("threshold", ["0", "1", "nan", "none"])
+def test_a_track_proposal_threshold_is_a_number_from_0_to_1_or_off(
+    threshold: str, capfd: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["bench", "detect", "--track-proposal-threshold", threshold]) == 2
+    assert f"--track-proposal-threshold {threshold}: between 0 and 1, or off" in (
+        capfd.readouterr().err
+    )
+
+
 def test_range_bands_start_close_for_small_tanks_and_end_at_20_m() -> None:
     assert band_of(0.4) is None
     assert band_of(1.2) == "0.5-1.5 m"  # the mockup's follower keeps the ROV about here

@@ -336,3 +336,50 @@ def test_a_held_track_is_refined_through_pings_without_the_rov() -> None:
     assert not found[0.0]
     assert found[1.0]
     assert abs(found[1.0][0].range_m - 6.0) < 0.1
+
+
+def test_a_search_proposes_the_tracked_rov_from_the_lower_bar() -> None:
+    """`track_proposal_threshold`: a whole-frame search keeps a tracked ROV under the bar.
+
+    In the mockup's follow demo the ROV 1.3 m off on the boresight made proposal heat of
+    0.04-0.1, under the 0.1 bar, while the refiner called it ROV (0.9): every search dropped
+    it. Here the bar is raised over this frame's heat for the second ping instead: found from
+    the lower bar near the last ping's ROV, and only near it.
+    """
+    tank = make_tank("mockup")
+    renderer = SonarRenderer(SonarModel(range_max_m=8.0, n_ranges=800), tank)
+    sonar = Transform(euler_zyx_to_matrix(0.0, math.radians(45.0), 0.0), np.array([2.0, 2.0, -0.2]))
+    rov = Ellipsoid(
+        sonar.apply(np.array([1.3, 0.0, 0.0])),
+        euler_zyx_to_matrix(0.4, 0.0, 0.0),
+        BLUEROV2_SEMI_AXES,
+    )
+    # The same ROV 0.8 m to the side (32 deg off) in the first ping: no track near the second's.
+    aside = replace(rov, centre=rov.centre + sonar.rotation @ np.array([0.0, 0.8, 0.0]))
+
+    def frame(k: int, at: Ellipsoid) -> SonarFrame:
+        ping = renderer.render(sonar, at, np.random.default_rng(k))
+        stamp_ns = 1_000_000_000 + k * 100_000_000  # 10 Hz: every ping a search
+        return renderer.frame(ping, stamp_ns=stamp_ns, seq=k, ping_id=k)
+
+    found: dict[str, int] = {"tracked": 0, "off": 0, "elsewhere": 0}
+    for seed in range(4):
+        for name, bar, first in (
+            ("tracked", 0.03, rov),
+            ("off", None, rov),
+            ("elsewhere", 0.03, aside),
+        ):
+            detector = CnnDetector(CnnSettings(track_proposal_threshold=bar))
+            window = (0.8, 2.0)  # the depth gate's, as the service passes it
+            assert [
+                d
+                for d in detector.detect(frame(2 * seed, first), range_window=window)
+                if d.confidence > 0.5
+            ]
+            detector.settings = replace(detector.settings, proposal_threshold=0.99)
+            detections = detector.detect(frame(2 * seed + 1, rov), range_window=window)
+            assert detector.searches == 2
+            found[name] += any(
+                d.confidence > 0.5 and abs(d.range_m - 1.3) < 0.1 for d in detections
+            )
+    assert found == {"tracked": 4, "off": 0, "elsewhere": 0}
