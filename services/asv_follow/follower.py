@@ -475,18 +475,7 @@ class Follower:
             pan, _ = self.planner.pan_tilt_rad(self.asv_xy, self.asv_heading, facing)
             if self._pan_told is not None:
                 off = pan - self._pan_told
-                left, right = self.planner.pan_room_rad()
-                # A ROV at or beyond the pan's reach gets all of it: held short of its limit
-                # the pan left that much less fan for a ROV passing behind the beam (a mockup
-                # pan-tilt demo, seed 5: held at 85 deg, the ROV lost 42 deg off the boresight;
-                # `capsd bench follow` mockup pan-tilt --detect-within 35, 20 seeds: 97.20 ->
-                # 97.56 % in view).
-                at_limit = not -right < pan < left
-                if (
-                    not self._panning
-                    and not at_limit
-                    and abs(off) <= self.settings.pan_dead_band_rad
-                ):
+                if not self._panning and abs(off) <= self.settings.pan_dead_band_rad:
                     pan = self._pan_told  # the fan is wide: hold the pan still
                 else:
                     self._panning = abs(off) > PAN_SETTLED_RAD

@@ -1092,16 +1092,6 @@ def test_a_pan_is_held_while_the_rov_stays_within_its_dead_band_then_turned_onto
         t += 0.1
         turning = told_pan(t, 60.0)
     assert turning == pytest.approx(60.0, abs=1.0)
-    for _ in range(10):  # on to 85 deg, then the ROV beyond the pan's 90: all of its reach
-        t += 0.1
-        turning = told_pan(t, 85.0)
-    assert turning == pytest.approx(85.0, abs=1.0)
-    t += 0.1
-    assert told_pan(t, 100.0) == pytest.approx(90.0)
-    t += 0.1
-    assert told_pan(t, 100.0) == pytest.approx(90.0)  # there: settled
-    t += 0.1
-    assert told_pan(t, 80.0) == pytest.approx(90.0)  # back within its dead band: held
     # Without the dead band it follows every degree.
     tracking = Follower(planner, FollowSettings(pan_dead_band_rad=0.0))
     tracking.on_pose(START, 0.0)
