@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import math
 from pathlib import Path
 from typing import get_args
 
@@ -55,8 +54,8 @@ def _cmd_bench_detect(args: argparse.Namespace) -> int:
         try:
             track_bar = float(args.track_proposal_threshold)
         except ValueError:
-            track_bar = math.nan
-        if not 0.0 < track_bar < 1.0:
+            track_bar = None
+        if track_bar is None or not 0.0 < track_bar < 1.0:
             return fail(
                 f"bench detect: --track-proposal-threshold {args.track_proposal_threshold}: "
                 "between 0 and 1, or off",
@@ -356,7 +355,7 @@ def register(sub: Subcommands) -> None:
     )
     bdet.add_argument(
         "--track-proposal-threshold",
-        default="0.03",
+        default="0.03",  # CnnOptions and the service (not imported here: start-up time)
         metavar="P",
         help="the service's cnn.track_proposal_threshold for the CNN with its settings, a "
         "number or off (default: %(default)s)",

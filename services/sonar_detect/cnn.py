@@ -22,6 +22,7 @@ changes, so a new blob is proposed within one search interval.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -164,21 +165,18 @@ class CnnDetector:
             or frame.stamp_ns - track.searched_ns >= s.search_every_s * 1e9
         )
         if search or track is None:
+            # The last ping's confident ROV, where this ping continues its track.
             tracked = (
                 track.candidates if track is not None and self._continues(track, frame) else []
             )
             candidates = self._propose(frame, image, table, range_window, tracked)
-            if (
-                s.search_refines == "proposals_and_track"
-                and track is not None
-                and self._continues(track, frame)
-            ):
+            if s.search_refines == "proposals_and_track":
                 # A search adds what the proposals found, it never drops a tracked ROV: the
                 # proposal network ranks a far, faint echo below brighter clutter, where the
                 # refiner, looking at its crop, still knows it.
                 candidates += [
                     c
-                    for c in track.candidates
+                    for c in tracked
                     if all(distance(c, p) >= s.merge_distance_m for p in candidates)
                 ]
             passes = max(1, s.refine_passes)
@@ -260,8 +258,8 @@ class CnnDetector:
             max_candidates=s.max_candidates,
             range_window=range_window,
             inputs=self.net.inputs,
-            tracked=tracked if s.track_proposal_threshold is not None else [],
-            tracked_threshold=s.track_proposal_threshold or 1.0,
+            tracked=tracked,
+            tracked_threshold=s.track_proposal_threshold,
             tracked_gate_m=s.track_gate_m,
         )
 
@@ -333,16 +331,18 @@ def propose(
     max_candidates: int,
     range_window: tuple[float, float] | None = None,
     inputs: Inputs = DEFAULT_INPUTS,
-    tracked: list[Candidate] | None = None,
-    tracked_threshold: float = 1.0,
+    tracked: Sequence[Candidate] = (),
+    tracked_threshold: float | None = None,
     tracked_gate_m: float = 0.3,
 ) -> list[Candidate]:
     """Local maxima of the proposal heatmap above `threshold`, strongest first.
 
     With `range_window` (metres), heat cells outside it are not candidates (depth-aware search).
-    A peak within `tracked_gate_m` of one of `tracked` needs only `tracked_threshold`.
+    A peak within `tracked_gate_m` of one of `tracked` needs only `tracked_threshold` (if set).
     """
-    lowest = min(threshold, tracked_threshold) if tracked else threshold
+    if not tracked or tracked_threshold is None:
+        tracked, tracked_threshold = (), threshold
+    lowest = min(threshold, tracked_threshold)
     grid = Grid.of(frame, beams=inputs.coarse_beams)
     if grid.rows < 4 or grid.cols < 4:
         return []
@@ -374,9 +374,7 @@ def propose(
             frame.range_start_m + bin_index * frame.range_resolution_m,
             float(table.azimuth(beam)),
         )
-        if score >= threshold or any(
-            distance(candidate, t) < tracked_gate_m for t in tracked or []
-        ):
+        if score >= threshold or any(distance(candidate, t) < tracked_gate_m for t in tracked):
             out.append(candidate)
     return out
 
