@@ -1214,6 +1214,52 @@ def test_a_steered_hull_too_near_the_rov_leaves_by_the_end_it_turns_to_least() -
     assert first_direction(far) == "reverse"
 
 
+def test_the_end_chosen_for_a_too_near_rov_is_kept_until_it_is_clearly_further() -> None:
+    """A ROV about `min_range_m` off: new stations a second apart do not swap the end each time.
+
+    (Each swap a half turn first: a mockup demo's hull never went, 150 s 0.5 m off the ROV.)
+    """
+    planner = StationPlanner(
+        SonarMountConfig(),
+        TankBounds(length_m=40.0, width_m=30.0),
+        StationSettings(drive="steered"),
+    )
+    follower = Follower(planner, FollowSettings())
+    follower.on_pose(START, 0.0)
+    follower.on_mode("GUIDED")
+    behind = np.array([-0.3, -1.0]) / math.hypot(0.3, 1.0)  # behind on the right
+
+    def rov_at(range_m: float) -> np.ndarray:
+        """The ROV behind the hull at this range from its sonar (heading 0)."""
+        distances = np.linspace(0.0, 3.0, 3001)
+        ranges = [
+            planner.view(START, 0.0, np.array([*(START + d * behind), -1.5])).range_m
+            for d in distances
+        ]
+        d = float(np.interp(range_m, ranges, distances))
+        return np.array([*(START + d * behind), -1.5])
+
+    def direction(rov: np.ndarray, station_xy: np.ndarray, now: float) -> str:
+        follower.on_fix(now, rov)
+        view = planner.view(station_xy, planner.facing(station_xy, rov), rov)
+        follower.station = Station(position_xy=station_xy, heading_rad=0.0, view=view)
+        follower._last_plan_s = math.inf  # keep this station
+        follower.on_pose(START, 0.0)
+        target = follower.step(now)
+        assert target is not None
+        return target.direction
+
+    limit = planner.settings.min_range_m
+    ahead = START + np.array([3.0, 1.0])
+    follower.on_fix(0.0, rov_at(limit - 0.05))
+    follower.step(0.0)
+    assert direction(rov_at(limit - 0.05), ahead, 0.1) == "forward"  # too near: turn least
+    # A new station (its way chosen again) with the ROV just past `min_range_m`: kept.
+    assert direction(rov_at(limit + 0.07), ahead + np.array([0.0, 0.6]), 0.2) == "forward"
+    # Clearly further: the stern to the way, the sonar facing the ROV.
+    assert direction(rov_at(limit + 0.4), ahead + np.array([0.0, 1.2]), 0.3) == "reverse"
+
+
 def test_a_station_moved_a_little_on_the_way_keeps_the_end_the_hull_drives(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
