@@ -44,7 +44,8 @@ staying, or a way at the ROV, and charges each second a move would turn the sona
 the way the hull is asked for the way's heading, its bow's or (backing away from the ROV,
 MAV_CMD_DO_SET_REVERSE) its stern's, chosen as the way to a station starts (turning first is
 turning to the way; again only for a station `DIRECTION_KEEP_M` from it; with the ROV nearer the
-sonar than `min_range_m`, the end the hull turns to least) and, once the carrot is at the
+sonar than `min_range_m`, the end the hull turns to least, kept until the ROV is NEAR_LEAVE_M
+further off) and, once the carrot is at the
 station, to face the ROV; the carrot is not
 pushed off a near ROV (each push a new way to steer for: it re-stations instead).
 
