@@ -2,8 +2,9 @@
 
 Per ping (FIELD-NOTES, as HoloOcean/Stonefish/DAVE do, condensed):
 1. each of the `n_beams` beams (evenly spaced in sin(theta), as the real bearing table) casts
-   `elevation_rays` rays over the vertical aperture (stratified, jittered per ping) and keeps
-   the nearest hit, so objects shadow what lies behind them;
+   `elevation_rays` rays over the vertical aperture (stratified, jittered per ping; the beams
+   that may see the ROV up to 16 times as many, each standing for its share) and keeps the
+   nearest hit, so objects shadow what lies behind them;
 2. echo = reflectivity x cos(incidence)^n x vertical beam weight x residual absorption (time-
    varied gain has compensated spreading), accumulated into range bin x beam;
 3. multipath ghosts: the ROV mirrored in the water surface and in the nearest wall, seen at
@@ -32,6 +33,9 @@ from capsd.simulator.scene import Ellipsoid
 from capsd.simulator.sonar_look import Look
 from capsd.simulator.world import Tank
 from capsd.sonar_geometry import BeamModel, to_polar
+
+# Rays a beam casts over the ROV's height at the least (see SonarRenderer._rays).
+SLABS_PER_ROV_HEIGHT = 8.0
 
 
 @dataclass(frozen=True)
@@ -197,29 +201,62 @@ class SonarRenderer:
         )
         self._look = None if model.fixed_look else _LookFields(model, ranges, look_rng)
 
-    def _directions(self, elevations: Array) -> Array:
-        """Unit vectors in S for every (beam, elevation) pair: beams x rays x 3."""
-        theta = self.azimuths[:, None]
-        ct, st = np.cos(theta), np.sin(theta)
+    def _directions(self, azimuths: Array, elevations: Array) -> Array:
+        """Unit vectors in S for rays at these azimuths and elevations: N x 3."""
+        ct, st = np.cos(azimuths), np.sin(azimuths)
         ce, se = np.cos(elevations), np.sin(elevations)
         if self.model.beam_model == "planar":
             return np.stack([ce * ct, ce * st, se], axis=-1)
-        return np.stack([ct * ce, np.broadcast_to(st, ce.shape), ct * se], axis=-1)
+        return np.stack([ct * ce, st, ct * se], axis=-1)
+
+    def _rays(
+        self, sonar_pose: Transform, rov: Ellipsoid | None, rng: np.random.Generator
+    ) -> tuple[IndexArray, Array, Array]:
+        """Each ray's beam, elevation and weight (the share of its beam's stratum it stands for).
+
+        Every beam casts `elevation_rays` rays, one per stratum of the aperture (jittered per
+        ping, so that over pings the floor and walls fill in continuously instead of in
+        stripes). The beams that may see the ROV cast k times as many over the same strata,
+        each of weight 1/k, k chosen so that a ray's slab is at most an eighth of the ROV's
+        height at its distance: a stratum is 1.6 deg, 0.45 m at 16 m, taller than the ROV, so
+        one ray a beam would hit it or not by chance and put all its echo in one bin (a far ROV
+        a scatter of random dots, not the compact echo of its front a sonar sees).
+        """
+        m = self.model
+        n_b, n_e = m.n_beams, m.elevation_rays
+        fine = np.ones(n_b, dtype=np.int64)
+        if rov is not None:
+            distance, azimuth, _ = to_polar(m.beam_model, sonar_pose.inverse().apply(rov.centre))
+            stratum = float(self._elev_edges[1] - self._elev_edges[0])
+            height = 2.0 * float(rov.semi_axes.min())
+            k = min(max(math.ceil(SLABS_PER_ROV_HEIGHT * stratum * distance / height), 1), 16)
+            if k > 1:
+                reach = math.asin(min(1.0, 1.2 * float(rov.semi_axes.max()) / distance))
+                spacing = 2.0 * m.half_fov_rad / max(n_b - 1, 1)
+                near = np.abs(self.azimuths - azimuth) <= reach + 2.0 * spacing
+                fine[near] = k
+        counts = fine * n_e
+        beams = np.repeat(np.arange(n_b), counts)
+        # The ray's stratum within its beam: rays 0..k*n_e-1 over n_e strata split k ways.
+        first = np.cumsum(counts) - counts
+        slot = np.arange(len(beams)) - np.repeat(first, counts)
+        per_beam = np.repeat(fine, counts)
+        edges = self._elev_edges
+        lo_all, span = float(edges[0]), float(edges[-1] - edges[0])
+        elevations = lo_all + span * (slot + rng.random(len(beams))) / (n_e * per_beam)
+        return beams, elevations, 1.0 / per_beam
 
     def render(
         self, sonar_pose: Transform, rov: Ellipsoid | None, rng: np.random.Generator
     ) -> Ping:
         m = self.model
-        n_b, n_e = m.n_beams, m.elevation_rays
-        # Stratified, jittered elevations (one draw per beam and stratum): over pings the
-        # floor and walls fill in continuously instead of in stripes.
-        lo, hi = self._elev_edges[:-1], self._elev_edges[1:]
-        elevations = lo + (hi - lo) * rng.random((n_b, n_e))
-        dirs_s = self._directions(elevations).reshape(-1, 3)
+        n_e = m.elevation_rays
+        beams, elevations, ray_weight = self._rays(sonar_pose, rov, rng)
+        dirs_s = self._directions(self.azimuths[beams], elevations)
         dirs_w = dirs_s @ sonar_pose.rotation.T
         hits = scene.cast(sonar_pose.translation, dirs_w, self.tank, rov=rov)
         half = m.vertical_aperture_rad / 2.0
-        weight_e = np.exp(-math.log(2.0) * (elevations.ravel() / half) ** 2)
+        weight_e = ray_weight * np.exp(-math.log(2.0) * (elevations / half) ** 2)
         cos_inc = np.abs(np.einsum("ij,ij->i", hits.normal, -dirs_w))
         exponent = np.where(hits.label == scene.ROV, m.rov_exponent, m.incidence_exponent)
         reflectivity, distance = hits.reflectivity, hits.distance
@@ -234,7 +271,6 @@ class SonarRenderer:
         )
         # Each stratum stands for a slab of elevations: spread its echo over the bins it spans.
         bins = np.where(in_range, distance / m.range_resolution_m, -1.0)
-        beams = np.repeat(np.arange(n_b), n_e)
         image = self._accumulate(bins, beams, np.where(in_range, echo, 0.0), rng)
         if self._look is not None:
             self._look.add_fish(image, rng)

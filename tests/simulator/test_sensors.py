@@ -74,7 +74,33 @@ def test_rov_appears_where_its_label_says() -> None:
     centroid = float((weights * renderer.azimuths).sum() / weights.sum())
     beam_width = float(np.median(np.diff(renderer.azimuths)))
     assert abs(centroid - 0.2) <= 1.0 * beam_width * 3  # blur and speckle: about a beam
-    assert abs(renderer.azimuths[j] - 0.2) <= 3 * beam_width
+    # The brightest sample lies on the ROV (5 m off it spans about 29 beams).
+    assert label.azimuth_min_rad is not None
+    assert label.azimuth_max_rad is not None
+    assert label.azimuth_min_rad - beam_width <= renderer.azimuths[j]
+    assert renderer.azimuths[j] <= label.azimuth_max_rad + beam_width
+
+
+def test_a_far_rov_is_lit_by_several_rays_in_every_beam_it_spans() -> None:
+    # 16 m off, a 0.25 m tall ROV spans 0.9 deg of elevation; one ray a 1.6 deg stratum
+    # would hit it in about half its beams, each echo in one bin, a scatter of dots.
+    tank = make_tank("nfp", clutter="off")
+    model = SonarModel(noise_level=0.0)
+    renderer = SonarRenderer(model, tank)
+    sonar = _level_sonar(4.0, 8.0, -0.2, yaw=0.0, pitch=math.radians(12.0))
+    direction = sonar.rotation @ np.array([1.0, 0.0, 0.0])
+    rov = Ellipsoid(sonar.translation + 16.0 * direction, np.eye(3), BLUEROV2_SEMI_AXES)
+    for seed in range(5):
+        label = renderer.render(sonar, rov, np.random.default_rng(seed)).label
+        assert label.visible
+        assert label.azimuth_min_rad is not None
+        assert label.azimuth_max_rad is not None
+        beams = np.count_nonzero(
+            (renderer.azimuths >= label.azimuth_min_rad)
+            & (renderer.azimuths <= label.azimuth_max_rad)
+        )
+        assert beams >= 6  # 0.58 m wide: about 8 beams of 0.25 deg
+        assert label.rov_rays >= 4 * beams
 
 
 def test_bearings_are_evenly_spaced_in_sine() -> None:
