@@ -66,12 +66,19 @@ from capsd.sonar_image import unit_image
 # follow_near: the near band (0.5-1.5 m), as a small tank's ASV with a tilt servo sees a ROV
 # passing close: the ASV following 0.6 m off with its sonar 60 deg down (the mockup's ROV
 # then about a metre from the sonar, in the aperture part of the time).
-AsvMode = Literal["follow", "stationary", "follow_far", "follow_near"]
+# follow_near_side: the ASV following 1.4 m off with its sonar 40 deg down and turned 70 deg
+# to port, as a pan at its limit or a hull turning slower than the ROV passes leaves it: the
+# ROV mostly 30-45 deg off the boresight, 1-2 m away (where the mockup's follower loses it
+# when it crosses ahead of the ROV; session 50).
+AsvMode = Literal["follow", "stationary", "follow_far", "follow_near", "follow_near_side"]
 Run = tuple[TankName, TrajectoryName, AsvMode, int]
 FAR_STANDOFF_M = 16.0
 FAR_PITCH_DEG = 12.0
 NEAR_STANDOFF_M = 0.6
 NEAR_PITCH_DEG = 60.0
+NEAR_SIDE_STANDOFF_M = 1.4
+NEAR_SIDE_PITCH_DEG = 40.0
+NEAR_SIDE_YAW_DEG = 70.0
 RUNS: tuple[Run, ...] = (
     ("nfp", "square", "follow", 101),
     ("nfp", "lawnmower", "follow", 102),
@@ -85,6 +92,7 @@ RUNS: tuple[Run, ...] = (
 NEAR_RUNS: tuple[Run, ...] = (
     ("mockup", "lawnmower", "follow_near", 108),
     ("mockup", "random", "follow_near", 109),
+    ("mockup", "lawnmower", "follow_near_side", 110),
 )
 RunSet = Literal["held-out", "near"]
 RUN_SETS: dict[RunSet, tuple[Run, ...]] = {"held-out": RUNS, "near": NEAR_RUNS}
@@ -217,6 +225,21 @@ def aperture_place(elevation_rad: float, half_aperture_rad: float) -> str:
     return APERTURE_PLACES[0 if share < -1.0 / 3.0 else 1 if share <= 1.0 / 3.0 else 2]
 
 
+# How far off the boresight the ROV's centre is, for ROVs nearer than PLACE_WITHIN_M (a hull
+# that turns slower than the ROV passes, or a pan at its limit, leaves it off to the side).
+AZIMUTH_BANDS_DEG: tuple[tuple[float, float], ...] = ((0.0, 15.0), (15.0, 30.0), (30.0, 45.0),
+                                                      (45.0, 65.0))  # fmt: skip
+
+
+def azimuth_band(azimuth_rad: float) -> str | None:
+    """The name of the band of |azimuth| an azimuth falls in (None: beyond the fan's 65 deg)."""
+    off = abs(math.degrees(azimuth_rad))
+    for lo, hi in AZIMUTH_BANDS_DEG:
+        if lo <= off < hi:
+            return f"{lo:g}-{hi:g} deg off the boresight"
+    return None
+
+
 def band_of(range_m: float) -> str | None:
     """The name of the range band a truth range falls in (None: outside 0.5-20 m)."""
     for lo, hi in BANDS:
@@ -284,6 +307,11 @@ def sonar_only(
     elif asv_mode == "follow_near":
         standoff_m = NEAR_STANDOFF_M
         sonar = msgspec.structs.replace(sonar, pitch_deg=NEAR_PITCH_DEG)
+    elif asv_mode == "follow_near_side":
+        standoff_m = NEAR_SIDE_STANDOFF_M
+        sonar = msgspec.structs.replace(
+            sonar, pitch_deg=NEAR_SIDE_PITCH_DEG, yaw_deg=NEAR_SIDE_YAW_DEG
+        )
     return Config(
         tank=tank,
         trajectory=trajectory,
@@ -374,7 +402,8 @@ def score(
     """Match one ping's candidates to its label and count.
 
     Groups: clear/overlap, all, the range band, and (given the half aperture) the ROV's place
-    in the vertical aperture when it is nearer than PLACE_WITHIN_M.
+    in the vertical aperture and how far off the boresight it is (AZIMUTH_BANDS_DEG) when it
+    is nearer than PLACE_WITHIN_M.
     """
     groups = [f"{detector} / {'overlap' if label.overlap else 'clear'}", f"{detector} / all"]
     band = band_of(label.range_m) if label.visible else None
@@ -383,6 +412,9 @@ def score(
     if half_aperture_rad is not None and label.visible and label.range_m < PLACE_WITHIN_M:
         place = aperture_place(label.elevation_rad, half_aperture_rad)
         groups.append(f"{detector} / under {PLACE_WITHIN_M:g} m, {place}")
+        off = azimuth_band(label.azimuth_rad)
+        if off is not None:
+            groups.append(f"{detector} / under {PLACE_WITHIN_M:g} m, {off}")
     for group in groups:
         _score(tallies[group], label, found)
 

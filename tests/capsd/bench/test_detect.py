@@ -14,6 +14,7 @@ from capsd.bench.detect import (
     RUNS,
     Tally,
     aperture_place,
+    azimuth_band,
     band_of,
     evaluate,
     score,
@@ -265,6 +266,29 @@ def test_the_near_runs_score_a_rov_in_the_near_band(tmp_path: Path) -> None:
     args = ["bench", "detect", "--detector", "classical", "--runs", "near", "--looks", "off"]
     assert main([*args, "--duration", "4", "--start", "0", "--json", str(out)]) == 0
     figures = json.loads(out.read_text())
-    assert [run[2] for run in figures["runs"]] == ["follow_near", "follow_near"]
-    bands = {name.split(" / ")[2] for name in figures["groups"]} & {"0.5-1.5 m", "1.5-4 m"}
-    assert bands == {"0.5-1.5 m"}
+    assert [run[2] for run in figures["runs"]] == [
+        "follow_near", "follow_near", "follow_near_side",
+    ]  # fmt: skip
+    groups = figures["groups"]
+    assert groups["classical / off / 0.5-1.5 m"]["visible"] > 0
+    # The side run puts the ROV well off the boresight: scored in its own azimuth band.
+    assert groups["classical / off / under 4 m, 30-45 deg off the boresight"]["visible"] > 0
+
+
+def test_the_side_run_turns_the_sonar_off_the_rov() -> None:
+    config = sonar_only("mockup", "lawnmower", "follow_near_side", 110)
+    assert (config.sonar.pitch_deg, config.sonar.yaw_deg) == (40.0, 70.0)
+    assert config.asv_standoff_m == 1.4
+
+
+def test_a_near_rov_is_scored_by_how_far_off_the_boresight_it_is() -> None:
+    assert [azimuth_band(math.radians(a)) for a in (3.0, -20.0, 44.9, -50.0, 66.0)] == [
+        "0-15 deg off the boresight", "15-30 deg off the boresight",
+        "30-45 deg off the boresight", "45-65 deg off the boresight", None,
+    ]  # fmt: skip
+    tallies: dict[str, Tally] = defaultdict(Tally)
+    score(tallies, "d", _label(2.0, -8.0), _at(2.03), half_aperture_rad=math.radians(10.0))
+    score(tallies, "d", _label(6.0, -8.0), _at(6.1), half_aperture_rad=math.radians(10.0))
+    near = [name for name in tallies if "boresight" in name]
+    assert near == ["d / under 4 m, 0-15 deg off the boresight"]  # 0.1 rad; the 6 m ROV: none
+    assert tallies[near[0]].summary()["visible"] == 1
