@@ -67,6 +67,9 @@ FAR_PITCH_DEG = (8.0, 20.0)
 # servo keeps it so: a BlueROV2 then fills up to 30 deg of the fan).
 NEAR_STANDOFF_M = (0.3, 1.0)
 NEAR_PITCH_DEG = (45.0, 75.0)
+# ... and turned this far either way (since session 51), as a pan at its limit or a hull
+# turning slower than the ROV passes leaves it: the ROV up to 45 deg off the boresight.
+NEAR_YAW_DEG = 70.0
 
 
 @dataclass(frozen=True)
@@ -85,12 +88,15 @@ class RunPlan:
     sonar_hz: float
     variety: Variety = "train"
     sonar_pitch_deg: float | None = None  # None: the simulator's default mount (30 deg down)
+    sonar_yaw_deg: float = 0.0  # the mount turned to port (near runs)
     start_s: float = 0.0  # where in the vehicles' paths the run starts (sim seconds)
 
     def config(self) -> Config:
         sonar = SonarMountConfig()
         if self.sonar_pitch_deg is not None:
             sonar = msgspec.structs.replace(sonar, pitch_deg=self.sonar_pitch_deg)
+        if self.sonar_yaw_deg != 0.0:
+            sonar = msgspec.structs.replace(sonar, yaw_deg=self.sonar_yaw_deg)
         return Config(
             tank=self.tank,
             trajectory=self.trajectory,
@@ -132,7 +138,8 @@ def plan_runs(
     far instead: the nfp tank, the ASV following FAR_STANDOFF_M off with its sonar
     FAR_PITCH_DEG down, so that the ROV is in the aperture 10-20 m away.
     A `near_share` (a stream of its own too) is near: the mockup, the ASV following
-    NEAR_STANDOFF_M off with its sonar NEAR_PITCH_DEG down, the ROV 0.5-1.5 m away.
+    NEAR_STANDOFF_M off with its sonar NEAR_PITCH_DEG down and up to NEAR_YAW_DEG to either
+    side, the ROV 0.5-1.5 m away.
     With `start_spread_s`, each run starts at a time drawn from 0 to that (a stream of its
     own again): short runs then see every part of the paths, not only their first seconds.
     """
@@ -164,7 +171,9 @@ def plan_runs(
         plans = _placed(plans, far, far_share, "nfp", FAR_STANDOFF_M, FAR_PITCH_DEG)
     if near_share > 0.0:
         near = np.random.default_rng([seed, 0x9EA])
-        plans = _placed(plans, near, near_share, "mockup", NEAR_STANDOFF_M, NEAR_PITCH_DEG)
+        plans = _placed(
+            plans, near, near_share, "mockup", NEAR_STANDOFF_M, NEAR_PITCH_DEG, NEAR_YAW_DEG
+        )
     if start_spread_s > 0.0:
         start_rng = np.random.default_rng([seed, 0x57A7])
         plans = [
@@ -181,11 +190,13 @@ def _placed(
     tank: TankName,
     standoff_m: tuple[float, float],
     pitch_deg: tuple[float, float],
+    yaw_deg: float = 0.0,
 ) -> list[RunPlan]:
     """`plans` with a `share` of them (drawn from `rng`) moved to `tank`, far or near.
 
-    The ASV follows `standoff_m` off, its sonar `pitch_deg` down. A draw for every run, so the
-    plan is the same whatever came before; a run already moved (its pitch set) stays as it is.
+    The ASV follows `standoff_m` off, its sonar `pitch_deg` down and turned up to `yaw_deg`
+    either way. A draw for every run, so the plan is the same whatever came before; a run
+    already moved (its pitch set) stays as it is.
     """
     out = []
     for plan in plans:
@@ -197,6 +208,10 @@ def _placed(
                 standoff_m=float(rng.uniform(*standoff_m)),
                 sonar_pitch_deg=float(rng.uniform(*pitch_deg)),
             )
+            if yaw_deg > 0.0:
+                plan = dataclasses.replace(
+                    plan, sonar_yaw_deg=float(rng.uniform(-yaw_deg, yaw_deg))
+                )
         out.append(plan)
     return out
 

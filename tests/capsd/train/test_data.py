@@ -14,6 +14,7 @@ from capsd.train.data import (
     FAR_STANDOFF_M,
     NEAR_PITCH_DEG,
     NEAR_STANDOFF_M,
+    NEAR_YAW_DEG,
     RunPlan,
     plan_runs,
 )
@@ -80,7 +81,14 @@ def test_near_runs_replace_a_share_of_the_runs_that_are_not_far() -> None:
         assert q.sonar_pitch_deg is not None
         assert NEAR_STANDOFF_M[0] <= q.standoff_m <= NEAR_STANDOFF_M[1]
         assert NEAR_PITCH_DEG[0] <= q.sonar_pitch_deg <= NEAR_PITCH_DEG[1]
+        assert abs(q.sonar_yaw_deg) <= NEAR_YAW_DEG
         assert (q.seed, q.variety) == (p.seed, p.variety)
+    # Turned either way, some of them far off the ROV; far and other runs face it.
+    yaws = [both[k].sonar_yaw_deg for k in near]
+    assert min(yaws) < -20.0
+    assert max(yaws) > 20.0
+    assert all(p.sonar_yaw_deg == 0.0 for k, p in enumerate(both) if k not in near)
+    assert both[near[0]].config().sonar.yaw_deg == yaws[0]
 
 
 def test_a_near_run_puts_the_rov_near_the_sonar() -> None:
