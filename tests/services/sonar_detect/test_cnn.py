@@ -343,7 +343,7 @@ def test_a_search_proposes_the_tracked_rov_from_the_lower_bar() -> None:
 
     In the mockup's follow demo the ROV 1.3 m off on the boresight made proposal heat of
     0.04-0.1, under the 0.1 bar, while the refiner called it ROV (0.9): every search dropped
-    it. Here the bar is raised over this frame's heat for the second ping instead: found from
+    it. Here the bar is raised over any heat for the second ping instead: found from
     the lower bar near the last ping's ROV, and only near it.
     """
     tank = make_tank("mockup")
@@ -354,8 +354,10 @@ def test_a_search_proposes_the_tracked_rov_from_the_lower_bar() -> None:
         euler_zyx_to_matrix(0.4, 0.0, 0.0),
         BLUEROV2_SEMI_AXES,
     )
-    # The same ROV 0.8 m to the side (32 deg off) in the first ping: no track near the second's.
-    aside = replace(rov, centre=rov.centre + sonar.rotation @ np.array([0.0, 0.8, 0.0]))
+    # The same ROV 1.0 m to the side (37 deg off) in the first ping: no track near the second's.
+    # (0.8 m to the side, the weights of session 51 put a heat peak 0.26 m from that track,
+    # between the two, and the refiner moved it 0.55 m onto the ROV: found, and rightly.)
+    aside = replace(rov, centre=rov.centre + sonar.rotation @ np.array([0.0, 1.0, 0.0]))
 
     def frame(k: int, at: Ellipsoid) -> SonarFrame:
         ping = renderer.render(sonar, at, np.random.default_rng(k))
@@ -376,7 +378,8 @@ def test_a_search_proposes_the_tracked_rov_from_the_lower_bar() -> None:
                 for d in detector.detect(frame(2 * seed, first), range_window=window)
                 if d.confidence > 0.5
             ]
-            detector.settings = replace(detector.settings, proposal_threshold=0.99)
+            # A bar no heat reaches (the shipped network's heat on this ROV reaches 0.99).
+            detector.settings = replace(detector.settings, proposal_threshold=1.01)
             detections = detector.detect(frame(2 * seed + 1, rov), range_window=window)
             assert detector.searches == 2
             found[name] += any(
