@@ -34,8 +34,10 @@ from capsd.simulator.sonar_look import Look
 from capsd.simulator.world import Tank
 from capsd.sonar_geometry import BeamModel, to_polar
 
-# Rays a beam casts over the ROV's height at the least (see SonarRenderer._rays).
+# Rays a beam casts over the ROV's height at the least, and the most times the usual rays a
+# beam that may see the ROV casts for it (see SonarRenderer._rays).
 SLABS_PER_ROV_HEIGHT = 8.0
+MAX_RAYS_FACTOR = 16
 
 
 @dataclass(frozen=True)
@@ -229,7 +231,8 @@ class SonarRenderer:
             distance, azimuth, _ = to_polar(m.beam_model, sonar_pose.inverse().apply(rov.centre))
             stratum = float(self._elev_edges[1] - self._elev_edges[0])
             height = 2.0 * float(rov.semi_axes.min())
-            k = min(max(math.ceil(SLABS_PER_ROV_HEIGHT * stratum * distance / height), 1), 16)
+            k = math.ceil(SLABS_PER_ROV_HEIGHT * stratum * distance / height)
+            k = min(max(k, 1), MAX_RAYS_FACTOR)
             if k > 1:
                 reach = math.asin(min(1.0, 1.2 * float(rov.semi_axes.max()) / distance))
                 spacing = 2.0 * m.half_fov_rad / max(n_b - 1, 1)

@@ -78,6 +78,7 @@ class TrainConfig:
     hard_repeat: int = 3
     hard_lr: float = 5e-4
     # The share of runs far off (the ROV 10-20 m away, the sonar shallower; data.plan_runs).
+    # `capsd train detector` passes 0.2, as the shipped weights were trained since session 51.
     far_share: float = 0.0
     # The share of runs near (the ROV 0.5-1.5 m away, the sonar steeply down; data.plan_runs).
     near_share: float = 0.0
