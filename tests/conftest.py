@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -108,6 +109,20 @@ def router(spawn: Callable[..., Proc], endpoint: str) -> Proc:
 def client(router: Proc, endpoint: str) -> Iterator[zenoh.Session]:
     """A client session of the test itself, joined to the router."""
     session = open_session(BusConfig(connect=(endpoint,)))
+    try:
+        yield session
+    finally:
+        _close(session)
+
+
+@contextlib.contextmanager
+def joined(bus: BusConfig) -> Iterator[zenoh.Session]:
+    """`open_session(bus)` closed as `_close` does: for a test whose relays put through it.
+
+    Not `with open_session(...)`: zenoh.Session's own exit takes the session exclusively and
+    fails outright ("Already borrowed") on a relay's put still in flight.
+    """
+    session = open_session(bus)
     try:
         yield session
     finally:

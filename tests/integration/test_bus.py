@@ -24,7 +24,7 @@ from capsd.health import query_health
 from capsd.keys import is_concrete
 from capsd.latency import percentile_ms
 from capsd.payloads import Health, LatencyStats, Log, RovFix, SonarDetections
-from tests.conftest import REPO, Proc, capsd_json_lines, relay, wait_for
+from tests.conftest import REPO, Proc, capsd_json_lines, joined, relay, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -47,7 +47,7 @@ def test_router_two_services_tap_list_and_sigterm(
     locator = spawn(
         "run", "locator", "--config", "deploy/config/locator.yaml", "--connect", endpoint
     )
-    with open_session(BusConfig(connect=(endpoint,))) as session:
+    with joined(BusConfig(connect=(endpoint,))) as session:
         fixes_seen: list[object] = []
         fix_sub = session.declare_subscriber(
             topics.ROV_FIX.key("tank", "topside"), lambda sample: fixes_seen.append(sample)
