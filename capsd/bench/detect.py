@@ -459,6 +459,8 @@ class CnnOptions:
     track_hold_s: float = 0.0
     proposal_threshold: float = 0.1  # the service's default
     track_proposal_threshold: float | None = 0.03  # the service's default (None: off)
+    # The service's cnn.mirror_average; several: the CNN once with each, named by it.
+    mirror_averages: tuple[Literal["off", "refiner", "both"], ...] = ("refiner",)
 
 
 def _detectors(
@@ -476,26 +478,32 @@ def _detectors(
         from capsd.services.sonar_detect.cnn import NETWORK_ALONE, CnnDetector, CnnSettings
 
         choices: list[Path | None] = list(weights) if weights else [None]
+        several = len(options.mirror_averages) > 1
         for path in choices:
-            name = "cnn" if path is None else f"cnn ({path.parent.name})"
-            service = CnnSettings(
-                search_refines=options.search_refines,
-                track_hold_s=options.track_hold_s,
-                proposal_threshold=options.proposal_threshold,
-                track_proposal_threshold=options.track_proposal_threshold,
-            )
-            if path is not None:
-                service = replace(service, weights=path)
-            # The service's settings (tracking between whole-frame searches, the track's
-            # prior), and the network searching every frame alone (the weights' evaluation).
-            out[name] = CnnDetector(service).detect
-            out[f"{name}, every frame alone"] = CnnDetector(
-                replace(
-                    NETWORK_ALONE,
-                    weights=service.weights,
+            for mirror in options.mirror_averages:
+                name = "cnn" if path is None else f"cnn ({path.parent.name})"
+                if several:
+                    name += f" (mirror {mirror})"
+                service = CnnSettings(
+                    search_refines=options.search_refines,
+                    track_hold_s=options.track_hold_s,
                     proposal_threshold=options.proposal_threshold,
+                    track_proposal_threshold=options.track_proposal_threshold,
+                    mirror_average=mirror,
                 )
-            ).detect
+                if path is not None:
+                    service = replace(service, weights=path)
+                # The service's settings (tracking between whole-frame searches, the track's
+                # prior), and the network searching every frame alone (the weights' evaluation).
+                out[name] = CnnDetector(service).detect
+                out[f"{name}, every frame alone"] = CnnDetector(
+                    replace(
+                        NETWORK_ALONE,
+                        weights=service.weights,
+                        proposal_threshold=options.proposal_threshold,
+                        mirror_average=mirror,
+                    )
+                ).detect
     return out
 
 
@@ -659,7 +667,11 @@ def sweep_prior(
 
 
 def run_throughput(
-    *, frames: int = 200, which: str = "all", weights: list[Path] | None = None
+    *,
+    frames: int = 200,
+    which: str = "all",
+    weights: list[Path] | None = None,
+    options: CnnOptions = CnnOptions(),
 ) -> int:
     """Per-frame latency on one core for 512 x 1000 frames (rendered by the simulator).
 
@@ -680,7 +692,7 @@ def run_throughput(
         if len(pool) >= 50:
             break
     shape = f"{pool[0].n_beams} beams x {pool[0].n_ranges} bins"
-    detectors = _detectors(which, weights)
+    detectors = _detectors(which, weights, options=options)
     for name, detect in detectors.items():
         for frame in pool[:5]:  # warm-up (allocations, torch's first-call work)
             detect(frame)

@@ -42,8 +42,14 @@ def _cmd_bench_detect(args: argparse.Namespace) -> int:
     for weights in args.weights or []:
         if not weights.is_file():
             return fail(f"bench detect: --weights {weights}: no such file", EXIT_CONFIG)
+    mirrors = tuple(dict.fromkeys(args.mirror_average))
     if args.throughput:
-        return detect.run_throughput(frames=args.frames, which=args.detector, weights=args.weights)
+        return detect.run_throughput(
+            frames=args.frames,
+            which=args.detector,
+            weights=args.weights,
+            options=detect.CnnOptions(mirror_averages=mirrors),
+        )
     if not 0.0 < args.proposal_threshold < 1.0:
         return fail(
             f"bench detect: --proposal-threshold {args.proposal_threshold:g}: between 0 and 1",
@@ -66,6 +72,7 @@ def _cmd_bench_detect(args: argparse.Namespace) -> int:
         track_hold_s=args.track_hold,
         proposal_threshold=args.proposal_threshold,
         track_proposal_threshold=track_bar,
+        mirror_averages=mirrors,
     )
     starts = tuple(args.start) if args.start is not None else detect.BENCH_STARTS_S
     duration_s = args.duration if args.duration is not None else detect.BENCH_WINDOW_S
@@ -359,6 +366,15 @@ def register(sub: Subcommands) -> None:
         metavar="P",
         help="the service's cnn.track_proposal_threshold for the CNN with its settings, a "
         "number or off (default: %(default)s)",
+    )
+    bdet.add_argument(
+        "--mirror-average",
+        nargs="+",
+        choices=("off", "refiner", "both"),
+        default=["refiner"],  # the service's default
+        help="the service's cnn.mirror_average (crops, and with both the frame, also read "
+        "mirrored, the answers averaged); several: the CNN once with each, in one run "
+        "(default: %(default)s)",
     )
     bdet.set_defaults(func=_cmd_bench_detect)
     bft = bench_sub.add_parser(

@@ -9,6 +9,8 @@
    echo's extent. The crop is taken again around the refined centre `refine_passes - 1` times:
    the refiner is most precise near the crop's centre.
 3. Candidates closer than `merge_distance_m` to a more confident one are the same ROV.
+With `mirror_average`, the refiner's last pass (and with "both" the proposal network) also
+reads its input mirrored across the boresight, and the two answers are averaged.
 All in the polar image; the only geometry is the bearing table and the range resolution.
 
 Tracking (`search_every_s` > 0): between whole-frame searches, a frame whose previous ping
@@ -56,6 +58,7 @@ from capsd.sonar_image import Image
 DEFAULT_WEIGHTS = Path(__file__).with_name("weights") / "polar_net.pt"
 LAPLACE_SIGMA = math.sqrt(2.0)  # standard deviation of a Laplace law per unit scale
 TRACKED_PEAKS = 16  # peaks under the bar looked at for one near a tracked ROV
+MirrorAverage = Literal["off", "refiner", "both"]
 
 
 @dataclass(frozen=True)
@@ -102,6 +105,12 @@ class CnnSettings:
     # every run at 0.03 (availability up to +6.1 points), pond random's 34.6 -> 39.0 mm
     # (p95 93 -> 150) with `proposals_and_track` (README, session 49).
     track_proposal_threshold: float | None = 0.03
+    # A sonar image mirrored across the boresight is as real as the original (both networks
+    # train on mirrored samples): averaging a network's answers on a crop (or the frame) and
+    # on its mirror cancels part of what it learnt of one renderer's texture. "refiner": the
+    # refiner's last pass; "both": the proposals' heat as well (a third more time per search
+    # again). Figures: README, session 52 (`capsd bench detect --mirror-average ...`).
+    mirror_average: MirrorAverage = "refiner"
 
 
 # The network alone: every frame searched, no track prior (calibration, stored evaluation).
@@ -187,10 +196,11 @@ class CnnDetector:
             candidates, passes, searched_ns = track.candidates, 1, track.searched_ns
             self.tracked += 1
         found: list[Detection] = []
-        for _ in range(passes):
+        for k in range(passes):
             if not candidates:
                 break
-            found = self._refine(frame, image, table, candidates)
+            mirror = self.settings.mirror_average != "off" and k == passes - 1
+            found = self._refine(frame, image, table, candidates, mirror=mirror)
             candidates = [Candidate(d.range_m, d.azimuth_rad) for d in found]
         merged = self._merge(found)
         if (
@@ -261,14 +271,30 @@ class CnnDetector:
             tracked=tracked,
             tracked_threshold=s.track_proposal_threshold,
             tracked_gate_m=s.track_gate_m,
+            mirror=s.mirror_average == "both",
         )
 
     def _refine(
-        self, frame: SonarFrame, image: Image, table: BeamTable, candidates: list[Candidate]
+        self,
+        frame: SonarFrame,
+        image: Image,
+        table: BeamTable,
+        candidates: list[Candidate],
+        *,
+        mirror: bool,
     ) -> list[Detection]:
-        crops = np.stack([refine_input(self.net, image, frame, table, c) for c in candidates])
+        crops = torch.from_numpy(
+            np.stack([refine_input(self.net, image, frame, table, c) for c in candidates])
+        ).contiguous(memory_format=torch.channels_last)
         with torch.inference_mode():
-            out = self._refine_net(torch.from_numpy(crops)).numpy().astype(np.float64)
+            if mirror:
+                both = self._refine_net(torch.cat([crops, torch.flip(crops, dims=[-1])]))
+                mirrored = both[len(candidates) :].clone()
+                mirrored[:, 2] = -mirrored[:, 2]  # the cross-range offset changes sign
+                raw = 0.5 * (both[: len(candidates)] + mirrored)
+            else:
+                raw = self._refine_net(crops)
+            out = raw.numpy().astype(np.float64)
         half_fov = table.half_fov_rad
         offset = float(self.net.logit_offset)
         found = []
@@ -334,11 +360,13 @@ def propose(
     tracked: Sequence[Candidate] = (),
     tracked_threshold: float | None = None,
     tracked_gate_m: float = 0.3,
+    mirror: bool = False,
 ) -> list[Candidate]:
     """Local maxima of the proposal heatmap above `threshold`, strongest first.
 
     With `range_window` (metres), heat cells outside it are not candidates (depth-aware search).
     A peak within `tracked_gate_m` of one of `tracked` needs only `tracked_threshold` (if set).
+    With `mirror`, the heat is the mean of the frame's and its mirror's (logits, mirrored back).
     """
     if not tracked or tracked_threshold is None:
         tracked, tracked_threshold = (), threshold
@@ -346,9 +374,14 @@ def propose(
     grid = Grid.of(frame, beams=inputs.coarse_beams)
     if grid.rows < 4 or grid.cols < 4:
         return []
-    coarse = torch.from_numpy(proposal_input(image, frame, grid, inputs))[None]
+    coarse = torch.from_numpy(proposal_input(image, frame, grid, inputs))[None].contiguous(
+        memory_format=torch.channels_last
+    )
     with torch.inference_mode():
-        heat = torch.sigmoid(proposal(coarse))[0]
+        logits = proposal(coarse)
+        if mirror:
+            logits = 0.5 * (logits + torch.flip(proposal(torch.flip(coarse, dims=[-1])), dims=[-1]))
+        heat = torch.sigmoid(logits)[0]
         if range_window is not None:
             # Heat row i is centred on bin (2i + 1) x range_factor (see below).
             cell_m = 2 * grid.range_factor * frame.range_resolution_m

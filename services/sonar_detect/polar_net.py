@@ -103,6 +103,8 @@ def fused_for_inference(module: nn.Module) -> nn.Module:
     """A copy in eval mode with every Conv2d + BatchNorm2d pair folded into one convolution.
 
     The same function to float rounding (1e-6), a quarter less work: the service runs this.
+    Its weights are laid out channels-last, as oneDNN's CPU convolutions run fastest (feed it
+    `channels_last` inputs: about a third less time per crop, by hand in session 52).
     """
     import copy
 
@@ -116,6 +118,8 @@ def fused_for_inference(module: nn.Module) -> nn.Module:
             if isinstance(conv, nn.Conv2d) and isinstance(bn, nn.BatchNorm2d):
                 seq[i] = fuse_conv_bn_eval(conv, bn)
                 seq[i + 1] = nn.Identity()
+    for conv in [m for m in out.modules() if isinstance(m, nn.Conv2d)]:
+        conv.weight.data = conv.weight.data.contiguous(memory_format=torch.channels_last)
     return out
 
 

@@ -84,6 +84,10 @@ class CnnConfig(ConfigSection, frozen=True, kw_only=True):
     # In a whole-frame search, a proposal within 0.3 m of the last ping's confident ROV needs
     # only this much heat (a near ROV's heat sits under proposal_threshold); null: none.
     track_proposal_threshold: Annotated[float, msgspec.Meta(gt=0.0, lt=1.0)] | None = 0.03
+    # refiner: its last pass also reads each crop mirrored across the boresight, the answers
+    # averaged (fewer false alarms on looks not trained on); both: the proposals' heat too
+    # (more time per search again); off: neither.
+    mirror_average: Literal["off", "refiner", "both"] = "refiner"
     threads: Annotated[int, msgspec.Meta(ge=1, le=64)] = 1
     # by_elevation: with the depth gate, a near ROV's range corrected for where it lies in the
     # vertical aperture and how steeply the sonar looks down at it (capsd.services.sonar_detect
@@ -243,6 +247,7 @@ def make_detector(config: Config) -> Detector:
         search_refines=c.search_refines,
         track_hold_s=c.track_hold_s,
         track_proposal_threshold=c.track_proposal_threshold,
+        mirror_average=c.mirror_average,
         track_confidence=config.min_confidence,
     )
     try:
