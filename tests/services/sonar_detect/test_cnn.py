@@ -438,3 +438,9 @@ def test_the_refiner_s_mirror_average_answers_a_mirrored_rov_alike() -> None:
         gaps[mirror] = (abs(a.confidence - b.confidence), abs(a.range_m - b.range_m))
     assert gaps[True][0] < 0.02 < gaps[False][0], gaps
     assert gaps[True][1] < 0.002, gaps
+    # Nearer than `mirror_min_range_m` (1.5 m) the refiner answers alone.
+    near = [Candidate(1.2, 0.3)]
+    image, table = normalised_image(frame), BeamTable(frame.azimuths_rad)
+    assert detector._refine(frame, image, table, near, mirror=True) == detector._refine(
+        frame, image, table, near, mirror=False
+    )
