@@ -108,16 +108,13 @@ def router(spawn: Callable[..., Proc], endpoint: str) -> Proc:
 @pytest.fixture
 def client(router: Proc, endpoint: str) -> Iterator[zenoh.Session]:
     """A client session of the test itself, joined to the router."""
-    session = open_session(BusConfig(connect=(endpoint,)))
-    try:
+    with joined(BusConfig(connect=(endpoint,))) as session:
         yield session
-    finally:
-        _close(session)
 
 
 @contextlib.contextmanager
 def joined(bus: BusConfig) -> Iterator[zenoh.Session]:
-    """`open_session(bus)` closed as `_close` does: for a test whose relays put through it.
+    """`open_session(bus)`, closed by `_close` (for tests whose relays put through it).
 
     Not `with open_session(...)`: zenoh.Session's own exit takes the session exclusively and
     fails outright ("Already borrowed") on a relay's put still in flight.

@@ -292,9 +292,10 @@ class CnnDetector:
         crops = torch.from_numpy(
             np.stack([refine_input(self.net, image, frame, table, c) for c in candidates])
         ).contiguous(memory_format=torch.channels_last)
-        far = torch.tensor([c.range_m >= self.settings.mirror_min_range_m for c in candidates])
+        bar = self.settings.mirror_min_range_m
+        far = torch.tensor([c.range_m >= bar for c in candidates]) if mirror else None
         with torch.inference_mode():
-            if mirror and bool(far.any()):
+            if far is not None and bool(far.any()):
                 both = self._refine_net(torch.cat([crops, torch.flip(crops[far], dims=[-1])]))
                 raw = both[: len(candidates)].clone()
                 mirrored = both[len(candidates) :].clone()
