@@ -278,6 +278,15 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     # in the closed loop they raised availability (README, "ROV missions on CAP-SD fixes").
     aperture_skirt_deg: Annotated[float, msgspec.Meta(ge=0.0, le=15.0)] = 0.0
     min_confidence: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.5
+    # A detection whose own range 1-sigma (the refiner's Laplace scale) is over this is not
+    # used: its echo is not the ROV's alone (clutter overlapping it), and its errors repeat
+    # ping after ping, so the filter would average them into a confident wrong track. 5 cm:
+    # three of them are issue 21's 0.15 m cross-track budget. On `capsd bench accuracy`'s
+    # runs (session 53, by hand) the single-ping fixes of detections at 5-6 / 6-8 / 8-12 cm
+    # were 84 / 135 / 202 mm off (median), at 1-2 cm 22 mm; nfp bouncing's MED 27.7 -> 19.6
+    # mm for 4.5 points of availability. None: every detection is used (the paper's box
+    # reports 5 cm, and is kept). Health counts them (`uncertain_detections`).
+    max_range_sigma_m: Annotated[float, msgspec.Meta(gt=0.0, le=10.0)] | None = 0.05
     # Added (per axis, in quadrature) to the covariances a fix reports, not to the filter's:
     # errors no model here carries, correlated over seconds so the filter cannot average them
     # (where on the hull the echo's centre lies, map and mount errors). 15 mm was chosen in
@@ -379,6 +388,7 @@ class Locator:
         # the sonar's though the config asks for the thermometer's; the scale last logged.
         self.water_speed_pings = 0
         self.sonar_speed_pings = 0
+        self.uncertain_detections = 0  # detections over max_range_sigma_m
         self._logged_scale: float | None = None
         self._installed = np.zeros((3, 3))  # the last fix's installation covariance
         # Where and when the ROV was last seen by a confirmed track (the reacquire and
@@ -581,6 +591,7 @@ class Locator:
                 "relocations_waited": self.relocation.proven_waiting,
                 "relocations_taken_over": self.relocation.taken_over,
                 "water_speed_pings": self.water_speed_pings,
+                "uncertain_detections": self.uncertain_detections,
                 "sonar_speed_pings": self.sonar_speed_pings,
             }
 
@@ -599,6 +610,13 @@ class Locator:
             for d in detections.detections
             if d.confidence >= self.config.min_confidence and d.range_m + offset > 0.0
         ]
+        limit = self.config.max_range_sigma_m
+        uncertain_dropped = False
+        if limit is not None:
+            kept = [d for d in candidates if d.range_sigma_m <= limit]
+            uncertain_dropped = len(kept) < len(candidates)
+            self.uncertain_detections += len(candidates) - len(kept)
+            candidates = kept
         pose = self._lookup(self.poses, stamp)
         depth = self._lookup(self.depths, stamp)
         attitude = self._lookup(self.attitudes, stamp)
@@ -620,7 +638,7 @@ class Locator:
         fixes: list[tuple[Array, Array | None, Detection]] = []
         sonar: Transform | None = None
         if not candidates:
-            reasons.append("no_detection")
+            reasons.append("detection_uncertain" if uncertain_dropped else "no_detection")
         inputs: list[tuple[str, Lookup[Any]]] = [
             ("asv_pose", pose),
             ("depth", depth),

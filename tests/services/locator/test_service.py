@@ -210,6 +210,30 @@ def test_the_calibrated_range_offset_is_added_to_every_detection_s_range() -> No
     assert miss_m(_locator(sonar=SonarMountConfig(range_offset_m=-0.025))) < 1e-6
 
 
+def test_a_detection_unsure_of_its_range_gives_no_fix_and_is_counted() -> None:
+    # The same echo three pings running: with a 1 cm range sigma the track is confirmed and
+    # good; with 8 cm (the refiner's answer on a ROV over clutter) no fix is made at all.
+    def fixes(range_sigma_m: float, **changes: object) -> tuple[list[RovFix], Locator]:
+        locator = _locator(**changes)
+        _feed_inputs(locator, until_s=1.0)
+        echo = msgspec.structs.replace(_detection_of(locator, ROV), range_sigma_m=range_sigma_m)
+        out = [
+            locator.locate(_ping(SECOND // 2 + k * SECOND // 100, echo), seq=k) for k in range(4)
+        ]
+        return out, locator
+
+    sure, locator = fixes(0.01)
+    assert sure[-1].quality == "good"
+    assert locator.counters()["uncertain_detections"] == 0
+    unsure, locator = fixes(0.08)
+    assert all(f.quality == "invalid" for f in unsure)
+    assert {f.no_fix_reason for f in unsure} == {"detection_uncertain"}
+    assert locator.counters()["uncertain_detections"] == 4
+    # The limit is the config's: None uses every detection.
+    allowed, _ = fixes(0.08, max_range_sigma_m=None)
+    assert allowed[-1].quality == "good"
+
+
 def test_the_thermometer_s_sigma_goes_into_the_covariance_in_place_of_the_range_scale() -> None:
     # Told the sonar's speed may be 1 % off, the fix's range variance is large; rescaled to the
     # water's speed, what is left is the thermometer's 0.5 degC (about 0.09 %).
