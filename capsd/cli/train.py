@@ -17,10 +17,13 @@ from capsd.launch import (
 
 
 def _cmd_train_calibrate(args: argparse.Namespace) -> int:
-    from capsd.train.detector import recalibrate
+    from capsd.train.detector import VALIDATION_DURATION_S, recalibrate
 
     try:
-        recalibrate(args.weights, duration_s=args.duration)
+        recalibrate(
+            args.weights,
+            duration_s=VALIDATION_DURATION_S if args.duration is None else args.duration,
+        )
     except CapsdError as exc:
         return fail(f"calibrate: {exc}", EXIT_CONFIG)
     return EXIT_OK
@@ -262,7 +265,11 @@ def register(sub: Subcommands) -> None:
         "--weights", type=Path, default=Path("services/sonar_detect/weights/polar_net.pt")
     )
     tcal.add_argument(
-        "--duration", type=positive_float, default=10.0, help="seconds per validation run"
+        "--duration",
+        type=positive_float,
+        default=None,
+        help="seconds per validation run (default: the training's, 40; the held-out "
+        "evaluation then runs twice as long)",
     )
     tcal.set_defaults(func=_cmd_train_calibrate)
     tbias = train.add_parser(

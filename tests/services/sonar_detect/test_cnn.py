@@ -291,6 +291,7 @@ def test_training_is_deterministic_for_a_seed(tmp_path: Path) -> None:
         hard_rounds=1,
         hard_epochs=1,
         eval_duration_s=0.3,
+        calibration_duration_s=0.15,
     )
     nets = []
     # The second run skips the held-out evaluation (it comes after the weights are final).
