@@ -17,12 +17,14 @@ from capsd.launch import (
 
 
 def _cmd_train_calibrate(args: argparse.Namespace) -> int:
-    from capsd.train.detector import VALIDATION_DURATION_S, recalibrate
+    from capsd.train.detector import TrainConfig, recalibrate
 
     try:
         recalibrate(
             args.weights,
-            duration_s=VALIDATION_DURATION_S if args.duration is None else args.duration,
+            duration_s=(
+                TrainConfig.calibration_duration_s if args.duration is None else args.duration
+            ),
         )
     except CapsdError as exc:
         return fail(f"calibrate: {exc}", EXIT_CONFIG)

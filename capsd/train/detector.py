@@ -85,7 +85,11 @@ class TrainConfig:
     # Runs start at a time drawn from 0 to this into the vehicles' paths (data.plan_runs).
     start_spread_s: float = 0.0
     eval_duration_s: float = 20.0
-    # Seconds of each validation run the operating point is set on (calibrate).
+    # Seconds of each validation run (in each look) the operating point is set on (calibrate;
+    # also `capsd train calibrate`'s default): 40 s gives 9612 frames, so the offset sits where
+    # 48 false alarms fall. At 10 s (2412 frames, 12 false alarms) the shipped weights' offset
+    # was 1.177 in session 52 and 1.110 in session 51, at 40 s 1.033 (session 53): the few
+    # highest false alarms set it, and they move.
     calibration_duration_s: float = 40.0
     # Where the networks train (rendering and calibration stay on the CPU). "cuda" is for a
     # machine with a GPU: the same steps, not bit-identical to the CPU's.
@@ -451,11 +455,6 @@ VALIDATION_RUNS: tuple[Run, ...] = (
 )
 VARIETIES: tuple[Variety, ...] = ("off", "train")
 MAX_FALSE_ALARMS_PER_FRAME = 0.005
-# Seconds of each validation run (in each look) the operating point is set on by default: 40 s
-# gives 9612 frames, so the offset sits where 48 false alarms fall. At 10 s (2412 frames, 12
-# false alarms) the shipped weights' offset was 1.177 in session 52 and 1.110 in session 51,
-# at 40 s 1.033 (session 53): the few highest false alarms set it, and they move.
-VALIDATION_DURATION_S = TrainConfig.calibration_duration_s
 
 
 def operating_offset(false_logits: list[float], frames: int, max_per_frame: float) -> float:

@@ -297,8 +297,7 @@ class CnnDetector:
         with torch.inference_mode():
             if far is not None and bool(far.any()):
                 both = self._refine_net(torch.cat([crops, torch.flip(crops[far], dims=[-1])]))
-                raw = both[: len(candidates)].clone()
-                mirrored = both[len(candidates) :].clone()
+                raw, mirrored = both[: len(candidates)], both[len(candidates) :]
                 mirrored[:, 2] = -mirrored[:, 2]  # the cross-range offset changes sign
                 raw[far] = 0.5 * (raw[far] + mirrored)
             else:

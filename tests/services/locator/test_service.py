@@ -211,7 +211,7 @@ def test_the_calibrated_range_offset_is_added_to_every_detection_s_range() -> No
 
 
 def test_a_detection_unsure_of_its_range_gives_no_fix_and_is_counted() -> None:
-    # The same echo three pings running: with a 1 cm range sigma the track is confirmed and
+    # The same echo four pings running: with a 1 cm range sigma the track is confirmed and
     # good; with 8 cm (the refiner's answer on a ROV over clutter) no fix is made at all.
     def fixes(range_sigma_m: float, **changes: object) -> tuple[list[RovFix], Locator]:
         locator = _locator(**changes)
