@@ -1,4 +1,4 @@
-"""`capsd train detector|calibrate|range-bias` and `capsd label`: the detector's training tools."""
+"""`capsd train detector|near-refiner|calibrate|range-bias`, `capsd label`: training tools."""
 
 from __future__ import annotations
 
@@ -54,6 +54,26 @@ def _cmd_train_range_bias(args: argparse.Namespace) -> int:
             )
     except CapsdError as exc:
         return fail(f"range-bias: {exc}", EXIT_CONFIG)
+    return EXIT_OK
+
+
+def _cmd_train_near_refiner(args: argparse.Namespace) -> int:
+    from capsd.train.near_refiner import NearRefinerConfig, train_near_refiner
+
+    config = NearRefinerConfig(
+        seed=args.seed,
+        near_runs=args.near_runs,
+        other_runs=args.other_runs,
+        epochs=args.epochs,
+        max_range_m=args.max_range,
+        workers=args.workers,
+        threads=args.threads,
+        evaluate=args.evaluate,
+    )
+    try:
+        train_near_refiner(args.weights, args.out, config)
+    except CapsdError as exc:
+        return fail(str(exc), EXIT_CONFIG)
     return EXIT_OK
 
 
@@ -256,6 +276,41 @@ def register(sub: Subcommands) -> None:
         "--max-sigma", type=float, default=0.05, help="largest horizontal fix sigma kept (m)"
     )
     lab.set_defaults(func=_cmd_label)
+    tnear = train.add_parser(
+        "near-refiner",
+        help="add a refiner for ROVs under about 1.5 m to the polar CNN's weights",
+        description="Start a second refiner from --weights' own, fine-tune it on crops near "
+        "the sonar (near runs: the mockup, the sonar 45-75 deg down; and the near crops of "
+        "training-like runs), set its operating point on validation runs (at most 0.002 false "
+        "alarms per frame under --max-range), write polar_net.pt and polar_net.json into "
+        "--out: the detector refines candidates under --max-range with it. About 10 minutes on "
+        "2 CPU cores.",
+    )
+    tnear.add_argument(
+        "--weights", type=Path, default=Path("services/sonar_detect/weights/polar_net.pt")
+    )
+    tnear.add_argument("--out", type=Path, required=True)
+    tnear.add_argument("--seed", type=int, default=0)
+    tnear.add_argument("--near-runs", type=positive_int, default=32, help="near runs")
+    tnear.add_argument(
+        "--other-runs", type=positive_int, default=24, help="training-like runs (near crops)"
+    )
+    tnear.add_argument("--epochs", type=positive_int, default=4)
+    tnear.add_argument(
+        "--max-range",
+        type=positive_float,
+        default=1.5,
+        help="candidates nearer than this (m) go to the near refiner (default 1.5)",
+    )
+    tnear.add_argument("--workers", type=positive_int, default=2, help="rendering processes")
+    tnear.add_argument("--threads", type=positive_int, default=2, help="torch threads")
+    tnear.add_argument(
+        "--evaluate",
+        choices=("heldout", "none"),
+        default="heldout",
+        help="none: keep the stored evaluation of --weights (run `capsd bench detect` after)",
+    )
+    tnear.set_defaults(func=_cmd_train_near_refiner)
     tcal = train.add_parser(
         "calibrate",
         help="set the polar CNN's operating point on validation runs (part of `detector`)",

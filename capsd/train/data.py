@@ -228,12 +228,23 @@ class Samples:
     crop_targets: list[tuple[float, float, float, float, float, float]] = field(
         default_factory=list
     )
+    crop_ranges_m: list[float] = field(default_factory=list)  # per crop: its centre's range
 
     def extend(self, other: Samples) -> None:
         self.grids.extend(other.grids)
         self.grid_targets.extend(other.grid_targets)
         self.crops.extend(other.crops)
         self.crop_targets.extend(other.crop_targets)
+        self.crop_ranges_m.extend(other.crop_ranges_m)
+
+    def crops_within(self, range_m: float) -> Samples:
+        """The crops centred nearer than `range_m` (no grids)."""
+        keep = [k for k, r in enumerate(self.crop_ranges_m) if r < range_m]
+        return Samples(
+            crops=[self.crops[k] for k in keep],
+            crop_targets=[self.crop_targets[k] for k in keep],
+            crop_ranges_m=[self.crop_ranges_m[k] for k in keep],
+        )
 
 
 def heat_coordinates(
@@ -307,6 +318,7 @@ def samples_of_ping(
                 patch = with_range_plane(patch, centre_range)
             # The target offset is measured at the crop's own range (its cross-range scale).
             out.crops.append(to_u8(patch))
+            out.crop_ranges_m.append(centre_range)
             out.crop_targets.append(
                 (
                     1.0,
@@ -340,6 +352,7 @@ def samples_of_ping(
         if ranged:
             patch = with_range_plane(patch, range_m)
         out.crops.append(to_u8(patch))
+        out.crop_ranges_m.append(range_m)
         out.crop_targets.append((0.0, 0.0, 0.0, 0.0, 0.0, float(label.overlap)))
     return out
 
@@ -407,9 +420,12 @@ def _proposal_net(state: bytes, inputs: Inputs) -> Any:
     return _PROPOSAL_CACHE[state]
 
 
-def render_run(job: tuple[RunPlan, bytes | None, Inputs]) -> Samples:
-    """Render one run into samples (runs in a worker process); mine with a proposal state."""
-    plan, state, inputs = job
+def render_run(job: tuple[RunPlan, bytes | None, Inputs, float | None]) -> Samples:
+    """Render one run into samples (runs in a worker process); mine with a proposal state.
+
+    With a range (the job's last item), only the crops centred nearer than it, no grids.
+    """
+    plan, state, inputs, crops_within_m = job
     proposal = _proposal_net(state, inputs) if state is not None else None
     rng = np.random.default_rng(plan.seed + 17)
     sim = Simulation(plan.config(), horizon_s=plan.start_s + plan.duration_s + 5.0)
@@ -418,7 +434,7 @@ def render_run(job: tuple[RunPlan, bytes | None, Inputs]) -> Samples:
         start_ns=OFFLINE_START_NS, duration_s=plan.duration_s, from_s=plan.start_s
     ):
         out.extend(samples_of_ping(frame, label, rng, proposal=proposal, inputs=inputs))
-    return out
+    return out if crops_within_m is None else out.crops_within(crops_within_m)
 
 
 def render(
@@ -427,12 +443,18 @@ def render(
     workers: int,
     proposal_state: bytes | None = None,
     inputs: Inputs = DEFAULT_INPUTS,
+    crops_within_m: float | None = None,
 ) -> Samples:
-    """Every run's samples, in plan order, with a progress line."""
+    """Every run's samples, in plan order, with a progress line.
+
+    With `crops_within_m`, only the crops centred nearer than it (each worker drops the rest).
+    """
     out = Samples()
     what = "mining hard negatives" if proposal_state is not None else "rendering training runs"
+    if crops_within_m is not None:
+        what = "rendering near crops"
     bar = Progress(len(plans), label=what, unit=" runs")
-    jobs = [(plan, proposal_state, inputs) for plan in plans]
+    jobs = [(plan, proposal_state, inputs, crops_within_m) for plan in plans]
     with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
         for done, samples in enumerate(pool.map(render_run, jobs), start=1):
             out.extend(samples)

@@ -468,7 +468,7 @@ def operating_offset(false_logits: list[float], frames: int, max_per_frame: floa
 
 
 def validation_pings(
-    duration_s: float,
+    duration_s: float, *, runs: tuple[Run, ...] = VALIDATION_RUNS
 ) -> Iterator[tuple[float, float, SonarFrame, SonarLabel]]:
     """(sim s done, sim time, frame, label) of every validation run's pings in both looks.
 
@@ -480,14 +480,14 @@ def validation_pings(
     from capsd.simulator.sim import Simulation
 
     # Each validation run twice: the simulator's fixed look and a look drawn for training.
-    runs = [
+    stretches = [
         (run, variety, start_s)
-        for run in VALIDATION_RUNS
+        for run in runs
         for variety in VARIETIES
         for start_s in BENCH_STARTS_S
     ]
     stretch_s = duration_s / len(BENCH_STARTS_S)
-    for k, (run, variety, start_s) in enumerate(runs):
+    for k, (run, variety, start_s) in enumerate(stretches):
         sim = Simulation(sonar_only(*run, variety=variety), horizon_s=start_s + stretch_s + 5)
         for t_s, frame, label in sim.labelled_pings(
             start_ns=OFFLINE_START_NS, duration_s=stretch_s, from_s=start_s
@@ -512,10 +512,14 @@ def calibrate(net: PolarNet, *, duration_s: float) -> dict[str, Any]:
     frames = 0
     total_s = duration_s * len(VALIDATION_RUNS) * len(VARIETIES)
     bar = Progress(total_s, label="calibrating", unit=" sim s")
+    # Candidates the near refiner scores have its own operating point (train.near_refiner).
+    near_bar_m = float(net.near_max_range_m) if net.near_refine is not None else 0.0
     for done, _t_s, frame, p in validation_pings(duration_s):
         frames += 1
         best = -math.inf
         for d in detector.detect(frame):
+            if d.range_m < near_bar_m:
+                continue
             c = min(max(d.confidence, 1e-12), 1 - 1e-12)
             logit = math.log(c / (1 - c))
             near = p.visible and (

@@ -169,6 +169,16 @@ def samples(plans: list[RunPlan], *, duration_s: float, label: str) -> Iterator[
     bar.close()
 
 
+def near_refiner_range_m() -> float:
+    """Where the configured detector's near refiner takes over (0: it has none)."""
+    from capsd.services.sonar_detect.cnn import CnnDetector
+
+    detector = make_detector(DetectConfig())
+    if not isinstance(detector, CnnDetector) or detector.net.near_refine is None:
+        return 0.0
+    return float(detector.net.near_max_range_m)
+
+
 def measure(
     *,
     runs: int,
@@ -180,12 +190,15 @@ def measure(
     """The table: `runs` training-like runs and `steep_runs` steep ones, `duration_s` each.
 
     Where the training runs look (depressions under TRAINED_DEPRESSION_DEG) the table is
-    theirs alone, as the network learned there; beyond it, the steep runs'.
+    theirs alone, as the network learned there; beyond it, the steep runs'. With a near
+    refiner, its detections (nearer than where it takes over) fill a grid of their own.
     """
     half_aperture_deg = SonarMountConfig().vertical_aperture_deg / 2.0  # the runs' sonar
     bins = len(SHARE_EDGES) - 1
     bands = len(DEPRESSION_EDGES_DEG) - 1
+    near_m = near_refiner_range_m()
     errors: list[list[float]] = [[] for _ in range(bins * bands)]
+    near_errors: list[list[float]] = [[] for _ in range(bins * bands)]
     trained = training_plans(runs=runs, duration_s=duration_s, seed=seed)
     steep = steep_plans(runs=steep_runs, duration_s=duration_s, pitch_deg=pitch_deg, seed=seed + 1)
     for plans, within_training in ((trained, True), (steep, False)):
@@ -200,16 +213,24 @@ def measure(
             b = int(np.searchsorted(SHARE_EDGES, share, side="right")) - 1
             band = int(np.searchsorted(DEPRESSION_EDGES_DEG, depression, side="right")) - 1
             if 0 <= b < bins and 0 <= band < bands:
-                errors[band * bins + b].append(sample.error_m)
-    medians = [round(float(np.median(e)), 4) if len(e) >= MIN_SAMPLES else None for e in errors]
+                grid = near_errors if sample.range_m < near_m else errors
+                grid[band * bins + b].append(sample.error_m)
+
+    def medians(cells: list[list[float]]) -> tuple[float, ...]:
+        found = [round(float(np.median(e)), 4) if len(e) >= MIN_SAMPLES else None for e in cells]
+        return tuple(filled(found, bins))
+
     low, high = pitch_deg
     return RangeBias(
         share_edges=SHARE_EDGES,
         depression_edges_deg=DEPRESSION_EDGES_DEG,
-        bias_m=tuple(filled(medians, bins)),
+        bias_m=medians(errors),
         samples=tuple(len(e) for e in errors),
         within_m=WITHIN_M,
         half_aperture_deg=half_aperture_deg,
+        near_within_m=near_m,
+        near_bias_m=medians(near_errors) if near_m > 0.0 else (),
+        near_samples=tuple(len(e) for e in near_errors) if near_m > 0.0 else (),
         provenance={
             "command": f"capsd train range-bias --runs {runs} --steep-runs {steep_runs} "
             f"--duration {duration_s:g} --pitch-deg {low:g} {high:g}",
@@ -221,6 +242,11 @@ def measure(
             f"pitched as trained); from it: steep runs, pitched {low:g}-{high:g} deg "
             "(uniform per run), the ASV following",
             "weights": "shipped",  # the service's default config: the shipped weights
+            "near_grid": (
+                f"detections nearer than {near_m:g} m (the near refiner's): a grid of their own"
+                if near_m > 0.0
+                else "none (the weights have no near refiner)"
+            ),
             "tanks": "nfp, mockup (training runs' tanks; pond held out)",
             "renderer": "the project's simulator: a real sonar's table is measured on its own",
             "filled": f"a cell with fewer than {MIN_SAMPLES} detections: its band's nearest "
@@ -294,21 +320,32 @@ def run(
     table = measure(runs=runs, steep_runs=steep_runs, duration_s=duration_s, pitch_deg=pitch_deg)
     out.parent.mkdir(parents=True, exist_ok=True)
     save(table, out)
+    grids = [(f"{table.near_within_m:g}-{table.within_m:g} m", table.bias_m, table.samples)]
+    if table.near_within_m > 0.0:
+        near = (f"under {table.near_within_m:g} m (the near refiner's)", table.near_bias_m)
+        grids.append((*near, table.near_samples))
+    for name, bias, counts in grids:
+        _print_grid(table, name, bias, counts)
+    print(f"written: {out}")
+    return table
+
+
+def _print_grid(
+    table: RangeBias, name: str, bias: tuple[float, ...], counts: tuple[int, ...]
+) -> None:
     bins = len(table.share_edges) - 1
     edges = table.share_edges
-    print("median signed range error (cm) [detections] by depression (deg, rows) and")
-    print("elevation share of the half aperture (columns); (f): filled from its band")
+    print(f"detections {name}: median signed range error (cm) [detections] by depression")
+    print("(deg, rows) and elevation share of the half aperture (columns); (f): filled")
     print("            " + " ".join(f"{edges[k]:+.1f}..{edges[k + 1]:+.1f}" for k in range(bins)))
     bands = table.depression_edges_deg
     for band in range(len(bands) - 1):
         cells = []
         for k in range(bins):
             i = band * bins + k
-            mark = "f" if table.samples[i] < MIN_SAMPLES else " "
-            cells.append(f"{table.bias_m[i] * 100:+5.1f}{mark}[{table.samples[i]:4d}]")
+            mark = "f" if counts[i] < MIN_SAMPLES else " "
+            cells.append(f"{bias[i] * 100:+5.1f}{mark}[{counts[i]:4d}]")
         print(f"  {bands[band]:+4.0f}..{bands[band + 1]:+3.0f} " + " ".join(cells))
-    print(f"written: {out}")
-    return table
 
 
 def check_pitch(pitch_deg: tuple[float, float]) -> None:

@@ -117,6 +117,9 @@ class CnnSettings:
     # 15-30 deg off the boresight 45.2 -> 30.9 %; with this bar 42.8 and 45.2 %), where its
     # false alarms were few; from 1.5 m it keeps the held-out false alarms it cuts.
     mirror_min_range_m: float = 1.5
+    # The weights' near refiner (if they have one) for candidates nearer than its range
+    # (polar_net): "off" refines every candidate with the main refiner, as before session 55.
+    near_refiner: Literal["on", "off"] = "on"
 
 
 # The network alone: every frame searched, no track prior (calibration, stored evaluation).
@@ -158,6 +161,9 @@ class CnnDetector:
         self.net.eval()
         self._proposal_net = fused_for_inference(self.net.proposal)
         self._refine_net = fused_for_inference(self.net.refine)
+        near = self.net.near_refine if self.settings.near_refiner == "on" else None
+        self._near_refine_net = None if near is None else fused_for_inference(near)
+        self._near_max_range_m = float(self.net.near_max_range_m)
         self._track: _Track | None = None
         self.searches = 0  # whole-frame searches
         self.tracked = 0  # frames refined around the previous ping's detections only
@@ -289,6 +295,40 @@ class CnnDetector:
         *,
         mirror: bool,
     ) -> list[Detection]:
+        """Each candidate refined: the near refiner's under its range (if any), the main's else."""
+        near_net = self._near_refine_net
+        bar = self._near_max_range_m
+        if near_net is None or all(c.range_m >= bar for c in candidates):
+            return self._refined(frame, image, table, candidates, mirror=mirror)
+        near = [c for c in candidates if c.range_m < bar]
+        far = [c for c in candidates if c.range_m >= bar]
+        # The near refiner never mirrors: candidates that near are not averaged anyway
+        # (`mirror_min_range_m`).
+        return self._refined(frame, image, table, far, mirror=mirror) + self._refined(
+            frame,
+            image,
+            table,
+            near,
+            mirror=False,
+            net=near_net,
+            offset=float(self.net.near_logit_offset),
+        )
+
+    def _refined(
+        self,
+        frame: SonarFrame,
+        image: Image,
+        table: BeamTable,
+        candidates: list[Candidate],
+        *,
+        mirror: bool,
+        net: torch.nn.Module | None = None,
+        offset: float | None = None,
+    ) -> list[Detection]:
+        """`candidates` through one refiner (the main one unless `net`) and its operating point."""
+        if not candidates:
+            return []
+        refine_net = self._refine_net if net is None else net
         crops = torch.from_numpy(
             np.stack([refine_input(self.net, image, frame, table, c) for c in candidates])
         ).contiguous(memory_format=torch.channels_last)
@@ -296,15 +336,15 @@ class CnnDetector:
         far = torch.tensor([c.range_m >= bar for c in candidates]) if mirror else None
         with torch.inference_mode():
             if far is not None and bool(far.any()):
-                both = self._refine_net(torch.cat([crops, torch.flip(crops[far], dims=[-1])]))
+                both = refine_net(torch.cat([crops, torch.flip(crops[far], dims=[-1])]))
                 raw, mirrored = both[: len(candidates)], both[len(candidates) :]
                 mirrored[:, 2] = -mirrored[:, 2]  # the cross-range offset changes sign
                 raw[far] = 0.5 * (raw[far] + mirrored)
             else:
-                raw = self._refine_net(crops)
+                raw = refine_net(crops)
             out = raw.numpy().astype(np.float64)
         half_fov = table.half_fov_rad
-        offset = float(self.net.logit_offset)
+        offset = float(self.net.logit_offset) if offset is None else offset
         found = []
         for c, o in zip(candidates, out, strict=True):
             range_m = c.range_m + float(o[1]) * OFFSET_SCALE_M

@@ -11,6 +11,10 @@ What else the weights expect is theirs (`polar_input.Inputs`, stored with them):
 `range_input: channel` both stages read one more plane, the range (each grid row's, the
 crop's centre), so that what an ROV looks like may depend on how far it is (a faint dash at
 16 m, a wide blob at 2 m); `coarse_beams` sets the proposal grid's width.
+- An optional near refiner (`near_refine`, the same network with weights of its own) reads the
+  crops of candidates nearer than `near_max_range_m`: there a metric crop spans most of the
+  fan, the ROV seen steeply from above fills up to a third of it, and a refiner trained on
+  ROVs 1.5-20 m off doubts it (`capsd train near-refiner`). It has its own operating point.
 Weights are a plain state dict with a format tag, loaded with `weights_only=True`.
 """
 
@@ -127,9 +131,16 @@ class PolarNet(nn.Module):
     """Both stages under one state dict."""
 
     logit_offset: torch.Tensor
+    near_logit_offset: torch.Tensor
+    near_max_range_m: torch.Tensor
 
     def __init__(
-        self, *, crop_size: int = 96, refine_channels: int = 2, inputs: Inputs = DEFAULT_INPUTS
+        self,
+        *,
+        crop_size: int = 96,
+        refine_channels: int = 2,
+        inputs: Inputs = DEFAULT_INPUTS,
+        near_refiner: bool = False,
     ):
         super().__init__()
         self.crop_size = crop_size
@@ -140,6 +151,12 @@ class PolarNet(nn.Module):
         # The operating point: subtracted from the refiner's logit so that confidence 0.5 is
         # the threshold chosen on validation runs (train.calibrate), not the raw 50%.
         self.register_buffer("logit_offset", torch.zeros(()))
+        # The near refiner, for candidates nearer than `near_max_range_m`, with its own offset.
+        self.near_refine: RefineNet | None = (
+            RefineNet(crop_size, refine_channels + inputs.extra_planes) if near_refiner else None
+        )
+        self.register_buffer("near_logit_offset", torch.zeros(()))
+        self.register_buffer("near_max_range_m", torch.zeros(()))
 
 
 def save(net: PolarNet, path: Path, *, meta: dict[str, Any]) -> None:
@@ -153,6 +170,7 @@ def save(net: PolarNet, path: Path, *, meta: dict[str, Any]) -> None:
             "refine_channels": net.refine_channels,
             "range_input": net.inputs.range_input,
             "coarse_beams": net.inputs.coarse_beams,
+            "near_refiner": net.near_refine is not None,
             "state": state,
             "meta": meta,
         },
@@ -181,13 +199,20 @@ def load(path: Path) -> PolarNet:
     coarse_beams = blob.get("coarse_beams", COARSE_BEAMS)
     if not isinstance(coarse_beams, int) or not 16 <= coarse_beams <= 1024:
         raise CapsdError(f"{path}: coarse_beams {coarse_beams!r}, expected 16 to 1024 cells")
+    near_refiner = blob.get("near_refiner", False)  # weights saved before it existed: none
+    if not isinstance(near_refiner, bool):
+        raise CapsdError(f"{path}: near_refiner {near_refiner!r}, expected true or false")
     net = PolarNet(
         crop_size=int(blob["crop_size"]),
         refine_channels=int(blob.get("refine_channels", 1)),
         inputs=Inputs(range_input=range_input, coarse_beams=coarse_beams),
+        near_refiner=near_refiner,
     )
     state = dict(blob["state"])
     state.setdefault("logit_offset", torch.zeros(()))  # weights saved before calibration
+    # Weights saved before the near refiner existed.
+    state.setdefault("near_logit_offset", torch.zeros(()))
+    state.setdefault("near_max_range_m", torch.zeros(()))
     try:
         net.load_state_dict(state)
     except RuntimeError as exc:

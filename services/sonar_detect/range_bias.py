@@ -11,7 +11,9 @@ depth-aware search knows both: the ROV's depth plane and the sonar's pose put a 
 (range, azimuth) at one elevation, and the height between them over the range is the
 depression. A table of the detector's median signed range error by depression band and
 elevation (as a share of the half aperture), measured on training runs by `capsd train
-range-bias`, is taken off its range.
+range-bias`, is taken off its range. Weights with a near refiner (polar_net; ROVs under about
+1.5 m) get a second grid for its detections: the two refiners err differently (session 55: one
+grid over both put the main refiner's ROVs 1.5-4 m off 4 cm long).
 """
 
 from __future__ import annotations
@@ -47,6 +49,11 @@ class RangeBias(msgspec.Struct, frozen=True, kw_only=True):
     samples: tuple[int, ...]
     within_m: Annotated[float, msgspec.Meta(gt=0.0, le=100.0)]  # nearer ROVs only
     half_aperture_deg: Annotated[float, msgspec.Meta(gt=0.0, le=90.0)]
+    # Detections nearer than this (the near refiner's, polar_net) take the near grid below,
+    # laid out as `bias_m`; 0: no near grid (weights without a near refiner).
+    near_within_m: Annotated[float, msgspec.Meta(ge=0.0, le=100.0)] = 0.0
+    near_bias_m: tuple[float, ...] = ()
+    near_samples: tuple[int, ...] = ()
     # How it was measured: command, runs, weights, looks.
     provenance: dict[str, str | int | float] = {}
 
@@ -54,11 +61,19 @@ class RangeBias(msgspec.Struct, frozen=True, kw_only=True):
         cells = (len(self.share_edges) - 1) * (len(self.depression_edges_deg) - 1)
         if len(self.bias_m) != cells or len(self.samples) != cells:
             raise ValueError(f"{cells} cells (bands x bins) need as many biases and sample counts")
+        near_cells = cells if self.near_within_m > 0.0 else 0
+        if len(self.near_bias_m) != near_cells or len(self.near_samples) != near_cells:
+            raise ValueError(
+                f"`near_within_m` {self.near_within_m}: {near_cells} near biases and sample "
+                "counts wanted"
+            )
+        if self.near_within_m > self.within_m:
+            raise ValueError("`near_within_m` must not exceed `within_m`")
         if list(self.share_edges) != sorted(self.share_edges):
             raise ValueError("`share_edges` must ascend")
         if list(self.depression_edges_deg) != sorted(self.depression_edges_deg):
             raise ValueError("`depression_edges_deg` must ascend")
-        if any(not math.isfinite(b) or abs(b) > 0.5 for b in self.bias_m):
+        if any(not math.isfinite(b) or abs(b) > 0.5 for b in self.bias_m + self.near_bias_m):
             raise ValueError("a bias must be finite and within 0.5 m")
 
     def at(self, elevation_rad: float, range_m: float, depression_rad: float) -> float:
@@ -71,7 +86,8 @@ class RangeBias(msgspec.Struct, frozen=True, kw_only=True):
         band = bisect.bisect_right(self.depression_edges_deg, math.degrees(depression_rad)) - 1
         if not (0 <= k < bins and 0 <= band < len(self.depression_edges_deg) - 1):
             return 0.0
-        return self.bias_m[band * bins + k]
+        grid = self.near_bias_m if range_m < self.near_within_m else self.bias_m
+        return grid[band * bins + k]
 
     def corrected(self, detection: Detection, gate: DepthGate) -> Detection:
         """The detection with its range corrected for how the gate places it."""

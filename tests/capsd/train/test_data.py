@@ -7,6 +7,7 @@ import math
 
 from capsd.bench.detect import band_of
 from capsd.payloads import SonarLabel
+from capsd.services.sonar_detect.polar_input import DEFAULT_INPUTS
 from capsd.simulator.config import OFFLINE_START_NS
 from capsd.simulator.sim import Simulation
 from capsd.train.data import (
@@ -17,6 +18,7 @@ from capsd.train.data import (
     NEAR_YAW_DEG,
     RunPlan,
     plan_runs,
+    render_run,
 )
 
 
@@ -140,3 +142,24 @@ def test_pings_from_a_later_time_are_that_time_s_pings() -> None:
         assert label.rov_position_m == same.rov_position_m
         assert label.range_m == same.range_m
         assert label.azimuth_rad == same.azimuth_rad
+
+
+def test_each_crop_knows_its_centre_s_range_and_the_near_ones_can_be_kept() -> None:
+    plan = dataclasses.replace(
+        plan_runs(runs=1, seed=5, duration_s=4.0, sonar_hz=5.0, near_share=1.0)[0],
+        trajectory="lawnmower",
+        standoff_m=0.6,
+        sonar_pitch_deg=60.0,
+    )
+    samples = render_run((plan, None, DEFAULT_INPUTS, None))
+    assert len(samples.crop_ranges_m) == len(samples.crops) == len(samples.crop_targets) > 0
+    near = samples.crops_within(1.5)
+    assert render_run((plan, None, DEFAULT_INPUTS, 1.5)).crop_ranges_m == near.crop_ranges_m
+    assert all(r < 1.5 for r in near.crop_ranges_m)
+    assert len(near.crops) == len(near.crop_targets) == len(near.crop_ranges_m)
+    assert 0 < len(near.crops) < len(samples.crops)
+    assert sum(t[0] for t in near.crop_targets) > 0  # the near ROV's own crops are kept
+    assert not near.grids
+    # Each kept crop is the one at its place in the whole set.
+    kept = [k for k, r in enumerate(samples.crop_ranges_m) if r < 1.5]
+    assert all((samples.crops[k] == c).all() for k, c in zip(kept, near.crops, strict=True))

@@ -23,10 +23,13 @@ def test_the_command_writes_a_table_that_says_how_it_was_measured(tmp_path: Path
     assert table.depression_edges_deg == DEPRESSION_EDGES_DEG
     assert table.within_m == WITHIN_M
     assert table.half_aperture_deg == 10.0
-    assert sum(table.samples) > 0  # near ROVs matched
+    # The shipped weights' near refiner: its detections counted in a grid of their own.
+    assert table.near_within_m == 1.5
+    assert len(table.near_bias_m) == len(table.near_samples) == len(table.bias_m)
+    assert sum(table.samples) + sum(table.near_samples) > 0  # near ROVs matched
     # Too few in any cell for a median: every bias stays 0 rather than a guess.
-    assert all(n < 30 for n in table.samples)
-    assert table.bias_m == (0.0,) * len(table.bias_m)
+    assert all(n < 30 for n in table.samples + table.near_samples)
+    assert table.bias_m + table.near_bias_m == (0.0,) * 2 * len(table.bias_m)
     assert table.provenance["command"] == (
         "capsd train range-bias --runs 2 --steep-runs 2 --duration 3 --pitch-deg 40 85"
     )

@@ -26,7 +26,7 @@ from capsd.services.sonar_detect.cnn import (
     refine_input,
 )
 from capsd.services.sonar_detect.polar_input import BeamTable, Grid, Inputs, normalised_image
-from capsd.services.sonar_detect.polar_net import PolarNet, load, save
+from capsd.services.sonar_detect.polar_net import PolarNet, RefineNet, load, save
 from capsd.simulator.scene import BLUEROV2_SEMI_AXES, Ellipsoid
 from capsd.simulator.sonar import SonarModel, SonarRenderer
 from capsd.simulator.world import make_tank
@@ -445,3 +445,62 @@ def test_the_refiner_s_mirror_average_answers_a_mirrored_rov_alike() -> None:
     assert detector._refine(frame, image, table, near, mirror=True) == detector._refine(
         frame, image, table, near, mirror=False
     )
+
+
+def _answers(module: RefineNet, logit: float) -> None:
+    """A refiner that answers `logit` (and no offset) whatever the crop."""
+    head = module.head[-1]
+    assert isinstance(head, torch.nn.Linear)
+    torch.nn.init.zeros_(head.weight)
+    torch.nn.init.zeros_(head.bias)
+    head.bias.data[0] = logit
+
+
+def test_candidates_near_the_sonar_go_to_the_near_refiner(tmp_path: Path) -> None:
+    torch.manual_seed(5)
+    net = PolarNet(near_refiner=True)
+    assert net.near_refine is not None
+    _answers(net.refine, -20.0)  # the main refiner: never the ROV
+    _answers(net.near_refine, 20.0)  # the near one: always
+    net.near_max_range_m.fill_(1.5)
+    net.near_logit_offset.fill_(2.0)
+    path = tmp_path / "near.pt"
+    save(net, path, meta={})
+    back = load(path)
+    assert back.near_refine is not None
+    assert float(back.near_max_range_m) == 1.5
+    assert float(back.near_logit_offset) == 2.0
+    tank = make_tank("nfp", clutter="off")
+    renderer = SonarRenderer(SonarModel(range_max_m=20.0, n_ranges=1000), tank)
+    sonar = Transform(euler_zyx_to_matrix(0.0, math.radians(30.0), 0.0), np.array([6.0, 8.0, -0.2]))
+    frame = _frame(renderer, sonar, None, 1)
+    image, table = normalised_image(frame), BeamTable(frame.azimuths_rad)
+    candidates = [Candidate(1.2, 0.2), Candidate(3.0, -0.1), Candidate(1.49, 0.0)]
+
+    def confidences(settings: CnnSettings) -> dict[float, float]:
+        found = CnnDetector(settings, net=back)._refine(
+            frame, image, table, candidates, mirror=True
+        )
+        assert len(found) == len(candidates)
+        return {round(d.range_m, 2): d.confidence for d in found}
+
+    on = confidences(NETWORK_ALONE)
+    assert min(on[1.2], on[1.49]) > 0.99
+    assert on[3.0] < 1e-6
+    # Its own operating point: 20 - 2 in logits.
+    assert on[1.2] == pytest.approx(1.0 / (1.0 + math.exp(-18.0)))
+    off = confidences(replace(NETWORK_ALONE, near_refiner="off"))
+    assert max(off.values()) < 1e-6
+    # Weights without one refine every candidate with the main refiner.
+    plain = PolarNet()
+    plain.load_state_dict({k: v for k, v in back.state_dict().items() if "near_refine." not in k})
+    assert plain.near_refine is None
+    found = CnnDetector(NETWORK_ALONE, net=plain)._refine(
+        frame, image, table, candidates, mirror=False
+    )
+    assert max(d.confidence for d in found) < 1e-6
+    # A file whose near_refiner flag is not a boolean is named.
+    blob = torch.load(path, weights_only=True)
+    torch.save({**blob, "near_refiner": "yes"}, tmp_path / "odd.pt")
+    with pytest.raises(CapsdError, match=r"odd\.pt: near_refiner 'yes'"):
+        load(tmp_path / "odd.pt")

@@ -105,6 +105,26 @@ def test_detect_gated_corrects_only_with_a_gate_and_a_table() -> None:
                         range_bias=TABLE)[0] == [detection]  # fmt: skip
 
 
+def test_a_near_refiner_s_detections_take_the_near_grid() -> None:
+    table = msgspec.structs.replace(
+        TABLE, near_within_m=1.5, near_bias_m=(-0.03, 0.01, 0.05, 0.02), near_samples=(40,) * 4
+    )
+    for elevation, near_bias, bias in ((-8.0, -0.03, 0.04), (2.0, 0.05, 0.0)):
+        for range_m, wanted in ((1.2, near_bias), (2.5, bias)):
+            detection, gate = _at(elevation, range_m)
+            corrected = table.corrected(detection, gate).range_m
+            assert corrected == pytest.approx(detection.range_m - wanted)
+    # Without a near grid the one grid serves every range (tables written before session 55).
+    detection, gate = _at(-8.0, 1.2)
+    assert TABLE.corrected(detection, gate).range_m == pytest.approx(detection.range_m - 0.04)
+    with pytest.raises(ValueError, match="near biases"):
+        msgspec.structs.replace(TABLE, near_within_m=1.5)
+    with pytest.raises(ValueError, match="near biases"):
+        msgspec.structs.replace(TABLE, near_bias_m=(0.0,) * 4, near_samples=(1,) * 4)
+    with pytest.raises(ValueError, match="must not exceed"):
+        msgspec.structs.replace(table, near_within_m=5.0)
+
+
 def test_a_table_round_trips_and_a_bad_one_is_refused(tmp_path: Path) -> None:
     path = tmp_path / "bias.json"
     save(TABLE, path)
@@ -141,3 +161,6 @@ def test_the_shipped_table_loads_and_says_how_it_was_measured() -> None:
     assert table.within_m == 4.0
     assert sum(table.samples) > 0
     assert len(table.depression_edges_deg) > 2  # by depression too (session 43)
+    # The shipped weights have a near refiner: its detections have a grid of their own.
+    assert table.near_within_m == 1.5
+    assert sum(table.near_samples) > 0
