@@ -88,11 +88,14 @@ def recalibrate_on_labels(net: PolarNet, labels: list[LabelledPing]) -> dict[str
     detector = CnnDetector(NETWORK_ALONE, net=net)
     false_logits: list[float] = []
     frames = 0
+    # Candidates the near refiner scores keep its own operating point (train.near_refiner);
+    # fine-tuning adapts the main refiner only.
+    near_bar_m = float(net.near_max_range_m) if net.near_refine is not None else 0.0
     for frame, label in frames_of(labels):
         frames += 1
         where = Candidate(label.range_m, label.azimuth_rad)
         for d in detector.detect(frame):
-            if distance(d, where) > FALSE_ALARM_M:
+            if d.range_m >= near_bar_m and distance(d, where) > FALSE_ALARM_M:
                 c = min(max(d.confidence, 1e-12), 1 - 1e-12)
                 false_logits.append(math.log(c / (1 - c)))
     site = operating_offset(false_logits, frames, MAX_SITE_FALSE_ALARMS_PER_FRAME)
