@@ -25,7 +25,7 @@ import json
 import math
 import platform
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -495,30 +495,46 @@ def validation_pings(
             yield k * stretch_s + t_s - start_s, t_s, frame, label
 
 
-def calibrate(net: PolarNet, *, duration_s: float) -> dict[str, Any]:
-    """Set the operating point on the validation runs (the refiner logit's offset).
+@dataclass
+class ValidationLogits:
+    """The refiner's logits on validation pings, for setting an operating point."""
 
-    Confidence 0.5 becomes the lowest threshold with at most MAX_FALSE_ALARMS_PER_FRAME, on
-    `validation_pings(duration_s)`.
+    frames: int
+    false_logits: list[float]  # every scored candidate that is not the ROV (or a second one)
+    hit_logits: list[float]  # per counted ping: its best candidate on the ROV, or -inf
+
+    def rates(self, threshold: float) -> tuple[float, float]:
+        """(false alarms per frame, detection rate) at a logit `threshold`."""
+        false_alarms = sum(v >= threshold for v in self.false_logits) / max(self.frames, 1)
+        found = sum(v >= threshold for v in self.hit_logits) / max(len(self.hit_logits), 1)
+        return round(false_alarms, 4), round(found, 4)
+
+
+def validation_logits(
+    net: PolarNet,
+    *,
+    duration_s: float,
+    runs: tuple[Run, ...],
+    label: str,
+    scored: Callable[[float], bool],
+    counted: Callable[[SonarLabel], bool],
+) -> ValidationLogits:
+    """The network alone on `validation_pings(duration_s, runs=runs)`.
+
+    Only candidates whose range `scored` accepts count; a ping whose label `counted` accepts
+    adds its best candidate on the ROV to the hits (-inf when none was).
     """
-    from capsd.bench.detect import BENCH_STARTS_S, MATCH_M
+    from capsd.bench.detect import MATCH_M
     from capsd.services.sonar_detect.cnn import NETWORK_ALONE, CnnDetector
 
-    net.logit_offset.zero_()
-    # The refiner's own logits on every proposal of every frame.
     detector = CnnDetector(NETWORK_ALONE, net=net)
-    false_logits: list[float] = []
-    hit_logits: list[float] = []  # per visible ping: the best matching candidate, or -inf
-    frames = 0
-    total_s = duration_s * len(VALIDATION_RUNS) * len(VARIETIES)
-    bar = Progress(total_s, label="calibrating", unit=" sim s")
-    # Candidates the near refiner scores have its own operating point (train.near_refiner).
-    near_bar_m = float(net.near_max_range_m) if net.near_refine is not None else 0.0
-    for done, _t_s, frame, p in validation_pings(duration_s):
-        frames += 1
+    out = ValidationLogits(frames=0, false_logits=[], hit_logits=[])
+    bar = Progress(duration_s * len(runs) * len(VARIETIES), label=label, unit=" sim s")
+    for done, _t_s, frame, p in validation_pings(duration_s, runs=runs):
+        out.frames += 1
         best = -math.inf
         for d in detector.detect(frame):
-            if d.range_m < near_bar_m:
+            if not scored(d.range_m):
                 continue
             c = min(max(d.confidence, 1e-12), 1 - 1e-12)
             logit = math.log(c / (1 - c))
@@ -528,25 +544,46 @@ def calibrate(net: PolarNet, *, duration_s: float) -> dict[str, Any]:
             )
             if near and logit > best:
                 if best > -math.inf:
-                    false_logits.append(best)  # a second ROV candidate is a false alarm
+                    out.false_logits.append(best)  # a second ROV candidate is a false alarm
                 best = logit
             else:
-                false_logits.append(logit)
-        if p.visible:
-            hit_logits.append(best)
+                out.false_logits.append(logit)
+        if counted(p):
+            out.hit_logits.append(best)
         bar.update(done)
     bar.close()
+    return out
+
+
+def calibrate(net: PolarNet, *, duration_s: float) -> dict[str, Any]:
+    """Set the operating point on the validation runs (the refiner logit's offset).
+
+    Confidence 0.5 becomes the lowest threshold with at most MAX_FALSE_ALARMS_PER_FRAME, on
+    `validation_pings(duration_s)`.
+    """
+    from capsd.bench.detect import BENCH_STARTS_S
+
+    net.logit_offset.zero_()
+    # Candidates the near refiner scores have its own operating point (train.near_refiner).
+    near_bar_m = float(net.near_max_range_m) if net.near_refine is not None else 0.0
+    # The refiner's own logits on every proposal of every frame.
+    logits = validation_logits(
+        net,
+        duration_s=duration_s,
+        runs=VALIDATION_RUNS,
+        label="calibrating",
+        scored=lambda range_m: range_m >= near_bar_m,
+        counted=lambda p: p.visible,
+    )
     # Never below the raw 50%: the offset only ever makes the detector more cautious.
-    offset = max(0.0, operating_offset(false_logits, frames, MAX_FALSE_ALARMS_PER_FRAME))
+    offset = max(
+        0.0, operating_offset(logits.false_logits, logits.frames, MAX_FALSE_ALARMS_PER_FRAME)
+    )
     net.logit_offset.fill_(offset)
 
     def rates(threshold: float) -> dict[str, float]:
-        return {
-            "false_alarms_per_frame": round(sum(v >= threshold for v in false_logits) / frames, 4),
-            "detection_rate": round(
-                sum(v >= threshold for v in hit_logits) / max(len(hit_logits), 1), 4
-            ),
-        }
+        false_alarms, found = logits.rates(threshold)
+        return {"false_alarms_per_frame": false_alarms, "detection_rate": found}
 
     result = {
         "logit_offset": round(offset, 4),
@@ -556,13 +593,20 @@ def calibrate(net: PolarNet, *, duration_s: float) -> dict[str, Any]:
             "start_s": list(BENCH_STARTS_S),
             "duration_s": duration_s / len(BENCH_STARTS_S),
         },
-        "frames": frames,
+        "frames": logits.frames,
         "max_false_alarms_per_frame": MAX_FALSE_ALARMS_PER_FRAME,
         "at_raw_0.5": rates(0.0),
         "at_operating_point": rates(offset),
     }
     print(f"operating point: logit offset {offset:.3f}; {result}")
     return result
+
+
+def stored_meta(weights: Path) -> dict[str, Any]:
+    """What `polar_net.json` beside `weights` holds ({} without one)."""
+    path = weights.with_suffix(".json")
+    meta: dict[str, Any] = json.loads(path.read_text()) if path.exists() else {}
+    return meta
 
 
 def recalibrate(weights: Path, *, duration_s: float) -> dict[str, Any]:
@@ -572,7 +616,7 @@ def recalibrate(weights: Path, *, duration_s: float) -> dict[str, Any]:
 
     net = load(weights)
     meta_path = weights.with_suffix(".json")
-    meta = json.loads(meta_path.read_text()) if meta_path.exists() else {}
+    meta = stored_meta(weights)
     meta["calibration"] = calibrate(net, duration_s=duration_s)
     save(net, weights, meta={k: v for k, v in meta.items() if k != "evaluation"})
     meta["evaluation"] = evaluate_cnn(net, duration_s=2 * duration_s)

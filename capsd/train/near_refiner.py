@@ -21,27 +21,26 @@ from __future__ import annotations
 import copy
 import io
 import json
-import math
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-import numpy as np
 import torch
 
-from capsd.bench.detect import MATCH_M, Run
+from capsd.bench.detect import Run
 from capsd.errors import CapsdError
-from capsd.progress import Progress
 from capsd.services.sonar_detect.polar_input import DEFAULT_INPUTS
 from capsd.services.sonar_detect.polar_net import PolarNet, load, save
 from capsd.train.data import plan_runs, render
 from capsd.train.detector import (
     VALIDATION_RUNS,
     TrainConfig,
+    _mean,
     _train_refine,
     operating_offset,
-    validation_pings,
+    stored_meta,
+    validation_logits,
 )
 
 # Crops centred nearer than this train the near refiner (a margin over `max_range_m`: the
@@ -117,7 +116,6 @@ def train_near_refiner(
     n_pos = int(sum(t[0] for t in samples.crop_targets))
     print(f"{len(samples.crops)} near crops ({n_pos} on the ROV)")
     scratch = copy.deepcopy(main)
-    scratch.refine.train()
     losses = _train_refine(
         scratch,
         samples,
@@ -139,7 +137,7 @@ def train_near_refiner(
     net.near_refine.load_state_dict(scratch.refine.state_dict())
     net.near_max_range_m.fill_(config.max_range_m)
     net.eval()
-    meta = _meta(weights)
+    meta = stored_meta(weights)
     meta["near_refiner"] = {
         "config": asdict(config),
         "from_weights": str(weights),
@@ -171,69 +169,35 @@ def calibrate_near(net: PolarNet, *, duration_s: float) -> dict[str, Any]:
     second one on it) is a false alarm; the offset is the lowest that leaves at most
     MAX_NEAR_FALSE_ALARMS_PER_FRAME of them over all frames, never below the raw 50 %.
     """
-    from capsd.services.sonar_detect.cnn import NETWORK_ALONE, CnnDetector
-
     bar_m = float(net.near_max_range_m)
     net.near_logit_offset.zero_()
-    detector = CnnDetector(NETWORK_ALONE, net=net)
     runs = NEAR_VALIDATION_RUNS + VALIDATION_RUNS
-    false_logits: list[float] = []
-    hit_logits: list[float] = []  # per ping with the ROV nearer than the bar
-    frames = 0
-    bar = Progress(duration_s * len(runs) * 2, label="calibrating the near refiner", unit=" sim s")
-    for done, _t_s, frame, label in validation_pings(duration_s, runs=runs):
-        frames += 1
-        best = -math.inf
-        for d in detector.detect(frame):
-            if d.range_m >= bar_m:
-                continue
-            c = min(max(d.confidence, 1e-12), 1 - 1e-12)
-            logit = math.log(c / (1 - c))
-            on_rov = label.visible and (
-                abs(d.range_m - label.range_m) < MATCH_M
-                and abs(d.azimuth_rad - label.azimuth_rad) * label.range_m < MATCH_M
-            )
-            if on_rov and logit > best:
-                if best > -math.inf:
-                    false_logits.append(best)
-                best = logit
-            else:
-                false_logits.append(logit)
-        if label.visible and label.range_m < bar_m:
-            hit_logits.append(best)
-        bar.update(done)
-    bar.close()
-    offset = max(0.0, operating_offset(false_logits, frames, MAX_NEAR_FALSE_ALARMS_PER_FRAME))
+    logits = validation_logits(
+        net,
+        duration_s=duration_s,
+        runs=runs,
+        label="calibrating the near refiner",
+        scored=lambda range_m: range_m < bar_m,
+        counted=lambda p: p.visible and p.range_m < bar_m,
+    )
+    offset = max(
+        0.0,
+        operating_offset(logits.false_logits, logits.frames, MAX_NEAR_FALSE_ALARMS_PER_FRAME),
+    )
     net.near_logit_offset.fill_(offset)
 
     def rates(threshold: float) -> dict[str, float]:
-        return {
-            "near_false_alarms_per_frame": round(
-                sum(v >= threshold for v in false_logits) / max(frames, 1), 4
-            ),
-            "near_detection_rate": round(
-                sum(v >= threshold for v in hit_logits) / max(len(hit_logits), 1), 4
-            ),
-        }
+        false_alarms, found = logits.rates(threshold)
+        return {"near_false_alarms_per_frame": false_alarms, "near_detection_rate": found}
 
     result = {
         "near_logit_offset": round(offset, 4),
         "validation_runs": [list(r) for r in runs],
-        "frames": frames,
-        "pings_with_the_rov_near": len(hit_logits),
+        "frames": logits.frames,
+        "pings_with_the_rov_near": len(logits.hit_logits),
         "max_near_false_alarms_per_frame": MAX_NEAR_FALSE_ALARMS_PER_FRAME,
         "at_raw_0.5": rates(0.0),
         "at_operating_point": rates(offset),
     }
     print(f"near operating point: logit offset {offset:.3f}; {result}")
     return result
-
-
-def _meta(weights: Path) -> dict[str, Any]:
-    path = weights.with_suffix(".json")
-    meta: dict[str, Any] = json.loads(path.read_text()) if path.exists() else {}
-    return meta
-
-
-def _mean(values: list[float]) -> float:
-    return round(float(np.mean(values)), 4) if values else float("nan")
