@@ -70,7 +70,12 @@ from capsd.sonar_image import unit_image
 # to port, as a pan at its limit or a hull turning slower than the ROV passes leaves it: the
 # ROV mostly 30-45 deg off the boresight, 1-2 m away (where the mockup's follower loses it
 # when it crosses ahead of the ROV; session 50).
-AsvMode = Literal["follow", "stationary", "follow_far", "follow_near", "follow_near_side"]
+# follow_near_edge: the same turned 85 deg: the ROV 40-65 deg off the boresight, by the fan's
+# edge, 1-2 m away, as the mockup demo's hull lagging the ROV at a turn leaves it (session 56:
+# each demo run's longest loss, the ROV 1.5-1.8 m off and 46-59 deg off the boresight).
+AsvMode = Literal[
+    "follow", "stationary", "follow_far", "follow_near", "follow_near_side", "follow_near_edge"
+]
 Run = tuple[TankName, TrajectoryName, AsvMode, int]
 FAR_STANDOFF_M = 16.0
 FAR_PITCH_DEG = 12.0
@@ -79,6 +84,7 @@ NEAR_PITCH_DEG = 60.0
 NEAR_SIDE_STANDOFF_M = 1.4
 NEAR_SIDE_PITCH_DEG = 40.0
 NEAR_SIDE_YAW_DEG = 70.0
+NEAR_EDGE_YAW_DEG = 85.0
 RUNS: tuple[Run, ...] = (
     ("nfp", "square", "follow", 101),
     ("nfp", "lawnmower", "follow", 102),
@@ -93,6 +99,7 @@ NEAR_RUNS: tuple[Run, ...] = (
     ("mockup", "lawnmower", "follow_near", 108),
     ("mockup", "random", "follow_near", 109),
     ("mockup", "lawnmower", "follow_near_side", 110),
+    ("mockup", "random", "follow_near_edge", 111),
 )
 RunSet = Literal["held-out", "near"]
 RUN_SETS: dict[RunSet, tuple[Run, ...]] = {"held-out": RUNS, "near": NEAR_RUNS}
@@ -307,11 +314,10 @@ def sonar_only(
     elif asv_mode == "follow_near":
         standoff_m = NEAR_STANDOFF_M
         sonar = msgspec.structs.replace(sonar, pitch_deg=NEAR_PITCH_DEG)
-    elif asv_mode == "follow_near_side":
+    elif asv_mode in ("follow_near_side", "follow_near_edge"):
         standoff_m = NEAR_SIDE_STANDOFF_M
-        sonar = msgspec.structs.replace(
-            sonar, pitch_deg=NEAR_SIDE_PITCH_DEG, yaw_deg=NEAR_SIDE_YAW_DEG
-        )
+        yaw_deg = NEAR_SIDE_YAW_DEG if asv_mode == "follow_near_side" else NEAR_EDGE_YAW_DEG
+        sonar = msgspec.structs.replace(sonar, pitch_deg=NEAR_SIDE_PITCH_DEG, yaw_deg=yaw_deg)
     return Config(
         tank=tank,
         trajectory=trajectory,

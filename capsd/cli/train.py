@@ -58,20 +58,30 @@ def _cmd_train_range_bias(args: argparse.Namespace) -> int:
 
 
 def _cmd_train_near_refiner(args: argparse.Namespace) -> int:
-    from capsd.train.near_refiner import NearRefinerConfig, train_near_refiner
+    from capsd.train.near_refiner import (
+        NearRefinerConfig,
+        recalibrate_near_refiner,
+        train_near_refiner,
+    )
 
     config = NearRefinerConfig(
         seed=args.seed,
         near_runs=args.near_runs,
+        edge_runs=args.edge_runs,
         other_runs=args.other_runs,
         epochs=args.epochs,
         max_range_m=args.max_range,
+        edge_max_range_m=args.edge_max_range,
+        edge_within_deg=args.edge_within,
         workers=args.workers,
         threads=args.threads,
         evaluate=args.evaluate,
     )
     try:
-        train_near_refiner(args.weights, args.out, config)
+        if args.calibrate_only:
+            recalibrate_near_refiner(args.weights, args.out, config)
+        else:
+            train_near_refiner(args.weights, args.out, config)
     except CapsdError as exc:
         return fail(str(exc), EXIT_CONFIG)
     return EXIT_OK
@@ -278,13 +288,17 @@ def register(sub: Subcommands) -> None:
     lab.set_defaults(func=_cmd_label)
     tnear = train.add_parser(
         "near-refiner",
-        help="add a refiner for ROVs under about 1.5 m to the polar CNN's weights",
+        help="add a refiner for ROVs under about 1.5 m (2 m by the fan's edge) to the polar "
+        "CNN's weights",
         description="Start a second refiner from --weights' own, fine-tune it on crops near "
-        "the sonar (near runs: the mockup, the sonar 45-75 deg down; and the near crops of "
-        "training-like runs), set its operating point on validation runs (at most 0.002 false "
-        "alarms per frame under --max-range), write polar_net.pt and polar_net.json into "
-        "--out: the detector refines candidates under --max-range with it. About 10 minutes on "
-        "2 CPU cores.",
+        "the sonar (near runs: the mockup, the sonar 45-75 deg down and turned up to 85 deg, "
+        "the ROV by the fan's edge too; and the near crops of training-like runs), set its "
+        "operating point on validation runs (at most 0.002 false alarms per frame among the "
+        "candidates it scores), write polar_net.pt and polar_net.json into --out: the detector "
+        "refines candidates under --max-range, and under --edge-max-range within --edge-within "
+        "of the fan's edge, with it. About 10 minutes on 2 CPU cores; --calibrate-only: "
+        "--weights' near refiner as it is, its operating point set again for where it takes "
+        "over (5 minutes).",
     )
     tnear.add_argument(
         "--weights", type=Path, default=Path("services/sonar_detect/weights/polar_net.pt")
@@ -292,6 +306,13 @@ def register(sub: Subcommands) -> None:
     tnear.add_argument("--out", type=Path, required=True)
     tnear.add_argument("--seed", type=int, default=0)
     tnear.add_argument("--near-runs", type=positive_int, default=32, help="near runs")
+    tnear.add_argument(
+        "--edge-runs",
+        type=positive_int,
+        default=16,
+        help="near runs with the ASV 0.8-1.6 m off and the sonar turned up to 85 deg (the ROV "
+        "by the fan's edge)",
+    )
     tnear.add_argument(
         "--other-runs", type=positive_int, default=24, help="training-like runs (near crops)"
     )
@@ -301,6 +322,24 @@ def register(sub: Subcommands) -> None:
         type=positive_float,
         default=1.5,
         help="candidates nearer than this (m) go to the near refiner (default 1.5)",
+    )
+    tnear.add_argument(
+        "--edge-max-range",
+        type=positive_float,
+        default=2.0,
+        help="... and those nearer than this (m) within --edge-within of the fan's edge "
+        "(default 2.0)",
+    )
+    tnear.add_argument(
+        "--edge-within",
+        type=float,
+        default=20.0,
+        help="degrees from the fan's edge (default 20; 0: no edge rule)",
+    )
+    tnear.add_argument(
+        "--calibrate-only",
+        action="store_true",
+        help="keep --weights' near refiner, set where it takes over and its operating point",
     )
     tnear.add_argument("--workers", type=positive_int, default=2, help="rendering processes")
     tnear.add_argument("--threads", type=positive_int, default=2, help="torch threads")

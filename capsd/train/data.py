@@ -129,6 +129,8 @@ def plan_runs(
     far_share: float = 0.0,
     near_share: float = 0.0,
     start_spread_s: float = 0.0,
+    near_standoff_m: tuple[float, float] = NEAR_STANDOFF_M,
+    near_yaw_deg: float = NEAR_YAW_DEG,
 ) -> list[RunPlan]:
     """`runs` varied runs drawn from `seed` (both tanks, every trajectory, both ASV modes).
 
@@ -138,8 +140,8 @@ def plan_runs(
     far instead: the nfp tank, the ASV following FAR_STANDOFF_M off with its sonar
     FAR_PITCH_DEG down, so that the ROV is in the aperture 10-20 m away.
     A `near_share` (a stream of its own too) is near: the mockup, the ASV following
-    NEAR_STANDOFF_M off with its sonar NEAR_PITCH_DEG down and up to NEAR_YAW_DEG to either
-    side, the ROV 0.5-1.5 m away.
+    `near_standoff_m` off with its sonar NEAR_PITCH_DEG down and up to `near_yaw_deg` to either
+    side, the ROV 0.5-1.5 m away with the defaults.
     With `start_spread_s`, each run starts at a time drawn from 0 to that (a stream of its
     own again): short runs then see every part of the paths, not only their first seconds.
     """
@@ -172,7 +174,7 @@ def plan_runs(
     if near_share > 0.0:
         near = np.random.default_rng([seed, 0x9EA])
         plans = _placed(
-            plans, near, near_share, "mockup", NEAR_STANDOFF_M, NEAR_PITCH_DEG, NEAR_YAW_DEG
+            plans, near, near_share, "mockup", near_standoff_m, NEAR_PITCH_DEG, near_yaw_deg
         )
     if start_spread_s > 0.0:
         start_rng = np.random.default_rng([seed, 0x57A7])

@@ -37,7 +37,7 @@ from torch.nn import functional
 
 from capsd.bench.detect import Run
 from capsd.errors import CapsdError
-from capsd.payloads import SonarFrame, SonarLabel
+from capsd.payloads import Detection, SonarFrame, SonarLabel
 from capsd.progress import Progress
 from capsd.services.sonar_detect.polar_input import (
     COARSE_BEAMS,
@@ -47,7 +47,7 @@ from capsd.services.sonar_detect.polar_input import (
     Inputs,
     RangeInput,
 )
-from capsd.services.sonar_detect.polar_net import OFFSET_SCALE_M, PolarNet, save
+from capsd.services.sonar_detect.polar_net import OFFSET_SCALE_M, PolarNet, near_refined, save
 from capsd.simulator.sonar_look import Variety
 from capsd.train.data import Samples, plan_runs, render
 
@@ -516,13 +516,14 @@ def validation_logits(
     duration_s: float,
     runs: tuple[Run, ...],
     label: str,
-    scored: Callable[[float], bool],
-    counted: Callable[[SonarLabel], bool],
+    scored: Callable[[Detection, float], bool],
+    counted: Callable[[SonarLabel, float], bool],
 ) -> ValidationLogits:
     """The network alone on `validation_pings(duration_s, runs=runs)`.
 
-    Only candidates whose range `scored` accepts count; a ping whose label `counted` accepts
-    adds its best candidate on the ROV to the hits (-inf when none was).
+    Only candidates `scored` accepts count; a ping whose label `counted` accepts adds its best
+    candidate on the ROV to the hits (-inf when none was). Both are also given the frame's
+    half field of view (radians).
     """
     from capsd.bench.detect import MATCH_M
     from capsd.services.sonar_detect.cnn import NETWORK_ALONE, CnnDetector
@@ -533,8 +534,9 @@ def validation_logits(
     for done, _t_s, frame, p in validation_pings(duration_s, runs=runs):
         out.frames += 1
         best = -math.inf
+        half_fov_rad = float(np.max(np.abs(np.asarray(frame.azimuths_rad))))
         for d in detector.detect(frame):
-            if not scored(d.range_m):
+            if not scored(d, half_fov_rad):
                 continue
             c = min(max(d.confidence, 1e-12), 1 - 1e-12)
             logit = math.log(c / (1 - c))
@@ -548,7 +550,7 @@ def validation_logits(
                 best = logit
             else:
                 out.false_logits.append(logit)
-        if counted(p):
+        if counted(p, half_fov_rad):
             out.hit_logits.append(best)
         bar.update(done)
     bar.close()
@@ -564,16 +566,19 @@ def calibrate(net: PolarNet, *, duration_s: float) -> dict[str, Any]:
     from capsd.bench.detect import BENCH_STARTS_S
 
     net.logit_offset.zero_()
-    # Candidates the near refiner scores have its own operating point (train.near_refiner).
-    near_bar_m = float(net.near_max_range_m) if net.near_refine is not None else 0.0
-    # The refiner's own logits on every proposal of every frame.
+    # The refiner's own logits on every proposal of every frame; candidates the near refiner
+    # scores have its own operating point (train.near_refiner).
     logits = validation_logits(
         net,
         duration_s=duration_s,
         runs=VALIDATION_RUNS,
         label="calibrating",
-        scored=lambda range_m: range_m >= near_bar_m,
-        counted=lambda p: p.visible,
+        scored=lambda d, half_fov_rad: (
+            not near_refined(
+                net, range_m=d.range_m, azimuth_rad=d.azimuth_rad, half_fov_rad=half_fov_rad
+            )
+        ),
+        counted=lambda p, _half_fov_rad: p.visible,
     )
     # Never below the raw 50%: the offset only ever makes the detector more cautious.
     offset = max(

@@ -23,7 +23,7 @@ import torch
 
 from capsd.errors import CapsdError
 from capsd.payloads import SonarLabel
-from capsd.services.sonar_detect.polar_net import PolarNet, load, save
+from capsd.services.sonar_detect.polar_net import PolarNet, load, near_refined, save
 from capsd.train.data import Samples, plan_runs, render, samples_of_ping
 from capsd.train.detector import (
     TrainConfig,
@@ -90,12 +90,15 @@ def recalibrate_on_labels(net: PolarNet, labels: list[LabelledPing]) -> dict[str
     frames = 0
     # Candidates the near refiner scores keep its own operating point (train.near_refiner);
     # fine-tuning adapts the main refiner only.
-    near_bar_m = float(net.near_max_range_m) if net.near_refine is not None else 0.0
     for frame, label in frames_of(labels):
         frames += 1
         where = Candidate(label.range_m, label.azimuth_rad)
+        half_fov_rad = float(np.max(np.abs(np.asarray(frame.azimuths_rad))))
         for d in detector.detect(frame):
-            if d.range_m >= near_bar_m and distance(d, where) > FALSE_ALARM_M:
+            near = near_refined(
+                net, range_m=d.range_m, azimuth_rad=d.azimuth_rad, half_fov_rad=half_fov_rad
+            )
+            if not near and distance(d, where) > FALSE_ALARM_M:
                 c = min(max(d.confidence, 1e-12), 1 - 1e-12)
                 false_logits.append(math.log(c / (1 - c)))
     site = operating_offset(false_logits, frames, MAX_SITE_FALSE_ALARMS_PER_FRAME)

@@ -53,6 +53,7 @@ from capsd.services.sonar_detect.polar_net import (
     PolarNet,
     fused_for_inference,
     load,
+    near_refined,
 )
 from capsd.sonar_image import Image
 
@@ -163,7 +164,6 @@ class CnnDetector:
         self._refine_net = fused_for_inference(self.net.refine)
         near = self.net.near_refine if self.settings.near_refiner == "on" else None
         self._near_refine_net = None if near is None else fused_for_inference(near)
-        self._near_max_range_m = float(self.net.near_max_range_m)
         self._track: _Track | None = None
         self.searches = 0  # whole-frame searches
         self.tracked = 0  # frames refined around the previous ping's detections only
@@ -295,13 +295,22 @@ class CnnDetector:
         *,
         mirror: bool,
     ) -> list[Detection]:
-        """Each candidate refined: the near refiner's under its range (if any), the main's else."""
+        """Each candidate refined: the near refiner where it takes over (if any), else the main."""
         near_net = self._near_refine_net
-        bar = self._near_max_range_m
-        if near_net is None or all(c.range_m >= bar for c in candidates):
+        routed = [
+            near_net is not None
+            and near_refined(
+                self.net,
+                range_m=c.range_m,
+                azimuth_rad=c.azimuth_rad,
+                half_fov_rad=table.half_fov_rad,
+            )
+            for c in candidates
+        ]
+        if near_net is None or not any(routed):
             return self._refined(frame, image, table, candidates, mirror=mirror)
-        near = [c for c in candidates if c.range_m < bar]
-        far = [c for c in candidates if c.range_m >= bar]
+        near = [c for c, r in zip(candidates, routed, strict=True) if r]
+        far = [c for c, r in zip(candidates, routed, strict=True) if not r]
         # The near refiner never mirrors: candidates that near are not averaged anyway
         # (`mirror_min_range_m`).
         return self._refined(frame, image, table, far, mirror=mirror) + self._refined(

@@ -15,6 +15,9 @@ crop's centre), so that what an ROV looks like may depend on how far it is (a fa
   crops of candidates nearer than `near_max_range_m`: there a metric crop spans most of the
   fan, the ROV seen steeply from above fills up to a third of it, and a refiner trained on
   ROVs 1.5-20 m off doubts it (`capsd train near-refiner`). It has its own operating point.
+  Since session 56 it also reads candidates nearer than `near_edge_max_range_m` within
+  `near_edge_within_rad` of the fan's edge (`near_refined`): there the crop runs past the fan,
+  and the main refiner found none of the ROVs 1.5-2 m off and 45-55 deg off the boresight.
 Weights are a plain state dict with a format tag, loaded with `weights_only=True`.
 """
 
@@ -133,6 +136,8 @@ class PolarNet(nn.Module):
     logit_offset: torch.Tensor
     near_logit_offset: torch.Tensor
     near_max_range_m: torch.Tensor
+    near_edge_max_range_m: torch.Tensor
+    near_edge_within_rad: torch.Tensor
 
     def __init__(
         self,
@@ -157,6 +162,21 @@ class PolarNet(nn.Module):
         )
         self.register_buffer("near_logit_offset", torch.zeros(()))
         self.register_buffer("near_max_range_m", torch.zeros(()))
+        # ... and for candidates nearer than this within `near_edge_within_rad` of the fan's
+        # edge (0: none).
+        self.register_buffer("near_edge_max_range_m", torch.zeros(()))
+        self.register_buffer("near_edge_within_rad", torch.zeros(()))
+
+
+def near_refined(net: PolarNet, *, range_m: float, azimuth_rad: float, half_fov_rad: float) -> bool:
+    """Whether `net`'s near refiner (if any) scores a candidate at (range, azimuth)."""
+    if net.near_refine is None:
+        return False
+    if range_m < float(net.near_max_range_m):
+        return True
+    return range_m < float(net.near_edge_max_range_m) and half_fov_rad - abs(azimuth_rad) < float(
+        net.near_edge_within_rad
+    )
 
 
 def save(net: PolarNet, path: Path, *, meta: dict[str, Any]) -> None:
@@ -213,6 +233,8 @@ def load(path: Path) -> PolarNet:
     # Weights saved before the near refiner existed.
     state.setdefault("near_logit_offset", torch.zeros(()))
     state.setdefault("near_max_range_m", torch.zeros(()))
+    state.setdefault("near_edge_max_range_m", torch.zeros(()))  # ... before session 56
+    state.setdefault("near_edge_within_rad", torch.zeros(()))
     try:
         net.load_state_dict(state)
     except RuntimeError as exc:

@@ -88,9 +88,10 @@ class CnnConfig(ConfigSection, frozen=True, kw_only=True):
     # averaged (fewer false alarms on looks not trained on); both: the proposals' heat too
     # (more time per search again); off: neither.
     mirror_average: Literal["off", "refiner", "both"] = "refiner"
-    # on: candidates nearer than the weights' near refiner's range (1.5 m in the shipped ones)
-    # go to it (`capsd train near-refiner`); off: every candidate to the main refiner. Weights
-    # without one: the main refiner either way.
+    # on: candidates where the weights' near refiner takes over (in the shipped ones: nearer
+    # than 1.5 m, or 2 m within 20 deg of the fan's edge) go to it (`capsd train
+    # near-refiner`); off: every candidate to the main refiner. Weights without one: the main
+    # refiner either way.
     near_refiner: Literal["on", "off"] = "on"
     threads: Annotated[int, msgspec.Meta(ge=1, le=64)] = 1
     # by_elevation: with the depth gate, a near ROV's range corrected for where it lies in the

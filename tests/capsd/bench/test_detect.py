@@ -267,7 +267,7 @@ def test_the_near_runs_score_a_rov_in_the_near_band(tmp_path: Path) -> None:
     assert main([*args, "--duration", "4", "--start", "0", "--json", str(out)]) == 0
     figures = json.loads(out.read_text())
     assert [run[2] for run in figures["runs"]] == [
-        "follow_near", "follow_near", "follow_near_side",
+        "follow_near", "follow_near", "follow_near_side", "follow_near_edge",
     ]  # fmt: skip
     groups = figures["groups"]
     assert groups["classical / off / 0.5-1.5 m"]["visible"] > 0
@@ -279,6 +279,9 @@ def test_the_side_run_turns_the_sonar_off_the_rov() -> None:
     config = sonar_only("mockup", "lawnmower", "follow_near_side", 110)
     assert (config.sonar.pitch_deg, config.sonar.yaw_deg) == (40.0, 70.0)
     assert config.asv_standoff_m == 1.4
+    edge = sonar_only("mockup", "random", "follow_near_edge", 111)
+    assert (edge.sonar.pitch_deg, edge.sonar.yaw_deg) == (40.0, 85.0)
+    assert edge.asv_standoff_m == 1.4
 
 
 def test_a_near_rov_is_scored_by_how_far_off_the_boresight_it_is() -> None:

@@ -93,6 +93,20 @@ def test_near_runs_replace_a_share_of_the_runs_that_are_not_far() -> None:
     assert both[near[0]].config().sonar.yaw_deg == yaws[0]
 
 
+def test_the_near_refiner_places_its_near_runs_further_off_and_turned_further() -> None:
+    """Its own standoff and turn (the fan's edge at 1-2 m); the same runs otherwise."""
+    default = plan_runs(runs=40, seed=3, duration_s=10.0, sonar_hz=2.0, near_share=1.0)
+    wide = plan_runs(
+        runs=40, seed=3, duration_s=10.0, sonar_hz=2.0, near_share=1.0,
+        near_standoff_m=(0.3, 1.6), near_yaw_deg=85.0,
+    )  # fmt: skip
+    assert [p.seed for p in wide] == [p.seed for p in default]
+    assert all(0.3 <= p.standoff_m <= 1.6 for p in wide if p.standoff_m is not None)
+    assert max(p.standoff_m or 0.0 for p in wide) > NEAR_STANDOFF_M[1]
+    assert all(abs(p.sonar_yaw_deg) <= 85.0 for p in wide)
+    assert max(abs(p.sonar_yaw_deg) for p in wide) > NEAR_YAW_DEG
+
+
 def test_a_near_run_puts_the_rov_near_the_sonar() -> None:
     plan = dataclasses.replace(
         plan_runs(runs=1, seed=5, duration_s=20.0, sonar_hz=5.0, near_share=1.0)[0],

@@ -463,19 +463,27 @@ def test_candidates_near_the_sonar_go_to_the_near_refiner(tmp_path: Path) -> Non
     _answers(net.refine, -20.0)  # the main refiner: never the ROV
     _answers(net.near_refine, 20.0)  # the near one: always
     net.near_max_range_m.fill_(1.5)
+    net.near_edge_max_range_m.fill_(2.0)
+    net.near_edge_within_rad.fill_(math.radians(20.0))
     net.near_logit_offset.fill_(2.0)
     path = tmp_path / "near.pt"
     save(net, path, meta={})
     back = load(path)
     assert back.near_refine is not None
     assert float(back.near_max_range_m) == 1.5
+    assert float(back.near_edge_max_range_m) == 2.0
     assert float(back.near_logit_offset) == 2.0
     tank = make_tank("nfp", clutter="off")
     renderer = SonarRenderer(SonarModel(range_max_m=20.0, n_ranges=1000), tank)
     sonar = Transform(euler_zyx_to_matrix(0.0, math.radians(30.0), 0.0), np.array([6.0, 8.0, -0.2]))
     frame = _frame(renderer, sonar, None, 1)
     image, table = normalised_image(frame), BeamTable(frame.azimuths_rad)
-    candidates = [Candidate(1.2, 0.2), Candidate(3.0, -0.1), Candidate(1.49, 0.0)]
+    # By the fan's edge (10 deg in from it) the near refiner takes over up to 2 m.
+    edge = -(table.half_fov_rad - math.radians(10.0))
+    candidates = [
+        Candidate(1.2, 0.2), Candidate(3.0, -0.1), Candidate(1.49, 0.0),
+        Candidate(1.8, edge), Candidate(1.7, 0.3), Candidate(2.2, edge),
+    ]  # fmt: skip
 
     def confidences(settings: CnnSettings) -> dict[float, float]:
         found = CnnDetector(settings, net=back)._refine(
@@ -485,8 +493,8 @@ def test_candidates_near_the_sonar_go_to_the_near_refiner(tmp_path: Path) -> Non
         return {round(d.range_m, 2): d.confidence for d in found}
 
     on = confidences(NETWORK_ALONE)
-    assert min(on[1.2], on[1.49]) > 0.99
-    assert on[3.0] < 1e-6
+    assert min(on[1.2], on[1.49], on[1.8]) > 0.99
+    assert max(on[3.0], on[1.7], on[2.2]) < 1e-6
     # Its own operating point: 20 - 2 in logits.
     assert on[1.2] == pytest.approx(1.0 / (1.0 + math.exp(-18.0)))
     off = confidences(replace(NETWORK_ALONE, near_refiner="off"))
