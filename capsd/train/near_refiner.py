@@ -1,4 +1,4 @@
-"""`capsd train near-refiner`: a second refiner for ROVs nearer than about 2 m.
+"""`capsd train near-refiner`: a second refiner for ROVs under 1.5 m (2 m by the fan's edge).
 
 Near the sonar a metric crop (polar_input.crop: 2 cm steps) spans most of the fan, the ROV
 seen steeply from above fills up to a third of it, and the main refiner, trained on ROVs
@@ -7,20 +7,22 @@ mostly 1.5-20 m off with the sonar 8-30 deg down, doubts it: centred on the trut
 runs, by hand, session 55). Training the whole network with near runs took the far bands
 down with it (session 48: held out 8-14 m 20.5 -> 6.2 %), so the near ROV gets a refiner of
 its own, started from the main one and fine-tuned on crops centred within CROP_MARGIN_M of
-`max_range_m`: near runs (the mockup, the ASV following `standoff_m` off, the sonar 45-75 deg
-down and turned up to `yaw_deg`: capsd.train.data's near runs) and training-like runs (their
-near crops: the apex's ring-down, the floor, clutter under a shallower sonar). The detector
-sends it the candidates nearer than `max_range_m` (cnn.CnnDetector); candidates further off
-never meet it. Since session 56 it also takes candidates nearer than `edge_max_range_m`
-within `edge_within_deg` of the fan's edge, where the crop runs past the fan: there the main
-refiner called a ROV 1.5-2 m off and 45-55 deg off the boresight "ROV" on none of 46 pings
-(the first near refiner, trained to 1.5 m with the sonar turned up to 70 deg, on 2 %), the
-mockup demo's longest loss in every run (by hand, session 56). All of 1.5-2 m was tried: the
-ROV's multipath ghosts half a metre behind a ROV 1.1-1.3 m off, called "ROV", set its
-operating point so high (logit offset 3.1) that it found a quarter fewer near ROVs.
+where it takes over: near runs (the mockup, the ASV following 0.3-1.0 m off, the sonar 45-75
+deg down and turned up to 70 deg: capsd.train.data's near runs), edge runs (the same with the
+ASV `edge_standoff_m` off and the sonar turned up to `edge_yaw_deg`) and training-like runs
+(their near crops: the apex's ring-down, the floor, clutter under a shallower sonar). The
+detector sends it the candidates nearer than `max_range_m` and, since session 56, those
+nearer than `edge_max_range_m` within `edge_within_deg` of the fan's edge
+(polar_net.near_refined); candidates elsewhere never meet it. By the fan's edge the crop
+runs past the fan: there the main refiner called a ROV 1.5-2 m off and 45-55 deg off the
+boresight "ROV" on none of 46 pings (the first near refiner, trained to 1.5 m with the sonar
+turned up to 70 deg, on 2 %), the mockup demo's longest loss in every run (by hand, session
+56). All of 1.5-2 m was tried: the ROV's multipath ghosts half a metre behind a ROV 1.1-1.3 m
+off, called "ROV", set its operating point so high (logit offset 3.1) that it found a quarter
+fewer near ROVs.
 Its operating point is its own: the lowest logit offset leaving at most
-MAX_NEAR_FALSE_ALARMS_PER_FRAME false alarms nearer than `max_range_m` on validation runs (the
-main network's and near ones, seeds of their own). Deterministic for a seed.
+MAX_NEAR_FALSE_ALARMS_PER_FRAME false alarms among the candidates it scores on validation runs
+(the main network's and near ones, seeds of their own). Deterministic for a seed.
 """
 
 from __future__ import annotations

@@ -118,8 +118,9 @@ class CnnSettings:
     # 15-30 deg off the boresight 45.2 -> 30.9 %; with this bar 42.8 and 45.2 %), where its
     # false alarms were few; from 1.5 m it keeps the held-out false alarms it cuts.
     mirror_min_range_m: float = 1.5
-    # The weights' near refiner (if they have one) for candidates nearer than its range
-    # (polar_net): "off" refines every candidate with the main refiner, as before session 55.
+    # The weights' near refiner (if they have one) for candidates where it takes over
+    # (polar_net.near_refined: near, or nearish by the fan's edge): "off" refines every
+    # candidate with the main refiner, as before session 55.
     near_refiner: Literal["on", "off"] = "on"
 
 
