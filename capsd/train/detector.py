@@ -44,6 +44,7 @@ from capsd.services.sonar_detect.polar_input import (
     NORM_HIGH,
     NORM_LOW,
     U8_SCALE,
+    BeamTable,
     Inputs,
     RangeInput,
 )
@@ -534,7 +535,7 @@ def validation_logits(
     for done, _t_s, frame, p in validation_pings(duration_s, runs=runs):
         out.frames += 1
         best = -math.inf
-        half_fov_rad = float(np.max(np.abs(np.asarray(frame.azimuths_rad))))
+        half_fov_rad = BeamTable(frame.azimuths_rad).half_fov_rad
         for d in detector.detect(frame):
             if not scored(d, half_fov_rad):
                 continue

@@ -23,6 +23,7 @@ import torch
 
 from capsd.errors import CapsdError
 from capsd.payloads import SonarLabel
+from capsd.services.sonar_detect.polar_input import BeamTable
 from capsd.services.sonar_detect.polar_net import PolarNet, load, near_refined, save
 from capsd.train.data import Samples, plan_runs, render, samples_of_ping
 from capsd.train.detector import (
@@ -93,7 +94,7 @@ def recalibrate_on_labels(net: PolarNet, labels: list[LabelledPing]) -> dict[str
     for frame, label in frames_of(labels):
         frames += 1
         where = Candidate(label.range_m, label.azimuth_rad)
-        half_fov_rad = float(np.max(np.abs(np.asarray(frame.azimuths_rad))))
+        half_fov_rad = BeamTable(frame.azimuths_rad).half_fov_rad
         for d in detector.detect(frame):
             near = near_refined(
                 net, range_m=d.range_m, azimuth_rad=d.azimuth_rad, half_fov_rad=half_fov_rad
