@@ -138,6 +138,11 @@ DIRECTION_KEEP_M = 0.5
 NEAR_ABEAM_RAD = math.radians(90.0)
 NEAR_ABEAM_LEAVE_M = 0.15
 NEAR_LEAVE_M = 0.15  # ... and the end chosen for a ROV too near (`Follower._too_near`)
+# A pan-tilt hull's way is driven by its other end where the one chosen would put the ROV
+# further than this past the pan's reach (the fan is 130 deg wide, but its edges are weak)
+# and the other end keeps it this much nearer (`Follower._kept_in_reach`).
+PAST_PAN_SEEN_RAD = math.radians(45.0)
+PAST_PAN_BETTER_RAD = math.radians(10.0)
 
 
 @dataclass(frozen=True)
@@ -1043,6 +1048,8 @@ class Follower:
                             self.planner.facing(hull_xy, look),
                             current=self._direction,
                         )
+                    if fresh and self.planner.pan is not None:
+                        self._direction = self._kept_in_reach(hull_xy, goal, look)
                 heading = wrap_angle(way_heading + (math.pi if self._direction == "reverse" else 0))
                 self._direction_for = station_xy.copy()
             else:
@@ -1096,6 +1103,26 @@ class Follower:
         if fresh and self.planner.settings.drive == "lateral":
             # (A steered hull would turn its back on the ROV to back off: it re-stations.)
             self._keep_off()
+
+    def _kept_in_reach(self, hull_xy: Array, goal: Array, look: Array) -> DriveDirection:
+        """The end chosen, or the other where the chosen leaves the ROV far past the pan's reach.
+
+        Further than PAST_PAN_SEEN_RAD past it at worst (`StationPlanner.way_past_pan_rad`,
+        the turns included), where the other end keeps it PAST_PAN_BETTER_RAD nearer: the
+        rules above judge the ends where the hull starts, and a way past a ROV abeam (out of
+        a lane the ROV waits to fly down) driven ahead left it astern 60-70 deg past the pan's
+        reach, where the fixes turned unsure (mockup demos, seeds 4-6: 25-69 pings lost); the
+        way astern, after a half turn towards it, kept it within 30 deg.
+        """
+        chosen = self._direction
+        other: DriveDirection = "reverse" if chosen == "forward" else "forward"
+        past = {
+            end: self.planner.way_past_pan_rad(hull_xy, self.asv_heading, goal, look, direction=end)
+            for end in (chosen, other)
+        }
+        if past[chosen] > PAST_PAN_SEEN_RAD and past[other] + PAST_PAN_BETTER_RAD < past[chosen]:
+            return other
+        return chosen
 
     def _too_near(self, hull_xy: Array, look: Array) -> bool:
         """Whether the ROV at `look` is nearer the sonar, as the hull is now, than stations keep it.

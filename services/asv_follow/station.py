@@ -59,6 +59,7 @@ ABEAM_PAN_MARGIN_RAD = math.radians(15.0)
 EITHER_WAY_RAD = math.radians(90.0)
 LONG_WAY_WEIGHT = 0.25
 TURN_STEP_RAD = math.radians(2.0)  # the turn looked at every this often
+WAY_POINTS = 11  # a way looked at in this many points, its ends included (`way_past_pan_rad`)
 # Steered: astern only where that faces the ROV this much better than ahead.
 REVERSE_BETTER_RAD = math.radians(20.0)
 # Steered: nearer than this is no move (the autopilot's arrival).
@@ -641,21 +642,80 @@ class StationPlanner:
         if abs(turn_rad) < EITHER_WAY_RAD:
             return turn_rad
         other = turn_rad - math.copysign(2.0 * math.pi, turn_rad)
-        bearing = math.atan2(float(rov_m[1] - asv_xy[1]), float(rov_m[0] - asv_xy[0]))
-        left, right = (BLIND_OFF_RAD + room for room in self.pan_room_rad())
-
-        def blind_rad(turn: float) -> float:
-            steps = max(1, math.ceil(abs(turn) / TURN_STEP_RAD))
-            blind = 0
-            for k in range(steps + 1):
-                off = wrap_angle(bearing - self.mount_yaw - (heading_rad + turn * k / steps))
-                blind += not -right <= off <= left
-            return abs(turn) * blind / (steps + 1)
-
         extra = abs(other) - abs(turn_rad)
-        if blind_rad(other) + LONG_WAY_WEIGHT * extra < blind_rad(turn_rad):
+        if self._turn_blind_rad(asv_xy, heading_rad, other, rov_m) + LONG_WAY_WEIGHT * extra < (
+            self._turn_blind_rad(asv_xy, heading_rad, turn_rad, rov_m)
+        ):
             return other
         return turn_rad
+
+    def _beyond_reach(self, off_bow_rad: float) -> bool:
+        """Whether a ROV `off_bow_rad` off the mount's yaw is beyond the sonar's reach.
+
+        BLIND_OFF_RAD either side of the bow, and a pan servo's range besides.
+        """
+        return self.past_pan_rad(off_bow_rad) > BLIND_OFF_RAD
+
+    def _turn_blind_rad(
+        self, asv_xy: Array, heading_rad: float, turn_rad: float, rov_m: Array
+    ) -> float:
+        """Of a turn by `turn_rad` where the hull stands, the degrees (rad) beyond reach."""
+        bearing = math.atan2(float(rov_m[1] - asv_xy[1]), float(rov_m[0] - asv_xy[0]))
+        steps = max(1, math.ceil(abs(turn_rad) / TURN_STEP_RAD))
+        blind = 0
+        for k in range(steps + 1):
+            hull = heading_rad + turn_rad * k / steps
+            blind += self._beyond_reach(bearing - self.mount_yaw - hull)
+        return abs(turn_rad) * blind / (steps + 1)
+
+    def past_pan_rad(self, off_bow_rad: float) -> float:
+        """How far a ROV `off_bow_rad` off the mount's yaw is past the pan's reach (0: within).
+
+        Its angle off the boresight of a pan turned as far towards it as it goes (off the bow
+        without a pan).
+        """
+        left, right = self.pan_room_rad()
+        off = wrap_angle(off_bow_rad)
+        return max(0.0, off - left, -right - off)
+
+    def way_past_pan_rad(
+        self,
+        asv_xy: Array,
+        heading_rad: float,
+        goal_xy: Array,
+        rov_m: Array,
+        *,
+        direction: DriveDirection,
+    ) -> float:
+        """The most a steered hull's way to `goal_xy` puts the ROV past the pan's reach.
+
+        Driven `direction` (its bow or its stern to the way): the turn to the way where it
+        stands, the way, and the turn to face the ROV at its end (each the way
+        `turn_keeping_view` takes), the ROV where it is now (`past_pan_rad`). The end that
+        faces the ROV better at the start can leave it well past the pan's reach as the hull
+        passes it: a hull driven ahead past a ROV abeam ended with it 150-160 deg off the bow,
+        60-70 deg off the pan's boresight at its limit, where the fixes turned unsure (mockup
+        demos, seeds 4-6: 25-69 pings lost).
+        """
+        start = np.asarray(asv_xy[:2], dtype=np.float64)
+        way = np.asarray(goal_xy[:2], dtype=np.float64) - start
+        if float(np.linalg.norm(way)) < STAY_M:
+            return 0.0
+        hull = math.atan2(float(way[1]), float(way[0])) + (math.pi if direction == "reverse" else 0)
+        end = start + way
+        worst = 0.0
+        for xy, before, after in (
+            (start, heading_rad, hull),
+            (end, hull, self.facing(end, rov_m)),
+        ):
+            turn = self.turn_keeping_view(xy, before, wrap_angle(after - before), rov_m)
+            facing = self.facing(xy, rov_m)
+            steps = max(1, math.ceil(abs(turn) / TURN_STEP_RAD))
+            for k in range(steps + 1):
+                worst = max(worst, self.past_pan_rad(facing - (before + turn * k / steps)))
+        for share in np.linspace(0.0, 1.0, WAY_POINTS):
+            worst = max(worst, self.past_pan_rad(self.facing(start + share * way, rov_m) - hull))
+        return worst
 
     def _candidates(
         self, rov_m: Array, asv_xy: Array, drop: float

@@ -1406,3 +1406,52 @@ def test_a_way_round_the_rov_that_the_walls_stop_goes_straight() -> None:
         assert target is not None
         xy, hull = target.position_xy, target.heading_rad
     assert float(np.linalg.norm(xy - corner)) > 0.5
+
+
+def _mockup_pan_tilt_planner() -> StationPlanner:
+    """A steered pan-tilt hull as the mockup demo has it (sonar 0.3 m ahead, 45 deg down)."""
+    mount = msgspec.convert(
+        {"position_m": [0.3, 0.0, -0.2], "pitch_deg": 45.0, "tilt": {}, "pan": {}},
+        SonarMountConfig,
+    )
+    settings = StationSettings(drive="steered", min_range_m=1.1, hull_radius_m=0.3)
+    return StationPlanner(mount, TankBounds(length_m=40.0, width_m=30.0), settings)
+
+
+@pytest.mark.parametrize("near", [True, False])
+def test_a_pan_tilt_hull_passing_a_rov_abeam_drives_the_end_that_keeps_it_in_reach(
+    monkeypatch: pytest.MonkeyPatch, near: bool
+) -> None:
+    """A way past a ROV abeam: astern, so that the pan reaches it at the way's end too.
+
+    (Ahead, the bow's way, it ends 150 deg off the bow, 60 deg past the pan's limit: mockup
+    demos, seeds 4-6.) Whether or not the ROV is nearer than stations keep it.
+    """
+    planner = _mockup_pan_tilt_planner()
+    side = 0.6 if near else 1.0
+    rov = np.array([START[0] + 0.2, START[1] + side, -1.0])
+    assert (planner.view(START, 0.0, rov).range_m < 1.1) == near
+    station_xy = START + np.array([1.3, -0.2])
+
+    def first_direction() -> str:
+        follower = Follower(planner, FollowSettings(pan_abeam_rad=0.0))
+        follower.on_pose(START, 0.0)
+        follower.on_mode("GUIDED")
+        follower.on_fix(0.0, rov)
+        follower.step(0.0)
+        view = planner.view(station_xy, planner.facing(station_xy, rov), rov)
+        follower.station = Station(position_xy=station_xy, heading_rad=0.0, view=view)
+        follower._last_plan_s = math.inf  # keep this station
+        follower._direction_for = None  # the way starts now
+        follower.on_fix(0.1, rov)
+        target = follower.step(0.1)
+        assert target is not None
+        return target.direction
+
+    ahead = planner.way_past_pan_rad(START, 0.0, station_xy, rov, direction="forward")
+    astern = planner.way_past_pan_rad(START, 0.0, station_xy, rov, direction="reverse")
+    assert math.degrees(astern) < 30.0
+    assert math.degrees(ahead) > 50.0
+    assert first_direction() == "reverse"
+    monkeypatch.setattr(follower_module, "PAST_PAN_SEEN_RAD", math.pi)  # the rules before
+    assert first_direction() == "forward"
