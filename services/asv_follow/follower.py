@@ -287,6 +287,8 @@ class Follower:
         self.leg_end: Array | None = None  # where the ROV's mission sends it now (W)
         self._direction: DriveDirection = "forward"  # steered: how the hull drives its way
         self._direction_for: Array | None = None  # ... to this station
+        # The end `_kept_in_reach` chose for the way to this station (kept while it stays).
+        self._reach_for: tuple[Array, DriveDirection] | None = None
         self._too_near_now = False  # `_too_near` last said so
         self._sight_only = False  # steered: this station's way goes along the sight only
         self._sight_for: Array | None = None  # ... decided for this station
@@ -1048,8 +1050,10 @@ class Follower:
                             self.planner.facing(hull_xy, look),
                             current=self._direction,
                         )
-                    if fresh and self.planner.pan is not None:
-                        self._direction = self._kept_in_reach(hull_xy, goal, look)
+                    if self.planner.pan is not None:
+                        self._direction = self._kept_in_reach(
+                            hull_xy, goal, look, station_xy, fresh=fresh
+                        )
                 heading = wrap_angle(way_heading + (math.pi if self._direction == "reverse" else 0))
                 self._direction_for = station_xy.copy()
             else:
@@ -1104,7 +1108,9 @@ class Follower:
             # (A steered hull would turn its back on the ROV to back off: it re-stations.)
             self._keep_off()
 
-    def _kept_in_reach(self, hull_xy: Array, goal: Array, look: Array) -> DriveDirection:
+    def _kept_in_reach(
+        self, hull_xy: Array, goal: Array, look: Array, station_xy: Array, *, fresh: bool
+    ) -> DriveDirection:
         """The end chosen, or the other where the chosen leaves the ROV far past the pan's reach.
 
         Further than PAST_PAN_SEEN_RAD past it at worst (`StationPlanner.way_past_pan_rad`,
@@ -1112,15 +1118,41 @@ class Follower:
         rules above judge the ends where the hull starts, and a way past a ROV abeam (out of
         a lane the ROV waits to fly down) driven ahead left it astern 60-70 deg past the pan's
         reach, where the fixes turned unsure (mockup demos, seeds 4-6: 25-69 pings lost); the
-        way astern, after a half turn towards it, kept it within 30 deg.
+        way astern, after a half turn towards it, kept it within 30 deg. Judged with a fresh
+        fix only, on a way longer than DIRECTION_KEEP_M (a step of a station re-chosen nearby
+        does not pass the ROV), and only where the turn to the other end's way is no more than
+        a half turn
+        (the long way round a ROV too near, 250 deg, lost it for most of 17 s: `capsd bench
+        follow`, mockup pan-tilt, seed 0). The end so chosen is kept while the station stays
+        within DIRECTION_KEEP_M and the hull is further than that from it, fresh fix or not:
+        judged again at each step of the turn, the rules above took the other end back
+        whenever the fix went stale, and the hull turned to and fro.
         """
+        way = goal - hull_xy
+        if self._reach_for is not None:
+            kept_xy, kept = self._reach_for
+            if (
+                float(np.linalg.norm(kept_xy - station_xy)) <= DIRECTION_KEEP_M
+                and float(np.linalg.norm(way)) > DIRECTION_KEEP_M
+            ):
+                return kept
+            self._reach_for = None
         chosen = self._direction
+        if not fresh or float(np.linalg.norm(way)) <= DIRECTION_KEEP_M:
+            return chosen
         other: DriveDirection = "reverse" if chosen == "forward" else "forward"
+        hull = math.atan2(float(way[1]), float(way[0])) + (math.pi if other == "reverse" else 0.0)
+        turn = self.planner.turn_keeping_view(
+            hull_xy, self.asv_heading, wrap_angle(hull - self.asv_heading), look
+        )
+        if abs(turn) > math.pi:
+            return chosen
         past = {
             end: self.planner.way_past_pan_rad(hull_xy, self.asv_heading, goal, look, direction=end)
             for end in (chosen, other)
         }
         if past[chosen] > PAST_PAN_SEEN_RAD and past[other] + PAST_PAN_BETTER_RAD < past[chosen]:
+            self._reach_for = (station_xy.copy(), other)
             return other
         return chosen
 
