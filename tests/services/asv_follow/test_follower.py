@@ -1455,3 +1455,47 @@ def test_a_pan_tilt_hull_passing_a_rov_abeam_drives_the_end_that_keeps_it_in_rea
     assert first_direction() == "reverse"
     monkeypatch.setattr(follower_module, "PAST_PAN_SEEN_RAD", math.pi)  # the rules before
     assert first_direction() == "forward"
+
+
+def test_the_end_that_keeps_the_rov_in_reach_is_kept_through_its_turn_fix_or_not() -> None:
+    """Chosen with a fresh fix, the end stays while the fix is stale (the rules before swapped it).
+
+    Judged again at each step of the half turn, a hull whose fix went stale as it turned took
+    the other end back, then this one with the next fix: to and fro (`capsd bench follow`).
+    A step to a station re-chosen nearby (0.5 m or less) is judged by the rules before.
+    """
+    planner = _mockup_pan_tilt_planner()
+    rov = np.array([START[0] + 0.2, START[1] + 0.6, -1.0])
+    station_xy = START + np.array([1.3, -0.2])
+    follower = Follower(planner, FollowSettings(pan_abeam_rad=0.0))
+    follower.on_pose(START, 0.0)
+    follower.on_mode("GUIDED")
+    follower.on_fix(0.0, rov)
+    follower.step(0.0)
+    view = planner.view(station_xy, planner.facing(station_xy, rov), rov)
+    follower.station = Station(position_xy=station_xy, heading_rad=0.0, view=view)
+    follower._last_plan_s = math.inf  # keep this station
+    follower._direction_for = None
+    follower.on_fix(0.1, rov)
+    target = follower.step(0.1)
+    assert target is not None
+    assert target.direction == "reverse"
+    directions = []
+    for k in range(2, 40):  # the fix stale from 1.1 s on; the hull turning where it is
+        now = 0.1 * k
+        follower.on_pose(START, target.heading_rad)
+        follower._direction_for = None  # as the hull turning first leaves it
+        target = follower.step(now)
+        assert target is not None
+        directions.append(target.direction)
+    assert now - follower.fix_s > follower.settings.fix_timeout_s
+    assert set(directions) == {"reverse"}
+    # Arrived near the station: a short step to one re-chosen nearby, by the rules before.
+    follower._reach_for = None
+    near_xy = START + np.array([0.3, 0.0])
+    follower.station = Station(position_xy=near_xy, heading_rad=0.0, view=view)
+    follower.on_pose(START, 0.0)
+    follower.on_fix(4.0, rov)
+    follower._direction_for = None
+    follower.step(4.0)
+    assert follower._reach_for is None
