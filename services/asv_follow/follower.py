@@ -1119,13 +1119,12 @@ class Follower:
         a lane the ROV waits to fly down) driven ahead left it astern 60-70 deg past the pan's
         reach, where the fixes turned unsure (mockup demos, seeds 4-6: 25-69 pings lost); the
         way astern, after a half turn towards it, kept it within 30 deg. Judged with a fresh
-        fix only, on a way longer than DIRECTION_KEEP_M (a step of a station re-chosen nearby
+        fix only, on a way longer than DIRECTION_KEEP_M (a step to a station re-chosen nearby
         does not pass the ROV), and only where the turn to the other end's way is no more than
-        a half turn
-        (the long way round a ROV too near, 250 deg, lost it for most of 17 s: `capsd bench
-        follow`, mockup pan-tilt, seed 0). The end so chosen is kept while the station stays
-        within DIRECTION_KEEP_M and the hull is further than that from it, fresh fix or not:
-        judged again at each step of the turn, the rules above took the other end back
+        a half turn (the long way round a ROV too near, 250 deg, lost it for most of 17 s:
+        `capsd bench follow`, mockup pan-tilt, seed 0). The end so chosen is kept while the
+        station stays within DIRECTION_KEEP_M and the way left is longer than that, fresh fix
+        or not: judged again at each step of the turn, the rules above took the other end back
         whenever the fix went stale, and the hull turned to and fro.
         """
         way = goal - hull_xy
