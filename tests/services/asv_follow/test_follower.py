@@ -1418,6 +1418,25 @@ def _mockup_pan_tilt_planner() -> StationPlanner:
     return StationPlanner(mount, TankBounds(length_m=40.0, width_m=30.0), settings)
 
 
+def _way_started(
+    planner: StationPlanner, rov: np.ndarray, station_xy: np.ndarray
+) -> tuple[Follower, Target]:
+    """A follower at START (heading 0) with a fresh fix, its way to `station_xy` just started."""
+    follower = Follower(planner, FollowSettings(pan_abeam_rad=0.0))
+    follower.on_pose(START, 0.0)
+    follower.on_mode("GUIDED")
+    follower.on_fix(0.0, rov)
+    follower.step(0.0)
+    view = planner.view(station_xy, planner.facing(station_xy, rov), rov)
+    follower.station = Station(position_xy=station_xy, heading_rad=0.0, view=view)
+    follower._last_plan_s = math.inf  # keep this station
+    follower._direction_for = None  # the way starts now
+    follower.on_fix(0.1, rov)
+    target = follower.step(0.1)
+    assert target is not None
+    return follower, target
+
+
 @pytest.mark.parametrize("near", [True, False])
 def test_a_pan_tilt_hull_passing_a_rov_abeam_drives_the_end_that_keeps_it_in_reach(
     monkeypatch: pytest.MonkeyPatch, near: bool
@@ -1434,19 +1453,7 @@ def test_a_pan_tilt_hull_passing_a_rov_abeam_drives_the_end_that_keeps_it_in_rea
     station_xy = START + np.array([1.3, -0.2])
 
     def first_direction() -> str:
-        follower = Follower(planner, FollowSettings(pan_abeam_rad=0.0))
-        follower.on_pose(START, 0.0)
-        follower.on_mode("GUIDED")
-        follower.on_fix(0.0, rov)
-        follower.step(0.0)
-        view = planner.view(station_xy, planner.facing(station_xy, rov), rov)
-        follower.station = Station(position_xy=station_xy, heading_rad=0.0, view=view)
-        follower._last_plan_s = math.inf  # keep this station
-        follower._direction_for = None  # the way starts now
-        follower.on_fix(0.1, rov)
-        target = follower.step(0.1)
-        assert target is not None
-        return target.direction
+        return _way_started(planner, rov, station_xy)[1].direction
 
     ahead = planner.way_past_pan_rad(START, 0.0, station_xy, rov, direction="forward")
     astern = planner.way_past_pan_rad(START, 0.0, station_xy, rov, direction="reverse")
@@ -1462,40 +1469,35 @@ def test_the_end_that_keeps_the_rov_in_reach_is_kept_through_its_turn_fix_or_not
 
     Judged again at each step of the half turn, a hull whose fix went stale as it turned took
     the other end back, then this one with the next fix: to and fro (`capsd bench follow`).
-    A step to a station re-chosen nearby (0.5 m or less) is judged by the rules before.
     """
     planner = _mockup_pan_tilt_planner()
     rov = np.array([START[0] + 0.2, START[1] + 0.6, -1.0])
-    station_xy = START + np.array([1.3, -0.2])
-    follower = Follower(planner, FollowSettings(pan_abeam_rad=0.0))
-    follower.on_pose(START, 0.0)
-    follower.on_mode("GUIDED")
-    follower.on_fix(0.0, rov)
-    follower.step(0.0)
-    view = planner.view(station_xy, planner.facing(station_xy, rov), rov)
-    follower.station = Station(position_xy=station_xy, heading_rad=0.0, view=view)
-    follower._last_plan_s = math.inf  # keep this station
-    follower._direction_for = None
-    follower.on_fix(0.1, rov)
-    target = follower.step(0.1)
-    assert target is not None
+    follower, target = _way_started(planner, rov, START + np.array([1.3, -0.2]))
     assert target.direction == "reverse"
     directions = []
     for k in range(2, 40):  # the fix stale from 1.1 s on; the hull turning where it is
         now = 0.1 * k
         follower.on_pose(START, target.heading_rad)
         follower._direction_for = None  # as the hull turning first leaves it
-        target = follower.step(now)
-        assert target is not None
+        stepped = follower.step(now)
+        assert stepped is not None
+        target = stepped
         directions.append(target.direction)
     assert now - follower.fix_s > follower.settings.fix_timeout_s
     assert set(directions) == {"reverse"}
-    # Arrived near the station: a short step to one re-chosen nearby, by the rules before.
-    follower._reach_for = None
-    near_xy = START + np.array([0.3, 0.0])
-    follower.station = Station(position_xy=near_xy, heading_rad=0.0, view=view)
-    follower.on_pose(START, 0.0)
-    follower.on_fix(4.0, rov)
-    follower._direction_for = None
-    follower.step(4.0)
-    assert follower._reach_for is None
+
+
+def test_a_short_step_is_driven_by_the_end_the_rules_before_choose() -> None:
+    """A way of 0.5 m or less (a station re-chosen nearby) is not judged for the pan's reach.
+
+    (Kept backing on such steps, a hull turned half round for each: `capsd bench follow`,
+    mockup pan-tilt, seed 25, 67 % in view.) Behind on the left, too near: the end turned to
+    least, ahead, though it leaves the ROV 60 deg past the pan; a longer way, astern.
+    """
+    planner = _mockup_pan_tilt_planner()
+    rov = np.array([START[0] - 0.3, START[1] + 0.4, -1.0])
+    short_xy = START + np.array([0.45, 0.0])
+    ahead = planner.way_past_pan_rad(START, 0.0, short_xy, rov, direction="forward")
+    assert math.degrees(ahead) > 55.0
+    assert _way_started(planner, rov, short_xy)[1].direction == "forward"
+    assert _way_started(planner, rov, START + np.array([1.3, 0.0]))[1].direction == "reverse"
