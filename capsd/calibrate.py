@@ -41,6 +41,7 @@ from capsd.mounts import RovConfig, SonarMountConfig
 from capsd.payloads import AsvPose, Payload, RovAttitude, RovDepth, RovFix, SonarFrame
 from capsd.pitch_calibration import (
     ProfilesFit,
+    ProfilesPrior,
     echo_samples,
     fit_profiles,
     rov_places,
@@ -197,7 +198,9 @@ def calibrate(
             samples = echo_samples(
                 observations, places, mount=mount.transform(), beam_model=mount.beam_model
             )
-            pitch_fit = fit_profiles(split_profiles(samples), height_coupling=coupling)
+            pitch_fit = fit_profiles(
+                split_profiles(samples), height_coupling=coupling, prior=profiles_prior(prior)
+            )
         except CapsdError as exc:
             raise CapsdError(f"{recording}: {exc}") from None
     return applied(mount, rov, prior, mount_fit, depth_fit, range_fit, pitch_fit)
@@ -265,6 +268,18 @@ def tape_prior(errors: InstallErrorsConfig) -> InstallationConfig:
         sonar_position_m=(position, position, position),
         sonar_angles_deg=(angle, angle, angle),
         depth_offset_m=math.hypot(errors.depth_bias_sigma_m, errors.pressure_arm_sigma_m),
+    )
+
+
+def profiles_prior(installation: InstallationConfig) -> ProfilesPrior:
+    """What the pitch manoeuvre's fit weighs in: the installation's pitch and height 1-sigma.
+
+    The profiles see the sonar's height against the ROV's depth reference, so the height's
+    prior holds the depth offset's 1-sigma too (the surface check's, once it ran).
+    """
+    return ProfilesPrior(
+        pitch_sigma_rad=math.radians(installation.sonar_angles_deg[1]),
+        height_sigma_m=math.hypot(installation.sonar_position_m[2], installation.depth_offset_m),
     )
 
 

@@ -20,7 +20,10 @@ pitch. Profiles at two distances tell the two apart: the pitch offsets every ele
 the height by its angle at that distance (at the edges of a 30 deg-down aperture about 0.27
 deg per cm at 1.5 m, 0.11 at 3.8 m: `capsd bench calibrate`), so the offsets found at each
 distance are fitted as pitch plus height times that angle per metre (`fit_profiles`), and the
-height is written when it is known within HEIGHT_SIGMA_MAX_M.
+height is written when known within HEIGHT_SIGMA_MAX_M. What is written weighs in what the
+tape said (`ProfilesPrior`): two profiles pin the offset at their ranges far better than the
+pitch and height apart, whose errors run along one line; the tape's own 1-sigma on each cuts
+that line short. The fit says whether the profiles alone would have known the height.
 """
 
 from __future__ import annotations
@@ -373,6 +376,26 @@ def fit_pitch(samples: EchoSamples) -> PitchFit:
 
 
 @dataclass(frozen=True)
+class ProfilesPrior:
+    """What was known before the profiles: the pitch and height errors' 1-sigma, zero mean.
+
+    The tape-measured installation's (the locator's `installation` section): the sonar's
+    pitch, and its height combined with what the ROV's depth offset may still get wrong (the
+    profiles see the sonar's height against the ROV's depth reference). A sigma of 0 or less
+    is no prior on that term.
+    """
+
+    pitch_sigma_rad: float
+    height_sigma_m: float
+
+    def information(self) -> Floats:
+        """The prior's information matrix over (pitch, height): zero where none is known."""
+        return np.diag(
+            [1.0 / s**2 if s > 0.0 else 0.0 for s in (self.pitch_sigma_rad, self.height_sigma_m)]
+        )
+
+
+@dataclass(frozen=True)
 class ProfilesFit:
     """The pitch and height from the profiles' elevation offsets (or the offset, from one)."""
 
@@ -380,11 +403,16 @@ class ProfilesFit:
     # With two or more determined profiles: offset_k = pitch + height * gain_k, by weighted
     # least squares. pitch_offset_deg is the part alike at every range (the pitch error, as
     # PitchFit's offset: positive, the mount puts the ROV higher than it is); height_m how
-    # much higher the sonar truly sits than configured. NaN from fewer profiles.
+    # much higher the sonar truly sits than configured. NaN from fewer profiles. With a
+    # prior, these and their 1-sigma weigh it in (the most likely pitch and height given the
+    # tape and the profiles: what is written, when known within HEIGHT_SIGMA_MAX_M);
+    # height_data_sigma_m is the profiles' own, which says whether they alone would have.
     pitch_offset_deg: float = math.nan
     pitch_offset_sigma_deg: float = math.nan
     height_m: float = math.nan
     height_sigma_m: float = math.nan
+    height_data_sigma_m: float = math.nan
+    prior: ProfilesPrior | None = None
     # The range offset's height coupling (capsd.range_calibration.RangeFit): the range offset
     # it wrote took in that much slant range per metre of a height error, which the height
     # found here gives back (`range_give_back_m`). None: not known (the range manoeuvre's fit
@@ -401,13 +429,20 @@ class ProfilesFit:
         """Whether the height (and with it the pitch alone) is known well enough to write.
 
         The two go together: their errors cancel at the profiles' ranges (the pitch alone is
-        the offset extrapolated to where a height error does nothing, and less sure).
+        the offset extrapolated to where a height error does nothing, and less sure). Known:
+        from everything the fit was given, the tape's prior too (`by_profiles_alone` says
+        whether the profiles alone pinned it).
         """
         return (
             len(self.used) >= 2
             and self.height_sigma_m <= HEIGHT_SIGMA_MAX_M
             and self.height_coupling is not None
         )
+
+    @property
+    def by_profiles_alone(self) -> bool:
+        """Whether the profiles alone, without the tape's prior, know the height well enough."""
+        return self.height_determined and self.height_data_sigma_m <= HEIGHT_SIGMA_MAX_M
 
     @property
     def range_give_back_m(self) -> float:
@@ -461,8 +496,17 @@ class ProfilesFit:
             )
             return out
         if self.height_determined:
+            leaning = (
+                ""
+                if self.by_profiles_alone
+                else (
+                    f" (leaning on the tape: the profiles alone know it to "
+                    f"{self.height_data_sigma_m * 1000:.1f} mm, not "
+                    f"{HEIGHT_SIGMA_MAX_M * 1000:g})"
+                )
+            )
             verdict = (
-                f"determined: the sonar sits {self.height_m * 1000:+.1f} mm higher than "
+                f"determined{leaning}: the sonar sits {self.height_m * 1000:+.1f} mm higher than "
                 f"configured (the range offset moves by {self.range_give_back_m * 1000:+.1f} "
                 f"mm, what it took of the height) and its pitch moves by "
                 f"{-self.pitch_offset_deg:+.3f} deg"
@@ -478,22 +522,38 @@ class ProfilesFit:
                 f"height NOT determined (1-sigma <= {HEIGHT_SIGMA_MAX_M * 1000:g} mm needed): "
                 "the pitch takes the profiles' mean offset"
             )
+        weighed = (
+            ""
+            if self.prior is None
+            else (
+                f", the tape's 1-sigma weighed in ({math.degrees(self.prior.pitch_sigma_rad):g} "
+                f"deg, {self.prior.height_sigma_m * 1000:.0f} mm)"
+            )
+        )
         out.append(
             f"from {len(self.used)} distances "
             f"({', '.join(f'{f.distance_m:.1f}' for f in self.used)} m): height "
-            f"{self.height_m * 1000:+.1f} mm (1 sigma {self.height_sigma_m * 1000:.1f}), "
-            f"pitch offset {self.pitch_offset_deg:+.3f} deg (1 sigma "
-            f"{self.pitch_offset_sigma_deg:.3f}): {verdict}"
+            f"{self.height_m * 1000:+.1f} mm (1 sigma {self.height_sigma_m * 1000:.1f}; the "
+            f"profiles alone {self.height_data_sigma_m * 1000:.1f}), pitch offset "
+            f"{self.pitch_offset_deg:+.3f} deg (1 sigma {self.pitch_offset_sigma_deg:.3f})"
+            f"{weighed}: {verdict}"
         )
         return out
 
 
-def fit_profiles(profiles: Sequence[EchoSamples], *, height_coupling: float | None) -> ProfilesFit:
+def fit_profiles(
+    profiles: Sequence[EchoSamples],
+    *,
+    height_coupling: float | None,
+    prior: ProfilesPrior | None = None,
+) -> ProfilesFit:
     """Each profile's plateau; from two or more distances, the pitch and height apart.
 
     `height_coupling`: the range offset fit's (RangeFit.height_coupling), None where it is
     not known (the height then only reported). The height's gain at each profile takes in
-    what it does to the ROV's place there (PitchFit.height_gain_with).
+    what it does to the ROV's place there (PitchFit.height_gain_with). `prior`: the tape's
+    1-sigma, weighed into the pitch and height written (not into whether the profiles
+    determined the height).
     """
     if not profiles:
         raise CapsdError(
@@ -509,7 +569,10 @@ def fit_profiles(profiles: Sequence[EchoSamples], *, height_coupling: float | No
     offsets = np.radians([f.offset_deg for f in used])
     weights = 1.0 / np.radians([f.offset_sigma_deg for f in used]) ** 2
     normal = design.T @ (design * weights[:, None])
-    covariance = np.linalg.inv(normal)
+    data_covariance = np.linalg.inv(normal)
+    # The prior's mean is the configured mount (zero error): it adds information only.
+    known = np.zeros((2, 2)) if prior is None else prior.information()
+    covariance = np.linalg.inv(normal + known)
     pitch, height = covariance @ (design.T @ (weights * offsets))
     return ProfilesFit(
         fits,
@@ -517,6 +580,8 @@ def fit_profiles(profiles: Sequence[EchoSamples], *, height_coupling: float | No
         pitch_offset_sigma_deg=math.degrees(math.sqrt(float(covariance[0, 0]))),
         height_m=float(height),
         height_sigma_m=math.sqrt(float(covariance[1, 1])),
+        height_data_sigma_m=math.sqrt(float(data_covariance[1, 1])),
+        prior=prior,
         height_coupling=height_coupling,
     )
 
@@ -525,6 +590,7 @@ __all__ = [
     "EchoSamples",
     "PitchFit",
     "ProfilesFit",
+    "ProfilesPrior",
     "echo_samples",
     "fit_pitch",
     "fit_profiles",

@@ -374,7 +374,14 @@ def calibrate_table(figures: dict[str, Any]) -> list[str]:
         f"{figures.get('mean_abs_pitch_error_vs_drawn_deg', '-')} deg)"
         + (
             f"; the sonar's height determined on {figures['height_determined_runs']} of "
-            f"{len(figures['runs'])}, mean |height error| "
+            f"{len(figures['runs'])}"
+            + (
+                f" ({figures['height_by_profiles_alone_runs']} by the profiles alone, without "
+                "the tape's 1-sigma)"
+                if "height_by_profiles_alone_runs" in figures
+                else ""
+            )
+            + ", mean |height error| "
             f"{figures.get('mean_abs_height_error_mm') or '-'} mm against what the elevations "
             f"need, {figures.get('mean_abs_height_error_vs_drawn_mm') or '-'} mm against the "
             "drawn height alone."
@@ -399,7 +406,13 @@ def calibrate_table(figures: dict[str, Any]) -> list[str]:
         determined = [k for k in DETERMINED_TERMS if r.get(f"{k}_determined")]
         height = (
             f"{r.get('wanted_height_mm')} / {r.get('fitted_height_mm')} "
-            f"({r.get('height_sigma_mm')})"
+            f"({r.get('height_sigma_mm')}"
+            + (
+                f"; the profiles alone {r['height_data_sigma_mm']}"
+                if r.get("height_data_sigma_mm") is not None
+                else ""
+            )
+            + ")"
             if r.get("fitted_height_mm") is not None
             else "-"
         )

@@ -188,7 +188,7 @@ def self_calibrate(
         wanted_correction,
         wanted_depth_offset,
     )
-    from capsd.calibrate import applied, tape_prior
+    from capsd.calibrate import applied, profiles_prior, tape_prior
     from capsd.depth_calibration import fit_depth_offset
     from capsd.mount_calibration import fit_mount
 
@@ -271,6 +271,7 @@ def self_calibrate(
             rov=cal.rov,
             duration_s=duration_s,
             height_coupling=ranged.fit.height_coupling,
+            prior=profiles_prior(cal.installation),
             progress=progress,
             progress_offset_s=2 * duration_s,
         )

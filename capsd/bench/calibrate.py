@@ -18,7 +18,7 @@ from typing import Any, NamedTuple
 import msgspec
 import numpy as np
 
-from capsd.calibrate import applied
+from capsd.calibrate import applied, profiles_prior, tape_prior
 from capsd.depth_calibration import fit_depth_offset
 from capsd.errors import CapsdError
 from capsd.geometry import Transform, matrix_to_euler_zyx
@@ -29,6 +29,7 @@ from capsd.payloads import AsvPose, Payload, RovAttitude, RovDepth, RovFix, Sona
 from capsd.pitch_calibration import (
     EchoSamples,
     ProfilesFit,
+    ProfilesPrior,
     echo_samples,
     fit_pitch,
     fit_profiles,
@@ -360,6 +361,7 @@ def pitch_dive(
     rov: RovConfig,
     duration_s: float,
     height_coupling: float | None,
+    prior: ProfilesPrior | None,
     standoffs_m: tuple[float | None, ...] | None = None,
     progress: Progress | None = None,
     progress_offset_s: float = 0.0,
@@ -368,6 +370,7 @@ def pitch_dive(
 
     The locator told `mount`; `duration_s` each; by default profile_standoffs_m's.
     `height_coupling`: the range offset fit's (the height is written only with it).
+    `prior`: what the fit weighs in (capsd.calibrate.profiles_prior; None: the profiles alone).
     """
     if standoffs_m is None:
         standoffs_m = profile_standoffs_m(config, mount)
@@ -383,7 +386,7 @@ def pitch_dive(
             missed.append(f"{'the nearest' if standoff is None else f'{standoff:.1f} m'}: {exc}")
     if not profiles:
         raise CapsdError(f"no profile tracked ({'; '.join(missed)})")
-    fit = fit_profiles([p.samples for p in profiles], height_coupling=height_coupling)
+    fit = fit_profiles([p.samples for p in profiles], height_coupling=height_coupling, prior=prior)
     wanted_pitch = wanted_height = math.nan
     gains = [f.height_gain_with(height_coupling) for f in fit.fits]
     if len(profiles) >= 2 and all(math.isfinite(g) for g in gains):
@@ -432,16 +435,19 @@ def bench(
         shift_error_m = abs(fit.shift_y_m - want_y)
         depth = fit_depth_offset(dive.depths, dive.attitudes, rov=loc.rov)
         want_depth = wanted_depth_offset(config, dive)
-        # Then, told what that determined, the range offset from a parked ROV.
-        cal = applied(loc.sonar, loc.rov, loc.installation, fit, depth)
+        # Then, told what that determined, the range offset from a parked ROV. What the
+        # services are told the installation may get wrong: the tape's (deploy/config).
+        tape = tape_prior(config.install_errors)
+        cal = applied(loc.sonar, loc.rov, tape, fit, depth)
         # As long as the turn (120 s: one swing there and back, ORBIT_PERIOD_S).
         ranged = range_offset_dive(config, mount=cal.mount, rov=cal.rov, duration_s=duration_s)
         # Then, told that as well, the pitch from the ROV going down and up in front of the ASV.
-        cal = applied(loc.sonar, loc.rov, loc.installation, fit, depth, ranged.fit)
+        cal = applied(loc.sonar, loc.rov, tape, fit, depth, ranged.fit)
         pitched = pitch_dive(config, mount=cal.mount, rov=cal.rov, duration_s=duration_s,
-                             height_coupling=ranged.fit.height_coupling)  # fmt: skip
+                             height_coupling=ranged.fit.height_coupling,
+                             prior=profiles_prior(cal.installation))  # fmt: skip
         pf = pitched.fit
-        final = applied(loc.sonar, loc.rov, loc.installation, fit, depth, ranged.fit, pf).mount
+        final = applied(loc.sonar, loc.rov, tape, fit, depth, ranged.fit, pf).mount
         true_mount = Simulation(config, horizon_s=10.0).mount.translation
         rows.append(
             {
@@ -503,6 +509,9 @@ def bench(
                 ],
                 "fitted_height_mm": _mm(pf.height_m),
                 "height_sigma_mm": _mm(pf.height_sigma_m),
+                # The profiles' own, without the tape's prior (ProfilesPrior).
+                "height_data_sigma_mm": _mm(pf.height_data_sigma_m),
+                "height_by_profiles_alone": pf.by_profiles_alone,
                 # What the elevations need (the profiles' wanted offsets split as the fit
                 # splits its own): the sonar's height error less what the ROV's depth reading
                 # still gets wrong after its surface check.
@@ -564,6 +573,7 @@ def bench(
         if heights
         else math.nan
     )
+    alone = sum(1 for r in heights if r["height_by_profiles_alone"])
     print(
         f"{tank}/{trajectory}, {seeds} seeds, {duration_s:g} s each, realistic installation "
         "errors; corrections in degrees (wanted: what the hidden errors call for)"
@@ -609,8 +619,10 @@ def bench(
         f"offset error| {pitch_err:.3f} deg (the ROV going down and up: the pitch and the "
         f"sonar height's effect at its ranges; target <= {TILT_TARGET_DEG}: "
         f"{'met' if pitch_err <= TILT_TARGET_DEG else 'NOT met'}), against the drawn pitch "
-        f"alone {pitch_vs_drawn:.3f} deg; the sonar's height determined on {len(heights)} of "
-        f"{len(rows)} runs, mean |height error| {height_err:.1f} mm against what the "
+        f"alone {pitch_vs_drawn:.3f} deg (target <= {TILT_TARGET_DEG}: "
+        f"{'met' if pitch_vs_drawn <= TILT_TARGET_DEG else 'NOT met'}); the sonar's height "
+        f"determined on {len(heights)} of {len(rows)} runs ({alone} by the profiles alone, "
+        f"without the tape's 1-sigma), mean |height error| {height_err:.1f} mm against what the "
         f"elevations need, {height_vs_drawn:.1f} mm against the drawn height alone (target <= "
         f"{SHIFT_TARGET_MM:g}: {'met' if height_vs_drawn <= SHIFT_TARGET_MM else 'NOT met'}); "
         f"{time.monotonic() - started:.0f} s"
@@ -632,6 +644,7 @@ def bench(
         "mean_abs_elevation_offset_error_deg": round(pitch_err, 4),
         "mean_abs_pitch_error_vs_drawn_deg": round(pitch_vs_drawn, 4),
         "height_determined_runs": len(heights),
+        "height_by_profiles_alone_runs": alone,
         "mean_abs_height_error_mm": round(height_err, 2) if heights else None,
         "mean_abs_height_error_vs_drawn_mm": round(height_vs_drawn, 2) if heights else None,
     }

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import subprocess
@@ -17,7 +18,7 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from capsd import topics
-from capsd.calibrate import applied
+from capsd.calibrate import applied, profiles_prior
 from capsd.codec import Codec
 from capsd.errors import CapsdError
 from capsd.geometry import Transform, matrix_to_quat
@@ -27,6 +28,7 @@ from capsd.payloads import AsvPose, RovDepth, RovFix, SonarFrame
 from capsd.pitch_calibration import (
     HEIGHT_SIGMA_MAX_M,
     EchoSamples,
+    ProfilesPrior,
     echo_samples,
     fit_pitch,
     fit_profiles,
@@ -286,6 +288,56 @@ def test_one_distance_leaves_the_height_undetermined_and_says_so() -> None:
     cal = applied(NOMINAL, RovConfig(), InstallationConfig(), None, None, None, fit)
     assert cal.mount.position_m == NOMINAL.position_m
     assert cal.mount.pitch_deg == pytest.approx(30.0 - fit.fits[0].offset_deg, abs=1e-3)
+
+
+def test_the_tapes_sigma_is_weighed_into_the_pitch_and_height_written() -> None:
+    frames, fixes, depths = _two_profiles(pitch_error_deg=0.6, height_error_m=0.025)
+    profiles = split_profiles(_samples(frames, fixes, depths, NOMINAL))
+    alone = fit_profiles(profiles, height_coupling=0.0)
+    tape = ProfilesPrior(pitch_sigma_rad=math.radians(0.7), height_sigma_m=0.02)
+    weighed = fit_profiles(profiles, height_coupling=0.0, prior=tape)
+    # Whether the data determined the height stays the profiles' own verdict.
+    assert weighed.height_data_sigma_m == pytest.approx(alone.height_sigma_m)
+    assert weighed.height_determined
+    assert alone.height_determined
+    assert weighed.height_sigma_m < 0.95 * alone.height_sigma_m
+    assert weighed.pitch_offset_sigma_deg < 0.95 * alone.pitch_offset_sigma_deg
+    assert "the tape's 1-sigma weighed in (0.7 deg, 20 mm)" in weighed.lines()[-1]
+    # The most likely pitch and height given both: the profiles' information and the tape's
+    # added, the tape's mean the configured mount: (N + P) x = N x_profiles.
+    design = np.array([[1.0, f.height_gain_with(0.0)] for f in alone.used])
+    profiles_information = design.T @ (
+        design / np.radians([f.offset_sigma_deg for f in alone.used])[:, None] ** 2
+    )
+    alone_x = np.array([math.radians(alone.pitch_offset_deg), alone.height_m])
+    weighed_x = np.array([math.radians(weighed.pitch_offset_deg), weighed.height_m])
+    np.testing.assert_allclose(
+        (profiles_information + tape.information()) @ weighed_x,
+        profiles_information @ alone_x,
+        rtol=1e-9,
+    )
+    assert abs(weighed.height_m) < abs(alone.height_m)
+    # Written when known within 15 mm from both; the fit says when the profiles alone did not.
+    assert weighed.by_profiles_alone
+    leaning = dataclasses.replace(weighed, height_data_sigma_m=0.018)
+    assert leaning.height_determined
+    assert not leaning.by_profiles_alone
+    assert "leaning on the tape: the profiles alone know it to 18.0 mm" in leaning.lines()[-1]
+    assert not dataclasses.replace(weighed, height_sigma_m=0.016).height_determined
+    # A sigma of 0 is no prior on that term.
+    none = fit_profiles(profiles, height_coupling=0.0, prior=ProfilesPrior(0.0, 0.0))
+    assert none.height_m == pytest.approx(alone.height_m, rel=1e-12)
+    assert none.pitch_offset_deg == pytest.approx(alone.pitch_offset_deg, rel=1e-12)
+
+
+def test_the_height_prior_holds_the_depth_offsets_sigma() -> None:
+    # The profiles see the sonar's height against the ROV's depth reference.
+    prior = profiles_prior(
+        InstallationConfig(sonar_position_m=(0.02, 0.02, 0.02), sonar_angles_deg=(0.7, 0.5, 0.7),
+                           depth_offset_m=0.015)
+    )  # fmt: skip
+    assert prior.height_sigma_m == pytest.approx(0.025)
+    assert prior.pitch_sigma_rad == pytest.approx(math.radians(0.5))
 
 
 def _record(
