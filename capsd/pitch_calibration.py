@@ -552,8 +552,8 @@ def fit_profiles(
     `height_coupling`: the range offset fit's (RangeFit.height_coupling), None where it is
     not known (the height then only reported). The height's gain at each profile takes in
     what it does to the ROV's place there (PitchFit.height_gain_with). `prior`: the tape's
-    1-sigma, weighed into the pitch and height written (not into whether the profiles
-    determined the height).
+    1-sigma, weighed into the pitch and height written and into whether the height is known
+    well enough to write (ProfilesFit.by_profiles_alone: whether the profiles alone were).
     """
     if not profiles:
         raise CapsdError(
