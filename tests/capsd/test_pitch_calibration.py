@@ -296,7 +296,7 @@ def test_the_tapes_sigma_is_weighed_into_the_pitch_and_height_written() -> None:
     alone = fit_profiles(profiles, height_coupling=0.0)
     tape = ProfilesPrior(pitch_sigma_rad=math.radians(0.7), height_sigma_m=0.02)
     weighed = fit_profiles(profiles, height_coupling=0.0, prior=tape)
-    # Whether the data determined the height stays the profiles' own verdict.
+    # The profiles' own 1-sigma is kept beside the one written (both sources together).
     assert weighed.height_data_sigma_m == pytest.approx(alone.height_sigma_m)
     assert weighed.height_determined
     assert alone.height_determined
