@@ -277,10 +277,11 @@ def register(sub: Subcommands) -> None:
     bdet.add_argument("--json", type=Path, default=None, help="also write the figures as JSON")
     bdet.add_argument(
         "--runs",
-        choices=["held-out", "near"],
+        choices=["held-out", "near", "close"],
         default="held-out",
         help="held-out: the bench's runs, 1.5-20 m; near: a small tank's ASV 0.6 m off the ROV, "
-        "its sonar 60 deg down, the ROV 0.5-1.5 m off (default: %(default)s)",
+        "its sonar 60 deg down, the ROV 0.5-1.5 m off; close: the ASV 1.5 m off, the sonar 30 "
+        "deg down, the ROV 1.2-2 m off at every elevation (default: %(default)s)",
     )
     bdet.add_argument(
         "--fixtures",

@@ -1,4 +1,4 @@
-"""`capsd train detector|near-refiner|calibrate|range-bias`, `capsd label`: training tools."""
+"""`capsd train detector|proposal|near-refiner|calibrate|range-bias`, `capsd label`: training."""
 
 from __future__ import annotations
 
@@ -87,6 +87,24 @@ def _cmd_train_near_refiner(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_train_proposal(args: argparse.Namespace) -> int:
+    from capsd.train.proposal import ProposalConfig, train_proposal
+
+    config = ProposalConfig(
+        seed=args.seed,
+        close_share=args.close_share,
+        close_max_range_m=args.close_max_range,
+        workers=args.workers,
+        threads=args.threads,
+        evaluate=args.evaluate,
+    )
+    try:
+        train_proposal(args.weights, args.out, config)
+    except CapsdError as exc:
+        return fail(str(exc), EXIT_CONFIG)
+    return EXIT_OK
+
+
 def _cmd_label(args: argparse.Namespace) -> int:
     from capsd.config import load_config
     from capsd.services.locator.service import Config as LocatorConfig
@@ -134,6 +152,10 @@ def _cmd_train_detector(args: argparse.Namespace) -> int:
         return fail(f"train detector: --far-share {args.far_share}: between 0 and 1", EXIT_CONFIG)
     if not 0.0 <= args.near_share <= 1.0:
         return fail(f"train detector: --near-share {args.near_share}: between 0 and 1", EXIT_CONFIG)
+    if not 0.0 <= args.close_share <= 1.0:
+        return fail(
+            f"train detector: --close-share {args.close_share}: between 0 and 1", EXIT_CONFIG
+        )
     if args.far_share + args.near_share > 1.0:
         return fail(
             f"train detector: --far-share {args.far_share} and --near-share {args.near_share}: "
@@ -157,6 +179,7 @@ def _cmd_train_detector(args: argparse.Namespace) -> int:
         hard_runs=args.hard_runs,
         far_share=args.far_share,
         near_share=args.near_share,
+        close_share=args.close_share,
         start_spread_s=args.start_spread,
         hard_rounds=args.hard_rounds,
         hard_epochs=args.hard_epochs,
@@ -202,6 +225,13 @@ def register(sub: Subcommands) -> None:
         default=0.0,
         help="share of runs near (the mockup, the ROV 0.5-1.5 m away, the sonar 45-75 deg down; "
         "default 0)",
+    )
+    tdet.add_argument(
+        "--close-share",
+        type=float,
+        default=0.0,
+        help="share of runs close (the ROV 1-2.5 m away, the sonar 20-40 deg down, half of them "
+        "profiling through the aperture; default 0: `capsd train proposal` adds them)",
     )
     tdet.add_argument(
         "--range-input",
@@ -350,6 +380,45 @@ def register(sub: Subcommands) -> None:
         help="none: keep the stored evaluation of --weights (run `capsd bench detect` after)",
     )
     tnear.set_defaults(func=_cmd_train_near_refiner)
+    tprop = train.add_parser(
+        "proposal",
+        help="add a close proposal network (trained with close runs) to the polar CNN's weights",
+        description="Train a proposal network on the runs --weights were trained on (their "
+        "polar_net.json's train_config) with --close-share of them close runs (the ASV 0.8-2.2 "
+        "m behind the ROV, the sonar 20-40 deg down, half of them the ROV going down and up "
+        "through the aperture), add it to --weights as the heat of the rows nearer than "
+        "--close-max-range, keep the rest, set both operating points again, write "
+        "polar_net.pt and polar_net.json into --out. About 17 minutes on 2 CPU cores.",
+    )
+    tprop.add_argument(
+        "--weights",
+        type=Path,
+        default=Path("services/sonar_detect/weights/polar_net.pt"),
+        help="the weights whose refiners are kept (default: the shipped ones)",
+    )
+    tprop.add_argument("--out", type=Path, required=True, help="folder for the new weights")
+    tprop.add_argument("--seed", type=int, default=0)
+    tprop.add_argument(
+        "--close-share",
+        type=float,
+        default=0.25,
+        help="share of the runs made close runs (default %(default)s)",
+    )
+    tprop.add_argument(
+        "--close-max-range",
+        type=float,
+        default=2.5,
+        help="the close network gives the heat nearer than this, m (default %(default)s)",
+    )
+    tprop.add_argument("--workers", type=positive_int, default=2, help="rendering processes")
+    tprop.add_argument("--threads", type=positive_int, default=2, help="torch threads")
+    tprop.add_argument(
+        "--evaluate",
+        choices=("heldout", "none"),
+        default="heldout",
+        help="none: no held-out evaluation in polar_net.json (run `capsd bench detect` after)",
+    )
+    tprop.set_defaults(func=_cmd_train_proposal)
     tcal = train.add_parser(
         "calibrate",
         help="set the polar CNN's operating point on validation runs (part of `detector`)",

@@ -70,6 +70,15 @@ NEAR_PITCH_DEG = (45.0, 75.0)
 # ... and turned this far either way (since session 51), as a pan at its limit or a hull
 # turning slower than the ROV passes leaves it: the ROV up to 45 deg off the boresight.
 NEAR_YAW_DEG = 70.0
+# Close runs (plan_runs' close_share, since session 59): the ASV CLOSE_STANDOFF_M behind the ROV
+# with its sonar CLOSE_PITCH_DEG down, as usual, so that the ROV is 1-2.5 m from the sonar; in
+# half of them the ASV stands still and the ROV goes down and up through the aperture, a round
+# trip in CLOSE_PROFILE_PERIOD_S (the pitch calibration's near profile; a ROV passing under a
+# parked ASV). The runs before put almost no ROV there: the proposal network put under 0.1 of
+# heat on a ROV 1.25-2 m off in the aperture's middle (session 59, by hand).
+CLOSE_STANDOFF_M = (0.8, 2.2)
+CLOSE_PITCH_DEG = (20.0, 40.0)
+CLOSE_PROFILE_PERIOD_S = (30.0, 60.0)
 
 
 @dataclass(frozen=True)
@@ -90,6 +99,9 @@ class RunPlan:
     sonar_pitch_deg: float | None = None  # None: the simulator's default mount (30 deg down)
     sonar_yaw_deg: float = 0.0  # the mount turned to port (near runs)
     start_s: float = 0.0  # where in the vehicles' paths the run starts (sim seconds)
+    # profile: the ROV goes down and up through the aperture, the ASV still (close runs).
+    rov_mode: Literal["trajectory", "profile"] = "trajectory"
+    profile_period_s: float = 120.0
 
     def config(self) -> Config:
         sonar = SonarMountConfig()
@@ -103,6 +115,8 @@ class RunPlan:
             seed=self.seed,
             asv_mode=self.asv_mode,
             asv_standoff_m=self.standoff_m,
+            rov_mode=self.rov_mode,
+            profile_period_s=self.profile_period_s,
             sonar=sonar,
             sonar_image=SonarImageConfig(
                 gain_percent=self.gain_percent,
@@ -128,6 +142,7 @@ def plan_runs(
     sonar_hz: float,
     far_share: float = 0.0,
     near_share: float = 0.0,
+    close_share: float = 0.0,
     start_spread_s: float = 0.0,
     near_standoff_m: tuple[float, float] = NEAR_STANDOFF_M,
     near_yaw_deg: float = NEAR_YAW_DEG,
@@ -142,6 +157,8 @@ def plan_runs(
     A `near_share` (a stream of its own too) is near: the mockup, the ASV following
     `near_standoff_m` off with its sonar NEAR_PITCH_DEG down and up to `near_yaw_deg` to either
     side, the ROV 0.5-1.5 m away with the defaults.
+    A `close_share` (its own stream) is close: either tuning tank, the ASV CLOSE_STANDOFF_M
+    off, the sonar CLOSE_PITCH_DEG down, half of them the ROV profiling (RunPlan.rov_mode).
     With `start_spread_s`, each run starts at a time drawn from 0 to that (a stream of its
     own again): short runs then see every part of the paths, not only their first seconds.
     """
@@ -176,6 +193,8 @@ def plan_runs(
         plans = _placed(
             plans, near, near_share, "mockup", near_standoff_m, NEAR_PITCH_DEG, near_yaw_deg
         )
+    if close_share > 0.0:
+        plans = _close(plans, np.random.default_rng([seed, 0xC105E]), close_share)
     if start_spread_s > 0.0:
         start_rng = np.random.default_rng([seed, 0x57A7])
         plans = [
@@ -213,6 +232,32 @@ def _placed(
             if yaw_deg > 0.0:
                 plan = dataclasses.replace(
                     plan, sonar_yaw_deg=float(rng.uniform(-yaw_deg, yaw_deg))
+                )
+        out.append(plan)
+    return out
+
+
+def _close(plans: list[RunPlan], rng: np.random.Generator, share: float) -> list[RunPlan]:
+    """`plans` with a `share` of them (drawn from `rng`) made close runs (plan_runs).
+
+    A draw for every run, so the plan is the same whatever came before; a run already moved
+    (its pitch set) stays as it is. The tank stays the run's own (both tuning tanks).
+    """
+    out = []
+    for plan in plans:
+        draw = rng.random(5)
+        if draw[0] < share and plan.sonar_pitch_deg is None:
+            plan = dataclasses.replace(
+                plan,
+                asv_mode="follow",
+                standoff_m=float(np.interp(draw[1], (0.0, 1.0), CLOSE_STANDOFF_M)),
+                sonar_pitch_deg=float(np.interp(draw[2], (0.0, 1.0), CLOSE_PITCH_DEG)),
+            )
+            if draw[3] < 0.5:
+                plan = dataclasses.replace(
+                    plan,
+                    rov_mode="profile",
+                    profile_period_s=float(np.interp(draw[4], (0.0, 1.0), CLOSE_PROFILE_PERIOD_S)),
                 )
         out.append(plan)
     return out

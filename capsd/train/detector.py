@@ -50,7 +50,7 @@ from capsd.services.sonar_detect.polar_input import (
 )
 from capsd.services.sonar_detect.polar_net import OFFSET_SCALE_M, PolarNet, near_refined, save
 from capsd.simulator.sonar_look import Variety
-from capsd.train.data import Samples, plan_runs, render
+from capsd.train.data import RunPlan, Samples, plan_runs, render
 
 # How training samples are varied (_augment).
 Augment = Literal["gain", "look"]
@@ -83,6 +83,9 @@ class TrainConfig:
     far_share: float = 0.0
     # The share of runs near (the ROV 0.5-1.5 m away, the sonar steeply down; data.plan_runs).
     near_share: float = 0.0
+    # The share of runs close (the ROV 1-2.5 m away, the sonar 20-40 deg down, half of them
+    # profiling through the aperture; data.plan_runs). Since session 59 `capsd train proposal`.
+    close_share: float = 0.0
     # Runs start at a time drawn from 0 to this into the vehicles' paths (data.plan_runs).
     start_spread_s: float = 0.0
     eval_duration_s: float = 20.0
@@ -111,6 +114,19 @@ class TrainConfig:
     def inputs(self) -> Inputs:
         """What the networks read besides the image."""
         return Inputs(range_input=self.range_input, coarse_beams=self.coarse_beams)
+
+    def plans(self, *, runs: int, seed: int) -> list[RunPlan]:
+        """`runs` runs from `seed`, placed and spread as this config says (data.plan_runs)."""
+        return plan_runs(
+            runs=runs,
+            seed=seed,
+            duration_s=self.duration_s,
+            sonar_hz=self.sonar_hz,
+            far_share=self.far_share,
+            near_share=self.near_share,
+            close_share=self.close_share,
+            start_spread_s=self.start_spread_s,
+        )
 
 
 def _augment(
@@ -323,15 +339,7 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
     torch.manual_seed(config.seed)
     torch.set_num_threads(config.threads)
     gen = torch.Generator().manual_seed(config.seed)
-    plans = plan_runs(
-        runs=config.runs,
-        seed=config.seed,
-        duration_s=config.duration_s,
-        sonar_hz=config.sonar_hz,
-        far_share=config.far_share,
-        near_share=config.near_share,
-        start_spread_s=config.start_spread_s,
-    )
+    plans = config.plans(runs=config.runs, seed=config.seed)
     samples = render(plans, workers=config.workers, inputs=config.inputs)
     rendered_s = time.monotonic() - started
     n_visible = int(sum(t[0] for t in samples.grid_targets))
@@ -346,15 +354,7 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
     # from the ROV (sandbags, rack corners) become refiner negatives.
     buffer = io.BytesIO()
     torch.save({k: v.cpu() for k, v in net.proposal.state_dict().items()}, buffer)
-    mining = plan_runs(
-        runs=config.mining_runs,
-        seed=config.seed + 1,
-        duration_s=config.duration_s,
-        sonar_hz=config.sonar_hz,
-        far_share=config.far_share,
-        near_share=config.near_share,
-        start_spread_s=config.start_spread_s,
-    )
+    mining = config.plans(runs=config.mining_runs, seed=config.seed + 1)
     mined = render(
         mining,
         workers=config.workers,
@@ -367,15 +367,7 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
     hard_losses: list[float] = []
     hard_counts: list[tuple[int, int]] = []  # per round: hard examples, fresh crops
     for round_index in range(config.hard_rounds):
-        hard_set = plan_runs(
-            runs=config.hard_runs,
-            seed=config.seed + 2 + round_index,
-            duration_s=config.duration_s,
-            sonar_hz=config.sonar_hz,
-            far_share=config.far_share,
-            near_share=config.near_share,
-            start_spread_s=config.start_spread_s,
-        )
+        hard_set = config.plans(runs=config.hard_runs, seed=config.seed + 2 + round_index)
         fresh = render(
             hard_set,
             workers=config.workers,

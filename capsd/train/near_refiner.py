@@ -164,6 +164,7 @@ def train_near_refiner(
         refine_channels=main.refine_channels,
         inputs=main.inputs,
         near_refiner=True,
+        close_proposal=main.close_proposal is not None,  # kept as it is
     )
     state = {k: v for k, v in main.state_dict().items() if not k.startswith("near_")}
     net.load_state_dict(state, strict=False)

@@ -3,7 +3,8 @@
 1. The coarse grid of the frame (polar_input) goes through the proposal network; local maxima
    of its heatmap above `proposal_threshold` are candidates (at most `max_candidates`); inside
    the depth gate's range window, where the ROV must be, above `gated_proposal_threshold` if
-   set lower.
+   set lower. Weights with a close proposal network (`close_proposal: on`) take the heat of
+   the rows nearer than its range (2.5 m in the shipped ones) from it (polar_net).
 2. A metric crop around each candidate goes through the refiner: ROV or not (the confidence),
    the centre's offset in range and cross-range, its Laplace scale (reported as sigma) and the
    echo's extent. The crop is taken again around the refined centre `refine_passes - 1` times:
@@ -60,6 +61,10 @@ from capsd.sonar_image import Image
 DEFAULT_WEIGHTS = Path(__file__).with_name("weights") / "polar_net.pt"
 LAPLACE_SIGMA = math.sqrt(2.0)  # standard deviation of a Laplace law per unit scale
 TRACKED_PEAKS = 16  # peaks under the bar looked at for one near a tracked ROV
+# How far (heat cells) a ProposalNet's output reads its input: 1 + 1 + 2 + 4 + 8 from its 3x3
+# convolutions at stride 2 and their dilations, plus one for the first. The close network runs
+# on the grid's near rows and this many more: its heat there is what the whole grid would give.
+PROPOSAL_REACH_CELLS = 17
 MirrorAverage = Literal["off", "refiner", "both"]
 
 
@@ -122,6 +127,10 @@ class CnnSettings:
     # (polar_net.near_refined: near, or nearish by the fan's edge): "off" refines every
     # candidate with the main refiner, as before session 55.
     near_refiner: Literal["on", "off"] = "on"
+    # The weights' close proposal network (if they have one) for the heat of the rows where it
+    # takes over (polar_net: nearer than close_max_range_m); "off": the main one everywhere,
+    # as before session 59.
+    close_proposal: Literal["on", "off"] = "on"
 
 
 # The network alone: every frame searched, no track prior (calibration, stored evaluation).
@@ -165,6 +174,12 @@ class CnnDetector:
         self._refine_net = fused_for_inference(self.net.refine)
         near = self.net.near_refine if self.settings.near_refiner == "on" else None
         self._near_refine_net = None if near is None else fused_for_inference(near)
+        close = self.net.close_proposal if self.settings.close_proposal == "on" else None
+        self._close: tuple[torch.nn.Module, float] | None = (
+            None
+            if close is None
+            else (fused_for_inference(close), float(self.net.close_max_range_m))
+        )
         self._track: _Track | None = None
         self.searches = 0  # whole-frame searches
         self.tracked = 0  # frames refined around the previous ping's detections only
@@ -285,6 +300,7 @@ class CnnDetector:
             tracked_threshold=s.track_proposal_threshold,
             tracked_gate_m=s.track_gate_m,
             mirror=s.mirror_average == "both",
+            close=self._close,
         )
 
     def _refine(
@@ -419,12 +435,14 @@ def propose(
     tracked_threshold: float | None = None,
     tracked_gate_m: float = 0.3,
     mirror: bool = False,
+    close: tuple[torch.nn.Module, float] | None = None,
 ) -> list[Candidate]:
     """Local maxima of the proposal heatmap above `threshold`, strongest first.
 
     With `range_window` (metres), heat cells outside it are not candidates (depth-aware search).
     A peak within `tracked_gate_m` of one of `tracked` needs only `tracked_threshold` (if set).
     With `mirror`, the heat is the mean of the frame's and its mirror's (logits, mirrored back).
+    With `close` (a network and a range), that network gives the heat of the rows nearer.
     """
     if not tracked or tracked_threshold is None:
         tracked, tracked_threshold = (), threshold
@@ -435,14 +453,14 @@ def propose(
     coarse = torch.from_numpy(proposal_input(image, frame, grid, inputs))[None].contiguous(
         memory_format=torch.channels_last
     )
+    # Heat row i is centred on bin (2i + 1) x range_factor (see below).
+    cell_m = 2 * grid.range_factor * frame.range_resolution_m
     with torch.inference_mode():
-        logits = proposal(coarse)
-        if mirror:
-            logits = 0.5 * (logits + torch.flip(proposal(torch.flip(coarse, dims=[-1])), dims=[-1]))
+        logits = heat_logits(
+            proposal, coarse, mirror=mirror, close=close, rows_m=(frame.range_start_m, cell_m)
+        )
         heat = torch.sigmoid(logits)[0]
         if range_window is not None:
-            # Heat row i is centred on bin (2i + 1) x range_factor (see below).
-            cell_m = 2 * grid.range_factor * frame.range_resolution_m
             centres = frame.range_start_m + (torch.arange(heat.shape[0]) + 0.5) * cell_m
             outside = (centres < range_window[0] - cell_m) | (centres > range_window[1] + cell_m)
             heat[outside] = 0.0
@@ -468,6 +486,40 @@ def propose(
         if score >= threshold or any(distance(candidate, t) < tracked_gate_m for t in tracked):
             out.append(candidate)
     return out
+
+
+def heat_logits(
+    proposal: torch.nn.Module,
+    coarse: torch.Tensor,
+    *,
+    mirror: bool,
+    close: tuple[torch.nn.Module, float] | None = None,
+    rows_m: tuple[float, float] = (0.0, 0.0),
+) -> torch.Tensor:
+    """The heat logits of a grid (batch x rows x cols); with `mirror`, averaged with its mirror's.
+
+    With `close` (a network, a range), that network's for the rows whose centre is nearer,
+    `rows_m` giving the first row's start and a row's height (m); it reads only those rows and
+    PROPOSAL_REACH_CELLS more, which is all its heat there depends on.
+    """
+    logits = _mirrored(proposal, coarse, mirror=mirror)
+    if close is not None:
+        close_net, close_max_m = close
+        start_m, cell_m = rows_m
+        rows = math.ceil((close_max_m - start_m) / cell_m - 0.5)
+        rows = min(max(rows, 0), logits.shape[1])
+        if rows > 0:
+            strip = coarse[..., : 2 * (rows + PROPOSAL_REACH_CELLS), :]
+            logits[:, :rows] = _mirrored(close_net, strip, mirror=mirror)[:, :rows]
+    return logits
+
+
+def _mirrored(proposal: torch.nn.Module, coarse: torch.Tensor, *, mirror: bool) -> torch.Tensor:
+    """A network's heat logits; with `mirror`, averaged with its mirror image's."""
+    logits: torch.Tensor = proposal(coarse)
+    if mirror:
+        logits = 0.5 * (logits + torch.flip(proposal(torch.flip(coarse, dims=[-1])), dims=[-1]))
+    return logits
 
 
 def distance(a: Detection | Candidate, b: Detection | Candidate) -> float:

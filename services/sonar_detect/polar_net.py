@@ -18,6 +18,11 @@ crop's centre), so that what an ROV looks like may depend on how far it is (a fa
   Since session 56 it also reads candidates nearer than `near_edge_max_range_m` within
   `near_edge_within_rad` of the fan's edge (`near_refined`): there the crop runs past the fan,
   and the main refiner found none of the ROVs 1.5-2 m off and 45-55 deg off the boresight.
+- An optional close proposal network (`close_proposal`, a `ProposalNet` with weights of its
+  own, since session 59) gives the heat of the grid's rows nearer than `close_max_range_m`:
+  the main one, trained on few ROVs 1-2.5 m from a sonar 30 deg down, put under 0.1 of heat
+  on them where the refiners were sure (`capsd train proposal`; trained with close runs the
+  whole network lost far ROVs on the held-out look, so it takes over near the sonar only).
 Weights are a plain state dict with a format tag, loaded with `weights_only=True`.
 """
 
@@ -138,6 +143,7 @@ class PolarNet(nn.Module):
     near_max_range_m: torch.Tensor
     near_edge_max_range_m: torch.Tensor
     near_edge_within_rad: torch.Tensor
+    close_max_range_m: torch.Tensor
 
     def __init__(
         self,
@@ -146,6 +152,7 @@ class PolarNet(nn.Module):
         refine_channels: int = 2,
         inputs: Inputs = DEFAULT_INPUTS,
         near_refiner: bool = False,
+        close_proposal: bool = False,
     ):
         super().__init__()
         self.crop_size = crop_size
@@ -166,6 +173,11 @@ class PolarNet(nn.Module):
         # edge (0: none).
         self.register_buffer("near_edge_max_range_m", torch.zeros(()))
         self.register_buffer("near_edge_within_rad", torch.zeros(()))
+        # The close proposal network, for the heat of rows nearer than `close_max_range_m`.
+        self.close_proposal: ProposalNet | None = (
+            ProposalNet(channels=2 + inputs.extra_planes) if close_proposal else None
+        )
+        self.register_buffer("close_max_range_m", torch.zeros(()))
 
 
 def near_refined(net: PolarNet, *, range_m: float, azimuth_rad: float, half_fov_rad: float) -> bool:
@@ -191,6 +203,7 @@ def save(net: PolarNet, path: Path, *, meta: dict[str, Any]) -> None:
             "range_input": net.inputs.range_input,
             "coarse_beams": net.inputs.coarse_beams,
             "near_refiner": net.near_refine is not None,
+            "close_proposal": net.close_proposal is not None,
             "state": state,
             "meta": meta,
         },
@@ -222,11 +235,15 @@ def load(path: Path) -> PolarNet:
     near_refiner = blob.get("near_refiner", False)  # weights saved before it existed: none
     if not isinstance(near_refiner, bool):
         raise CapsdError(f"{path}: near_refiner {near_refiner!r}, expected true or false")
+    close_proposal = blob.get("close_proposal", False)  # ... before session 59: none
+    if not isinstance(close_proposal, bool):
+        raise CapsdError(f"{path}: close_proposal {close_proposal!r}, expected true or false")
     net = PolarNet(
         crop_size=int(blob["crop_size"]),
         refine_channels=int(blob.get("refine_channels", 1)),
         inputs=Inputs(range_input=range_input, coarse_beams=coarse_beams),
         near_refiner=near_refiner,
+        close_proposal=close_proposal,
     )
     state = dict(blob["state"])
     state.setdefault("logit_offset", torch.zeros(()))  # weights saved before calibration
@@ -235,6 +252,7 @@ def load(path: Path) -> PolarNet:
     state.setdefault("near_max_range_m", torch.zeros(()))
     state.setdefault("near_edge_max_range_m", torch.zeros(()))  # ... before session 56
     state.setdefault("near_edge_within_rad", torch.zeros(()))
+    state.setdefault("close_max_range_m", torch.zeros(()))  # ... before session 59
     try:
         net.load_state_dict(state)
     except RuntimeError as exc:

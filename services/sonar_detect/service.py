@@ -93,6 +93,10 @@ class CnnConfig(ConfigSection, frozen=True, kw_only=True):
     # near-refiner`); off: every candidate to the main refiner. Weights without one: the main
     # refiner either way.
     near_refiner: Literal["on", "off"] = "on"
+    # on: the heat of the frame's rows where the weights' close proposal network takes over (in
+    # the shipped ones: nearer than 2.5 m) from it (`capsd train proposal`); off: the main
+    # proposal network everywhere. Weights without one: the main one either way.
+    close_proposal: Literal["on", "off"] = "on"
     threads: Annotated[int, msgspec.Meta(ge=1, le=64)] = 1
     # by_elevation: with the depth gate, a near ROV's range corrected for where it lies in the
     # vertical aperture and how steeply the sonar looks down at it (capsd.services.sonar_detect
@@ -254,6 +258,7 @@ def make_detector(config: Config) -> Detector:
         track_proposal_threshold=c.track_proposal_threshold,
         mirror_average=c.mirror_average,
         near_refiner=c.near_refiner,
+        close_proposal=c.close_proposal,
         track_confidence=config.min_confidence,
     )
     try:

@@ -295,3 +295,23 @@ def test_a_near_rov_is_scored_by_how_far_off_the_boresight_it_is() -> None:
     near = [name for name in tallies if "boresight" in name]
     assert near == ["d / under 4 m, 0-15 deg off the boresight"]  # 0.1 rad; the 6 m ROV: none
     assert tallies[near[0]].summary()["visible"] == 1
+
+
+def test_the_close_runs_put_the_rov_across_the_aperture_of_a_sonar_30_deg_down() -> None:
+    """`--runs close`: the ROV 1.2-2 m off at every elevation, the sonar mounted as usual."""
+    profile = sonar_only("pond", "lawnmower", "profile_close", 113)
+    assert (profile.sonar.pitch_deg, profile.asv_standoff_m) == (30.0, 1.5)
+    assert (profile.rov_mode, profile.profile_period_s) == ("profile", 45.0)
+    follow = sonar_only("nfp", "bouncing", "follow_close", 115)
+    assert (follow.rov_mode, follow.asv_standoff_m) == ("trajectory", 1.5)
+    sim = Simulation(profile, horizon_s=50.0)
+    seen = [
+        label
+        for _, _, label in sim.labelled_pings(start_ns=OFFLINE_START_NS, duration_s=45.0)
+        if label.visible and abs(label.elevation_rad) <= math.radians(10.0)
+    ]
+    assert len(seen) >= 20
+    assert all(1.2 <= label.range_m <= 2.0 for label in seen)
+    elevations = [math.degrees(label.elevation_rad) for label in seen]
+    assert min(elevations) < -6.0
+    assert max(elevations) > 6.0

@@ -1,4 +1,4 @@
-"""The training plan: far and near runs and later starts on request, else the plan as it was."""
+"""The training plan: far, near and close runs and later starts on request, else as it was."""
 
 from __future__ import annotations
 
@@ -11,6 +11,9 @@ from capsd.services.sonar_detect.polar_input import DEFAULT_INPUTS
 from capsd.simulator.config import OFFLINE_START_NS
 from capsd.simulator.sim import Simulation
 from capsd.train.data import (
+    CLOSE_PITCH_DEG,
+    CLOSE_PROFILE_PERIOD_S,
+    CLOSE_STANDOFF_M,
     FAR_PITCH_DEG,
     FAR_STANDOFF_M,
     NEAR_PITCH_DEG,
@@ -117,6 +120,47 @@ def test_a_near_run_puts_the_rov_near_the_sonar() -> None:
     seen = _in_the_aperture(plan, duration_s=20.0)
     assert len(seen) >= 20
     assert all(band_of(label.range_m) == "0.5-1.5 m" for label in seen)
+
+
+def test_close_runs_replace_a_share_of_the_runs_that_are_not_far_half_of_them_profiling() -> None:
+    far = plan_runs(runs=60, seed=3, duration_s=10.0, sonar_hz=2.0, far_share=0.3)
+    both = plan_runs(runs=60, seed=3, duration_s=10.0, sonar_hz=2.0, far_share=0.3, close_share=0.5)
+    close = [k for k, (p, q) in enumerate(zip(far, both, strict=True)) if p != q]
+    assert 8 <= len(close) <= 30
+    for k in close:
+        p, q = far[k], both[k]
+        assert p.sonar_pitch_deg is None  # a far run stays far
+        assert (q.tank, q.asv_mode, q.seed, q.variety) == (p.tank, "follow", p.seed, p.variety)
+        assert q.standoff_m is not None
+        assert q.sonar_pitch_deg is not None
+        assert CLOSE_STANDOFF_M[0] <= q.standoff_m <= CLOSE_STANDOFF_M[1]
+        assert CLOSE_PITCH_DEG[0] <= q.sonar_pitch_deg <= CLOSE_PITCH_DEG[1]
+        if q.rov_mode == "profile":
+            assert CLOSE_PROFILE_PERIOD_S[0] <= q.profile_period_s <= CLOSE_PROFILE_PERIOD_S[1]
+            assert q.config().rov_mode == "profile"
+            assert q.config().profile_period_s == q.profile_period_s
+    profiling = sum(both[k].rov_mode == "profile" for k in close)
+    assert 0 < profiling < len(close)
+    assert all(p.rov_mode == "trajectory" for k, p in enumerate(both) if k not in close)
+
+
+def test_a_close_profile_puts_the_rov_near_a_sonar_30_deg_down_across_the_aperture() -> None:
+    """What the proposal network had seen almost none of before session 59."""
+    plan = dataclasses.replace(
+        plan_runs(runs=1, seed=5, duration_s=30.0, sonar_hz=2.0)[0],
+        tank="nfp",
+        asv_mode="follow",
+        standoff_m=1.5,
+        sonar_pitch_deg=30.0,
+        rov_mode="profile",
+        profile_period_s=30.0,
+    )
+    seen = _in_the_aperture(plan, duration_s=30.0)
+    assert len(seen) >= 10
+    assert all(1.0 <= label.range_m <= 2.5 for label in seen)
+    elevations = [math.degrees(label.elevation_rad) for label in seen]
+    assert min(elevations) < -5.0
+    assert max(elevations) > 5.0
 
 
 def test_a_start_spread_moves_each_run_into_its_paths_and_leaves_the_rest_as_planned() -> None:

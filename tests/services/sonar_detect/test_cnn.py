@@ -22,11 +22,18 @@ from capsd.services.sonar_detect.cnn import (
     Candidate,
     CnnDetector,
     CnnSettings,
+    heat_logits,
     proposal_input,
     refine_input,
 )
 from capsd.services.sonar_detect.polar_input import BeamTable, Grid, Inputs, normalised_image
-from capsd.services.sonar_detect.polar_net import PolarNet, RefineNet, load, save
+from capsd.services.sonar_detect.polar_net import (
+    PolarNet,
+    RefineNet,
+    fused_for_inference,
+    load,
+    save,
+)
 from capsd.simulator.scene import BLUEROV2_SEMI_AXES, Ellipsoid
 from capsd.simulator.sonar import SonarModel, SonarRenderer
 from capsd.simulator.world import make_tank
@@ -71,13 +78,16 @@ def test_finds_the_rov_centre(detector: CnnDetector, range_m: float, azimuth_deg
     assert abs(float(np.median(errors_a))) < 0.4
 
 
-def test_a_near_rov_is_proposed_inside_the_depth_gate_s_window() -> None:
-    # 1.6-1.8 m off the proposal heat of a ROV is its frame's strongest but under 0.1: inside
-    # the range window where the ROV must be, a lower bar (when set) lets the refiner see it.
+def test_a_near_rov_is_proposed_by_the_close_network_or_inside_the_depth_gate_s_window() -> None:
+    # 1.6-1.8 m off a sonar 30 deg down the main proposal network's heat of a ROV is its
+    # frame's strongest but under 0.1: the shipped close proposal network (session 59) gives
+    # that heat; without it, inside the range window where the ROV must be, a lower bar (when
+    # set) lets the refiner see it.
     tank = make_tank("nfp")
     renderer = SonarRenderer(SonarModel(range_max_m=20.0, n_ranges=1000), tank)
     sonar = Transform(euler_zyx_to_matrix(0.0, math.radians(30.0), 0.0), np.array([6.0, 8.0, -0.2]))
-    found: dict[str, int] = {"gated": 0, "old bar": 0, "no window": 0}
+    main_only = CnnSettings(close_proposal="off")
+    found: dict[str, int] = {"close": 0, "gated": 0, "old bar": 0, "no window": 0}
     for range_m, elevation_deg in ((1.8, -3.0), (1.6, 8.0)):
         e = math.radians(-elevation_deg)
         rov = Ellipsoid(
@@ -88,14 +98,16 @@ def test_a_near_rov_is_proposed_inside_the_depth_gate_s_window() -> None:
         for seed in range(5):
             frame = _frame(renderer, sonar, rov, seed)
             for name, settings, window in (
-                ("gated", CnnSettings(gated_proposal_threshold=0.03), (1.0, 2.5)),
-                ("old bar", CnnSettings(), (1.0, 2.5)),  # the default: none set
-                ("no window", CnnSettings(gated_proposal_threshold=0.03), None),
+                ("close", CnnSettings(), None),  # the defaults
+                ("gated", replace(main_only, gated_proposal_threshold=0.03), (1.0, 2.5)),
+                ("old bar", main_only, (1.0, 2.5)),
+                ("no window", replace(main_only, gated_proposal_threshold=0.03), None),
             ):
                 detections = CnnDetector(settings).detect(frame, range_window=window)
                 found[name] += any(
                     d.confidence > 0.5 and abs(d.range_m - range_m) < 0.15 for d in detections
                 )
+    assert found["close"] >= 8
     assert found["gated"] >= 8
     assert found["old bar"] <= 2
     assert found["no window"] <= 2  # outside a gate the proposal threshold stands
@@ -511,4 +523,66 @@ def test_candidates_near_the_sonar_go_to_the_near_refiner(tmp_path: Path) -> Non
     blob = torch.load(path, weights_only=True)
     torch.save({**blob, "near_refiner": "yes"}, tmp_path / "odd.pt")
     with pytest.raises(CapsdError, match=r"odd\.pt: near_refiner 'yes'"):
+        load(tmp_path / "odd.pt")
+
+
+def test_the_close_proposal_network_gives_the_heat_near_the_sonar(tmp_path: Path) -> None:
+    torch.manual_seed(11)
+    net = PolarNet(near_refiner=True, close_proposal=True)
+    assert net.close_proposal is not None
+    net.close_max_range_m.fill_(2.5)
+    path = tmp_path / "close.pt"
+    save(net, path, meta={})
+    back = load(path)
+    assert back.close_proposal is not None
+    assert float(back.close_max_range_m) == 2.5
+    tank = make_tank("nfp", clutter="off")
+    renderer = SonarRenderer(SonarModel(range_max_m=20.0, n_ranges=1000), tank)
+    sonar = Transform(euler_zyx_to_matrix(0.0, math.radians(30.0), 0.0), np.array([6.0, 8.0, -0.2]))
+    frame = _frame(renderer, sonar, None, 1)
+    grid = Grid.of(frame, beams=back.inputs.coarse_beams)
+    coarse = torch.from_numpy(proposal_input(normalised_image(frame), frame, grid, back.inputs))
+    coarse = coarse[None].contiguous(memory_format=torch.channels_last)
+    main, close = fused_for_inference(back.proposal), fused_for_inference(back.close_proposal)
+    cell_m = 2 * grid.range_factor * frame.range_resolution_m
+    rows = math.ceil((2.5 - frame.range_start_m) / cell_m - 0.5)
+    assert 10 < rows < coarse.shape[2] // 4
+    with torch.inference_mode():
+        for mirror in (False, True):
+            mixed = heat_logits(
+                main, coarse, mirror=mirror, close=(close, 2.5),
+                rows_m=(frame.range_start_m, cell_m),
+            )  # fmt: skip
+            alone = heat_logits(main, coarse, mirror=mirror)
+            # Read from the near rows and its reach only, the close network's heat there is
+            # what it gives on the whole grid; the main network's everywhere else.
+            everywhere = heat_logits(close, coarse, mirror=mirror)
+            assert torch.allclose(mixed[:, :rows], everywhere[:, :rows], atol=1e-5)
+            assert torch.equal(mixed[:, rows:], alone[:, rows:])
+            assert not torch.allclose(mixed[:, :rows], alone[:, :rows])
+    # In the detector: a main network that never proposes and a close one that always does.
+    for proposal, bias in ((back.proposal, -30.0), (back.close_proposal, 30.0)):
+        head = proposal.body[-1]
+        assert isinstance(head, torch.nn.Conv2d)
+        assert head.bias is not None
+        with torch.no_grad():
+            head.weight.zero_()
+            head.bias.fill_(bias)
+    settings = replace(NETWORK_ALONE, max_candidates=50)
+    found = CnnDetector(settings, net=back).detect(frame)
+    assert found
+    assert max(d.range_m for d in found) < 2.5 + 0.5  # refined up to half a metre
+    assert not CnnDetector(replace(settings, close_proposal="off"), net=back).detect(frame)
+    # Weights without one: the main network everywhere; a flag that is no boolean is named.
+    blob = torch.load(path, weights_only=True)
+    old = {k: v for k, v in blob.items() if k != "close_proposal"}
+    old["state"] = {
+        k: v
+        for k, v in blob["state"].items()
+        if not k.startswith("close_proposal.") and k != "close_max_range_m"
+    }
+    torch.save(old, tmp_path / "old.pt")
+    assert load(tmp_path / "old.pt").close_proposal is None
+    torch.save({**blob, "close_proposal": 1}, tmp_path / "odd.pt")
+    with pytest.raises(CapsdError, match=r"odd\.pt: close_proposal 1"):
         load(tmp_path / "odd.pt")

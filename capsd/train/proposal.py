@@ -1,0 +1,135 @@
+"""`capsd train proposal`: a close proposal network for trained weights, the rest kept.
+
+The proposal network (stage 2 of `capsd train detector`) decides which places of a frame the
+refiners ever see. A ROV 1.2-2 m from a sonar 30 deg down, in the middle of the aperture, got
+0.02-0.09 of heat where the refiners, shown a crop there, called it ROV at 0.6-0.99: it was
+never proposed (the pitch calibration's near profile in the pond, session 58; the nfp tank
+too, session 59, by hand), because the training runs put almost no ROV there. This trains a
+proposal network from scratch as `capsd train detector` does, on the runs the weights were
+trained on (their stored `train_config`) with a `close_share` of them made close runs
+(capsd.train.data's close runs), and adds it as the weights' close proposal network: it gives
+the heat of the rows nearer than `close_max_range_m` (polar_net). Trained so, a network used
+everywhere found the far ROVs of the bench's held-out look less often (14-20 m 60.4 -> 41.1 %,
+session 59), so the main one keeps the rest of the frame; the refiners, the near refiner and
+the range table are kept too. Then both operating points are set again on the validation runs
+(other proposals reach the refiners). Deterministic for a seed. About 17 minutes on 2 cores.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import torch
+
+from capsd.errors import CapsdError
+from capsd.services.sonar_detect.polar_net import PolarNet, load, save
+from capsd.train.data import render
+from capsd.train.detector import TrainConfig, _mean, _train_proposal, calibrate, stored_meta
+from capsd.train.near_refiner import NearRefinerConfig, calibrate_near
+
+# Up to where the close proposal network may take over: beyond, the main one saw plenty of ROVs.
+MAX_CLOSE_RANGE_M = 4.0
+
+
+@dataclass(frozen=True)
+class ProposalConfig:
+    seed: int = 0
+    close_share: float = 0.25
+    close_max_range_m: float = 2.5
+    workers: int = 2
+    threads: int = 2
+    # None: as the weights' own train_config (tests make them small).
+    runs: int | None = None
+    duration_s: float | None = None
+    epochs: int | None = None
+    calibration_duration_s: float = TrainConfig.calibration_duration_s
+    near_calibration_duration_s: float = NearRefinerConfig.calibration_duration_s
+    # "none" leaves the held-out evaluation to `capsd bench detect` (the weights' json then
+    # has none: the one of the weights before is dropped).
+    evaluate: Literal["heldout", "none"] = "heldout"
+    eval_duration_s: float = TrainConfig.eval_duration_s
+
+
+def train_proposal(weights: Path, out_dir: Path, config: ProposalConfig) -> dict[str, Any]:
+    """`weights` with a proposal network trained again with close runs; written to `out_dir`."""
+    if not 0.0 <= config.close_share <= 1.0:
+        raise CapsdError(f"train proposal: close share {config.close_share}: between 0 and 1")
+    if not 0.5 <= config.close_max_range_m <= MAX_CLOSE_RANGE_M:
+        raise CapsdError(
+            f"train proposal: close max range {config.close_max_range_m} m: "
+            f"0.5 to {MAX_CLOSE_RANGE_M}"
+        )
+    started = time.monotonic()
+    net = load(weights)
+    meta = stored_meta(weights)
+    stored = meta.get("train_config")
+    if not isinstance(stored, dict):
+        raise CapsdError(f"{weights.with_suffix('.json')}: no train_config to train on again")
+    try:
+        base = TrainConfig(**stored)
+    except TypeError as exc:
+        raise CapsdError(f"{weights.with_suffix('.json')}: train_config: {exc}") from exc
+    train_config = dataclasses.replace(
+        base,
+        seed=config.seed,
+        workers=config.workers,
+        threads=config.threads,
+        close_share=config.close_share,
+        runs=base.runs if config.runs is None else config.runs,
+        duration_s=base.duration_s if config.duration_s is None else config.duration_s,
+        proposal_epochs=base.proposal_epochs if config.epochs is None else config.epochs,
+        calibration_duration_s=config.calibration_duration_s,
+    )
+    if train_config.inputs != net.inputs:
+        raise CapsdError(f"{weights}: its networks read {net.inputs}, its train_config says not")
+    torch.manual_seed(config.seed)
+    torch.set_num_threads(config.threads)
+    gen = torch.Generator().manual_seed(config.seed)
+    plans = train_config.plans(runs=train_config.runs, seed=train_config.seed)
+    samples = render(plans, workers=config.workers, inputs=net.inputs)
+    samples.crops.clear()  # the refiners are kept: only the grids train
+    samples.crop_targets.clear()
+    samples.crop_ranges_m.clear()
+    close = sum(plan.standoff_m is not None and plan.rov_mode == "profile" for plan in plans)
+    print(
+        f"{len(samples.grids)} frames ({int(sum(t[0] for t in samples.grid_targets))} with the "
+        f"ROV) from {len(plans)} runs ({close} of them the ROV profiling close)"
+    )
+    trainee = PolarNet(inputs=net.inputs)  # from scratch, as train detector
+    losses = _train_proposal(trainee, samples, train_config, gen)
+    net.close_proposal = trainee.proposal
+    net.close_max_range_m.fill_(config.close_max_range_m)
+    trained_s = time.monotonic() - started
+    meta["proposal"] = {
+        "trained_by": "capsd train proposal",
+        "from_weights": str(weights),
+        "config": asdict(config),
+        "runs": len(plans),
+        "frames": len(samples.grids),
+        "loss_first_last": [_mean(losses[:50]), _mean(losses[-50:])],
+        "seconds_render_and_train": round(trained_s, 1),
+    }
+    meta["train_config"] = asdict(train_config)
+    meta.pop("evaluation", None)  # of the weights before; `capsd bench detect` measures these
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / "polar_net.pt"
+    meta["calibration"] = calibrate(net, duration_s=train_config.calibration_duration_s)
+    if net.near_refine is not None:
+        near_meta = dict(meta.get("near_refiner", {}))
+        near_meta["calibration"] = calibrate_near(
+            net, duration_s=config.near_calibration_duration_s
+        )
+        meta["near_refiner"] = near_meta
+    save(net, path, meta=meta)
+    if config.evaluate == "heldout":
+        from capsd.bench.detect import evaluate_cnn
+
+        meta["evaluation"] = evaluate_cnn(net, duration_s=config.eval_duration_s)
+    (out_dir / "polar_net.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
+    print(f"weights: {path}; total {time.monotonic() - started:.0f} s")
+    return meta

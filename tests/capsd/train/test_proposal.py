@@ -1,0 +1,74 @@
+"""`capsd train proposal`: a close proposal network added, the rest kept bit for bit."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+import torch
+
+from capsd.errors import CapsdError
+from capsd.services.sonar_detect.cnn import DEFAULT_WEIGHTS
+from capsd.services.sonar_detect.polar_net import load
+from capsd.train.proposal import ProposalConfig, train_proposal
+
+# Two short runs, one epoch, short calibrations: the steps, not the figures.
+TINY = ProposalConfig(
+    close_share=0.5,
+    workers=1,
+    threads=1,
+    runs=2,
+    duration_s=2.0,
+    epochs=1,
+    calibration_duration_s=0.3,
+    near_calibration_duration_s=0.3,
+    evaluate="none",
+)
+
+
+def test_a_close_proposal_network_is_added_the_rest_kept_deterministic(tmp_path: Path) -> None:
+    nets = []
+    for name in ("a", "b"):
+        meta = train_proposal(DEFAULT_WEIGHTS, tmp_path / name, TINY)
+        assert meta["proposal"]["runs"] == 2
+        assert meta["proposal"]["frames"] > 0
+        assert meta["train_config"]["close_share"] == 0.5
+        assert meta["calibration"]["logit_offset"] >= 0.0
+        assert meta["near_refiner"]["calibration"]["near_logit_offset"] >= 0.0
+        assert json.loads((tmp_path / name / "polar_net.json").read_text()) == meta
+        nets.append(load(tmp_path / name / "polar_net.pt"))
+    first, second = (n.state_dict() for n in nets)
+    assert all(torch.equal(first[k], second[k]) for k in first)
+    shipped = load(DEFAULT_WEIGHTS).state_dict()
+    kept = [k for k in shipped if "logit_offset" not in k and not k.startswith("close_")]
+    assert any(k.startswith("proposal.") for k in kept)
+    assert all(torch.equal(first[k], shipped[k]) for k in kept)
+    net = nets[0]
+    assert net.close_proposal is not None
+    assert float(net.close_max_range_m) == TINY.close_max_range_m
+    close = net.close_proposal.state_dict()
+    assert any(not torch.equal(close[k], net.proposal.state_dict()[k]) for k in close)
+
+
+def test_weights_without_their_training_record_are_refused(tmp_path: Path) -> None:
+    bare = tmp_path / "bare" / "polar_net.pt"
+    bare.parent.mkdir()
+    shutil.copy(DEFAULT_WEIGHTS, bare)
+    with pytest.raises(CapsdError, match="no train_config"):
+        train_proposal(bare, tmp_path / "out", TINY)
+
+
+@pytest.mark.parametrize(
+    ("config", "message"),
+    [
+        (ProposalConfig(close_share=1.5), r"close share 1\.5"),
+        (ProposalConfig(close_max_range_m=6.0), r"close max range 6\.0 m"),
+    ],
+)
+def test_settings_out_of_range_are_refused(
+    tmp_path: Path, config: ProposalConfig, message: str
+) -> None:
+    with pytest.raises(CapsdError, match=message):
+        train_proposal(DEFAULT_WEIGHTS, tmp_path / "out", config)
