@@ -600,6 +600,28 @@ def calibrate(net: PolarNet, *, duration_s: float) -> dict[str, Any]:
     return result
 
 
+def save_evaluated(
+    net: PolarNet,
+    out_dir: Path,
+    meta: dict[str, Any],
+    *,
+    evaluate: Literal["heldout", "none"],
+    eval_duration_s: float,
+) -> Path:
+    """`net` saved with `meta` into `out_dir`, and `meta` as polar_net.json beside it.
+
+    With `evaluate` "heldout", the json also holds the held-out evaluation (bench/detect's).
+    """
+    path = out_dir / "polar_net.pt"
+    save(net, path, meta=meta)
+    if evaluate == "heldout":
+        from capsd.bench.detect import evaluate_cnn
+
+        meta["evaluation"] = evaluate_cnn(net, duration_s=eval_duration_s)
+    (out_dir / "polar_net.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
+    return path
+
+
 def stored_meta(weights: Path) -> dict[str, Any]:
     """What `polar_net.json` beside `weights` holds ({} without one)."""
     path = weights.with_suffix(".json")

@@ -49,6 +49,7 @@ from capsd.train.detector import (
     _mean,
     _train_refine,
     operating_offset,
+    save_evaluated,
     stored_meta,
     validation_logits,
 )
@@ -187,12 +188,9 @@ def train_near_refiner(
     meta["near_refiner"]["calibration"] = calibrate_near(
         net, duration_s=config.calibration_duration_s
     )
-    save(net, path, meta=meta)
-    if config.evaluate == "heldout":
-        from capsd.bench.detect import evaluate_cnn
-
-        meta["evaluation"] = evaluate_cnn(net, duration_s=config.eval_duration_s)
-    (out_dir / "polar_net.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
+    save_evaluated(
+        net, out_dir, meta, evaluate=config.evaluate, eval_duration_s=config.eval_duration_s
+    )
     print(f"weights: {path}; total {time.monotonic() - started:.0f} s")
     return meta
 

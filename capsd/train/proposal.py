@@ -18,7 +18,6 @@ the range table are kept too. Then both operating points are set again on the va
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -27,9 +26,16 @@ from typing import Any, Literal
 import torch
 
 from capsd.errors import CapsdError
-from capsd.services.sonar_detect.polar_net import PolarNet, load, save
+from capsd.services.sonar_detect.polar_net import PolarNet, load
 from capsd.train.data import render
-from capsd.train.detector import TrainConfig, _mean, _train_proposal, calibrate, stored_meta
+from capsd.train.detector import (
+    TrainConfig,
+    _mean,
+    _train_proposal,
+    calibrate,
+    save_evaluated,
+    stored_meta,
+)
 from capsd.train.near_refiner import NearRefinerConfig, calibrate_near
 
 # Up to where the close proposal network may take over: beyond, the main one saw plenty of ROVs.
@@ -117,7 +123,6 @@ def train_proposal(weights: Path, out_dir: Path, config: ProposalConfig) -> dict
     meta["train_config"] = asdict(train_config)
     meta.pop("evaluation", None)  # of the weights before; `capsd bench detect` measures these
     out_dir.mkdir(parents=True, exist_ok=True)
-    path = out_dir / "polar_net.pt"
     meta["calibration"] = calibrate(net, duration_s=train_config.calibration_duration_s)
     if net.near_refine is not None:
         near_meta = dict(meta.get("near_refiner", {}))
@@ -125,11 +130,8 @@ def train_proposal(weights: Path, out_dir: Path, config: ProposalConfig) -> dict
             net, duration_s=config.near_calibration_duration_s
         )
         meta["near_refiner"] = near_meta
-    save(net, path, meta=meta)
-    if config.evaluate == "heldout":
-        from capsd.bench.detect import evaluate_cnn
-
-        meta["evaluation"] = evaluate_cnn(net, duration_s=config.eval_duration_s)
-    (out_dir / "polar_net.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
+    path = save_evaluated(
+        net, out_dir, meta, evaluate=config.evaluate, eval_duration_s=config.eval_duration_s
+    )
     print(f"weights: {path}; total {time.monotonic() - started:.0f} s")
     return meta
