@@ -119,8 +119,9 @@ def train_proposal(weights: Path, out_dir: Path, config: ProposalConfig) -> dict
         "frames": len(samples.grids),
         "loss_first_last": [_mean(losses[:50]), _mean(losses[-50:])],
         "seconds_render_and_train": round(trained_s, 1),
+        # What the close network was trained with; `train_config` stays the main networks'.
+        "train_config": asdict(train_config),
     }
-    meta["train_config"] = asdict(train_config)
     meta.pop("evaluation", None)  # of the weights before; `capsd bench detect` measures these
     out_dir.mkdir(parents=True, exist_ok=True)
     meta["calibration"] = calibrate(net, duration_s=train_config.calibration_duration_s)

@@ -29,12 +29,14 @@ TINY = ProposalConfig(
 
 
 def test_a_close_proposal_network_is_added_the_rest_kept_deterministic(tmp_path: Path) -> None:
+    shipped_meta = json.loads(DEFAULT_WEIGHTS.with_suffix(".json").read_text())
     nets = []
     for name in ("a", "b"):
         meta = train_proposal(DEFAULT_WEIGHTS, tmp_path / name, TINY)
         assert meta["proposal"]["runs"] == 2
         assert meta["proposal"]["frames"] > 0
-        assert meta["train_config"]["close_share"] == 0.5
+        assert meta["proposal"]["train_config"]["close_share"] == 0.5
+        assert meta["train_config"] == shipped_meta["train_config"]  # the main networks' own
         assert meta["calibration"]["logit_offset"] >= 0.0
         assert meta["near_refiner"]["calibration"]["near_logit_offset"] >= 0.0
         assert json.loads((tmp_path / name / "polar_net.json").read_text()) == meta
