@@ -455,6 +455,8 @@ def propose(
     )
     # Heat row i is centred on bin (2i + 1) x range_factor (see below).
     cell_m = 2 * grid.range_factor * frame.range_resolution_m
+    if close is not None and range_window is not None and range_window[0] - cell_m >= close[1]:
+        close = None  # the depth gate's window starts beyond its rows: their heat is not read
     with torch.inference_mode():
         logits = heat_logits(
             proposal, coarse, mirror=mirror, close=close, rows_m=(frame.range_start_m, cell_m)

@@ -24,6 +24,7 @@ from capsd.services.sonar_detect.cnn import (
     CnnSettings,
     heat_logits,
     proposal_input,
+    propose,
     refine_input,
 )
 from capsd.services.sonar_detect.polar_input import BeamTable, Grid, Inputs, normalised_image
@@ -560,6 +561,17 @@ def test_the_close_proposal_network_gives_the_heat_near_the_sonar(tmp_path: Path
             assert torch.allclose(mixed[:, :rows], everywhere[:, :rows], atol=1e-5)
             assert torch.equal(mixed[:, rows:], alone[:, rows:])
             assert not torch.allclose(mixed[:, :rows], alone[:, :rows])
+    # With the depth gate's window starting beyond its rows, the close network is not run.
+    calls: list[int] = []
+    close.register_forward_hook(lambda *_: calls.append(1))
+    table = BeamTable(frame.azimuths_rad)
+    for window, runs in (((3.5, 8.0), 0), ((2.0, 8.0), 1), (None, 1)):
+        calls.clear()
+        propose(
+            main, frame, normalised_image(frame), table, threshold=0.1, max_candidates=3,
+            range_window=window, close=(close, 2.5),
+        )  # fmt: skip
+        assert len(calls) == runs
     # In the detector: a main network that never proposes and a close one that always does.
     for proposal, bias in ((back.proposal, -30.0), (back.close_proposal, 30.0)):
         head = proposal.body[-1]
