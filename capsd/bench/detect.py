@@ -350,14 +350,12 @@ def sonar_only(
         sonar = msgspec.structs.replace(sonar, pitch_deg=NEAR_SIDE_PITCH_DEG, yaw_deg=yaw_deg)
     elif asv_mode in ("profile_close", "follow_close"):
         standoff_m = CLOSE_STANDOFF_M
-    return Config(
+    config = Config(
         tank=tank,
         trajectory=trajectory,
         seed=seed,
         asv_mode=mode,
         asv_standoff_m=standoff_m,
-        rov_mode="profile" if asv_mode == "profile_close" else "trajectory",
-        profile_period_s=CLOSE_PROFILE_PERIOD_S,
         sonar=sonar,
         sonar_image=SonarImageConfig(
             variety=variety,
@@ -371,6 +369,11 @@ def sonar_only(
             lidar="off", imu="off", asv_pose_truth_noise="off", detections_truth_noise="off"
         ),
     )
+    if asv_mode == "profile_close":
+        config = msgspec.structs.replace(
+            config, rov_mode="profile", profile_period_s=CLOSE_PROFILE_PERIOD_S
+        )
+    return config
 
 
 def evaluate(

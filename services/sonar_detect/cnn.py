@@ -51,6 +51,7 @@ from capsd.services.sonar_detect.polar_input import (
 )
 from capsd.services.sonar_detect.polar_net import (
     OFFSET_SCALE_M,
+    PROPOSAL_REACH_CELLS,
     PolarNet,
     fused_for_inference,
     load,
@@ -61,10 +62,6 @@ from capsd.sonar_image import Image
 DEFAULT_WEIGHTS = Path(__file__).with_name("weights") / "polar_net.pt"
 LAPLACE_SIGMA = math.sqrt(2.0)  # standard deviation of a Laplace law per unit scale
 TRACKED_PEAKS = 16  # peaks under the bar looked at for one near a tracked ROV
-# How far (heat cells) a ProposalNet's output reads its input: 1 + 1 + 2 + 4 + 8 from its 3x3
-# convolutions at stride 2 and their dilations, plus one for the first. The close network runs
-# on the grid's near rows and this many more: its heat there is what the whole grid would give.
-PROPOSAL_REACH_CELLS = 17
 MirrorAverage = Literal["off", "refiner", "both"]
 
 
@@ -455,12 +452,16 @@ def propose(
     )
     # Heat row i is centred on bin (2i + 1) x range_factor (see below).
     cell_m = 2 * grid.range_factor * frame.range_resolution_m
-    if close is not None and range_window is not None and range_window[0] - cell_m >= close[1]:
-        close = None  # the depth gate's window starts beyond its rows: their heat is not read
+    near: tuple[torch.nn.Module, int] | None = None
+    if close is not None:
+        close_net, close_max_m = close
+        rows = math.ceil((close_max_m - frame.range_start_m) / cell_m - 0.5)
+        # Where the depth gate's window starts beyond them, those rows' heat is not read.
+        beyond = range_window is not None and range_window[0] - cell_m >= close_max_m
+        if rows > 0 and not beyond:
+            near = (close_net, rows)
     with torch.inference_mode():
-        logits = heat_logits(
-            proposal, coarse, mirror=mirror, close=close, rows_m=(frame.range_start_m, cell_m)
-        )
+        logits = heat_logits(proposal, coarse, mirror=mirror, close=near)
         heat = torch.sigmoid(logits)[0]
         if range_window is not None:
             centres = frame.range_start_m + (torch.arange(heat.shape[0]) + 0.5) * cell_m
@@ -495,24 +496,19 @@ def heat_logits(
     coarse: torch.Tensor,
     *,
     mirror: bool,
-    close: tuple[torch.nn.Module, float] | None = None,
-    rows_m: tuple[float, float] = (0.0, 0.0),
+    close: tuple[torch.nn.Module, int] | None = None,
 ) -> torch.Tensor:
     """The heat logits of a grid (batch x rows x cols); with `mirror`, averaged with its mirror's.
 
-    With `close` (a network, a range), that network's for the rows whose centre is nearer,
-    `rows_m` giving the first row's start and a row's height (m); it reads only those rows and
-    PROPOSAL_REACH_CELLS more, which is all its heat there depends on.
+    With `close` (a network, a number of heat rows), that network's for the first rows; it
+    reads only those rows and PROPOSAL_REACH_CELLS more, which is all its heat there depends on.
     """
     logits = _mirrored(proposal, coarse, mirror=mirror)
     if close is not None:
-        close_net, close_max_m = close
-        start_m, cell_m = rows_m
-        rows = math.ceil((close_max_m - start_m) / cell_m - 0.5)
-        rows = min(max(rows, 0), logits.shape[1])
-        if rows > 0:
-            strip = coarse[..., : 2 * (rows + PROPOSAL_REACH_CELLS), :]
-            logits[:, :rows] = _mirrored(close_net, strip, mirror=mirror)[:, :rows]
+        close_net, rows = close
+        rows = min(rows, logits.shape[1])
+        strip = coarse[..., : 2 * (rows + PROPOSAL_REACH_CELLS), :]
+        logits[:, :rows] = _mirrored(close_net, strip, mirror=mirror)[:, :rows]
     return logits
 
 

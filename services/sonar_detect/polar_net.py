@@ -79,6 +79,12 @@ class ProposalNet(nn.Module):
         return out[:, 0]
 
 
+# How far (heat cells) a ProposalNet's output reads its input: 1 + 1 + 2 + 4 + 8 from its 3x3
+# convolutions after the stride and their dilations, plus one for the first. A close network
+# run on the grid's near rows and this many more gives there the heat of the whole grid.
+PROPOSAL_REACH_CELLS = 17
+
+
 REFINE_OUTPUTS = 7  # logit, d_range, d_cross, log_scale_range, log_scale_cross, log extents
 
 

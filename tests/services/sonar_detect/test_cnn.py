@@ -550,10 +550,7 @@ def test_the_close_proposal_network_gives_the_heat_near_the_sonar(tmp_path: Path
     assert 10 < rows < coarse.shape[2] // 4
     with torch.inference_mode():
         for mirror in (False, True):
-            mixed = heat_logits(
-                main, coarse, mirror=mirror, close=(close, 2.5),
-                rows_m=(frame.range_start_m, cell_m),
-            )  # fmt: skip
+            mixed = heat_logits(main, coarse, mirror=mirror, close=(close, rows))
             alone = heat_logits(main, coarse, mirror=mirror)
             # Read from the near rows and its reach only, the close network's heat there is
             # what it gives on the whole grid; the main network's everywhere else.
