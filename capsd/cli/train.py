@@ -92,8 +92,10 @@ def _cmd_train_proposal(args: argparse.Namespace) -> int:
 
     config = ProposalConfig(
         seed=args.seed,
+        network=args.network,
         close_share=args.close_share,
         close_max_range_m=args.close_max_range,
+        **({} if args.width is None else {"width": args.width}),
         workers=args.workers,
         threads=args.threads,
         evaluate=args.evaluate,
@@ -382,13 +384,14 @@ def register(sub: Subcommands) -> None:
     tnear.set_defaults(func=_cmd_train_near_refiner)
     tprop = train.add_parser(
         "proposal",
-        help="add a close proposal network (trained with close runs) to the polar CNN's weights",
+        help="train the polar CNN's close (or main) proposal network again, the rest kept",
         description="Train a proposal network on the runs --weights were trained on (their "
         "polar_net.json's train_config) with --close-share of them close runs (the ASV 0.8-2.2 "
         "m behind the ROV, the sonar 20-40 deg down, half of them the ROV going down and up "
         "through the aperture), add it to --weights as the heat of the rows nearer than "
-        "--close-max-range, keep the rest, set both operating points again, write "
-        "polar_net.pt and polar_net.json into --out. About 17 minutes on 2 CPU cores.",
+        "--close-max-range (--network close) or of the rest of the frame (--network main), "
+        "keep the rest, set both operating points again, write polar_net.pt and "
+        "polar_net.json into --out. About 17 minutes on 2 CPU cores.",
     )
     tprop.add_argument(
         "--weights",
@@ -399,16 +402,29 @@ def register(sub: Subcommands) -> None:
     tprop.add_argument("--out", type=Path, required=True, help="folder for the new weights")
     tprop.add_argument("--seed", type=int, default=0)
     tprop.add_argument(
+        "--network",
+        choices=("close", "main"),
+        default="close",
+        help="which proposal network to train again, the other kept (default %(default)s; "
+        "main: for the whole frame beyond the close rows, on the weights' own runs)",
+    )
+    tprop.add_argument(
         "--close-share",
         type=float,
-        default=0.25,
-        help="share of the runs made close runs (default %(default)s)",
+        default=None,
+        help="share of the runs made close runs (default 0.25 for the close network, the "
+        "weights' own for the main one)",
     )
     tprop.add_argument(
         "--close-max-range",
         type=float,
         default=2.5,
         help="the close network gives the heat nearer than this, m (default %(default)s)",
+    )
+    tprop.add_argument(
+        "--width",
+        type=int,
+        help="the network's channels (default 32; fewer cost less on every whole-frame search)",
     )
     tprop.add_argument("--workers", type=positive_int, default=2, help="rendering processes")
     tprop.add_argument("--threads", type=positive_int, default=2, help="torch threads")

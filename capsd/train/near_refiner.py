@@ -41,7 +41,13 @@ import torch
 from capsd.bench.detect import Run
 from capsd.errors import CapsdError
 from capsd.services.sonar_detect.polar_input import DEFAULT_INPUTS
-from capsd.services.sonar_detect.polar_net import PolarNet, load, near_refined, save
+from capsd.services.sonar_detect.polar_net import (
+    PROPOSAL_WIDTH,
+    PolarNet,
+    load,
+    near_refined,
+    save,
+)
 from capsd.train.data import plan_runs, render
 from capsd.train.detector import (
     VALIDATION_RUNS,
@@ -166,6 +172,8 @@ def train_near_refiner(
         inputs=main.inputs,
         near_refiner=True,
         close_proposal=main.close_proposal is not None,  # kept as it is
+        proposal_width=main.proposal.width,
+        close_width=PROPOSAL_WIDTH if main.close_proposal is None else main.close_proposal.width,
     )
     state = {k: v for k, v in main.state_dict().items() if not k.startswith("near_")}
     net.load_state_dict(state, strict=False)

@@ -23,6 +23,8 @@ crop's centre), so that what an ROV looks like may depend on how far it is (a fa
   the main one, trained on few ROVs 1-2.5 m from a sonar 30 deg down, put under 0.1 of heat
   on them where the refiners were sure (`capsd train proposal`; trained with close runs the
   whole network lost far ROVs on the held-out look, so it takes over near the sonar only).
+- Either proposal network may be narrower than 32 channels (`proposal_width`,
+  `close_width`): the proposal stage is the largest part of a whole-frame search's time.
 Weights are a plain state dict with a format tag, loaded with `weights_only=True`.
 """
 
@@ -55,11 +57,16 @@ def _conv(c_in: int, c_out: int, *, stride: int = 1, dilation: int = 1) -> list[
     ]
 
 
+PROPOSAL_WIDTH = 32  # a proposal network's channels unless its weights say fewer
+PROPOSAL_WIDTHS = (8, 64)  # what a weights file may say a proposal network's width is
+
+
 class ProposalNet(nn.Module):
     """Coarse grid -> heatmap logit at stride 2."""
 
-    def __init__(self, width: int = 32, channels: int = 2):
+    def __init__(self, width: int = PROPOSAL_WIDTH, channels: int = 2):
         super().__init__()
+        self.width = width
         self.body = nn.Sequential(
             *_conv(channels, 16, stride=2),
             *_conv(16, width),
@@ -159,12 +166,14 @@ class PolarNet(nn.Module):
         inputs: Inputs = DEFAULT_INPUTS,
         near_refiner: bool = False,
         close_proposal: bool = False,
+        proposal_width: int = PROPOSAL_WIDTH,
+        close_width: int = PROPOSAL_WIDTH,
     ):
         super().__init__()
         self.crop_size = crop_size
         self.refine_channels = refine_channels  # 1: detail crop only; 2: detail and context
         self.inputs = inputs
-        self.proposal = ProposalNet(channels=2 + inputs.extra_planes)
+        self.proposal = ProposalNet(proposal_width, channels=2 + inputs.extra_planes)
         self.refine = RefineNet(crop_size, refine_channels + inputs.extra_planes)
         # The operating point: subtracted from the refiner's logit so that confidence 0.5 is
         # the threshold chosen on validation runs (train.calibrate), not the raw 50%.
@@ -181,7 +190,7 @@ class PolarNet(nn.Module):
         self.register_buffer("near_edge_within_rad", torch.zeros(()))
         # The close proposal network, for the heat of rows nearer than `close_max_range_m`.
         self.close_proposal: ProposalNet | None = (
-            ProposalNet(channels=2 + inputs.extra_planes) if close_proposal else None
+            ProposalNet(close_width, channels=2 + inputs.extra_planes) if close_proposal else None
         )
         self.register_buffer("close_max_range_m", torch.zeros(()))
 
@@ -210,6 +219,10 @@ def save(net: PolarNet, path: Path, *, meta: dict[str, Any]) -> None:
             "coarse_beams": net.inputs.coarse_beams,
             "near_refiner": net.near_refine is not None,
             "close_proposal": net.close_proposal is not None,
+            "proposal_width": net.proposal.width,
+            "close_width": (
+                PROPOSAL_WIDTH if net.close_proposal is None else net.close_proposal.width
+            ),
             "state": state,
             "meta": meta,
         },
@@ -244,12 +257,21 @@ def load(path: Path) -> PolarNet:
     close_proposal = blob.get("close_proposal", False)  # ... before session 59: none
     if not isinstance(close_proposal, bool):
         raise CapsdError(f"{path}: close_proposal {close_proposal!r}, expected true or false")
+    widths = {}
+    for key in ("proposal_width", "close_width"):
+        width = blob.get(key, PROPOSAL_WIDTH)  # ... before session 60: 32
+        low, high = PROPOSAL_WIDTHS
+        if not isinstance(width, int) or not low <= width <= high:
+            raise CapsdError(f"{path}: {key} {width!r}, expected {low} to {high} channels")
+        widths[key] = width
     net = PolarNet(
         crop_size=int(blob["crop_size"]),
         refine_channels=int(blob.get("refine_channels", 1)),
         inputs=Inputs(range_input=range_input, coarse_beams=coarse_beams),
         near_refiner=near_refiner,
         close_proposal=close_proposal,
+        proposal_width=widths["proposal_width"],
+        close_width=widths["close_width"],
     )
     state = dict(blob["state"])
     state.setdefault("logit_offset", torch.zeros(()))  # weights saved before calibration

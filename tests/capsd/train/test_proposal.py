@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -52,6 +53,27 @@ def test_a_close_proposal_network_is_added_the_rest_kept_deterministic(tmp_path:
     assert float(net.close_max_range_m) == TINY.close_max_range_m
     close = net.close_proposal.state_dict()
     assert any(not torch.equal(close[k], net.proposal.state_dict()[k]) for k in close)
+
+
+def test_the_main_network_trained_again_narrower_the_close_one_kept(tmp_path: Path) -> None:
+    main = dataclasses.replace(TINY, network="main", width=8, close_share=None)
+    meta = train_proposal(DEFAULT_WEIGHTS, tmp_path / "main", main)
+    shipped_meta = json.loads(DEFAULT_WEIGHTS.with_suffix(".json").read_text())
+    assert meta["proposal"] == shipped_meta["proposal"]  # the close network's record
+    # The weights' own runs: no close runs unless asked.
+    assert meta["main_proposal"]["train_config"]["close_share"] == 0.0
+    net = load(tmp_path / "main" / "polar_net.pt")
+    assert net.proposal.width == 8
+    shipped = load(DEFAULT_WEIGHTS)
+    assert shipped.close_proposal is not None
+    assert net.close_proposal is not None
+    assert net.close_proposal.width == shipped.close_proposal.width
+    trained, kept = net.state_dict(), shipped.state_dict()
+    same = [k for k in kept if "logit_offset" not in k and not k.startswith("proposal.")]
+    assert any(k.startswith("close_proposal.") for k in same)
+    assert all(torch.equal(trained[k], kept[k]) for k in same)
+    with pytest.raises(CapsdError, match="width 4: 8 to 64 channels"):
+        train_proposal(DEFAULT_WEIGHTS, tmp_path / "odd", dataclasses.replace(main, width=4))
 
 
 def test_weights_without_their_training_record_are_refused(tmp_path: Path) -> None:

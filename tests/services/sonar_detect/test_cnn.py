@@ -527,9 +527,32 @@ def test_candidates_near_the_sonar_go_to_the_near_refiner(tmp_path: Path) -> Non
         load(tmp_path / "odd.pt")
 
 
+def test_proposal_networks_narrower_than_32_are_kept_through_save_and_load(
+    tmp_path: Path,
+) -> None:
+    torch.manual_seed(5)
+    net = PolarNet(close_proposal=True, proposal_width=16, close_width=8)
+    path = tmp_path / "narrow.pt"
+    save(net, path, meta={})
+    back = load(path)
+    assert back.close_proposal is not None
+    assert (back.proposal.width, back.close_proposal.width) == (16, 8)
+    state, loaded = net.state_dict(), back.state_dict()
+    assert all(torch.equal(state[k], loaded[k]) for k in state)
+    # A file that does not say its widths is read as 32 wide (weights before session 60).
+    blob = torch.load(path, weights_only=True)
+    torch.save({k: v for k, v in blob.items() if k != "close_width"}, tmp_path / "old.pt")
+    with pytest.raises(CapsdError, match=r"old\.pt: weights do not fit the network"):
+        load(tmp_path / "old.pt")
+    for key, value in (("proposal_width", 4), ("close_width", "16"), ("close_width", 65)):
+        torch.save({**blob, key: value}, tmp_path / "odd.pt")
+        with pytest.raises(CapsdError, match=rf"odd\.pt: {key} {value!r}, expected 8 to 64"):
+            load(tmp_path / "odd.pt")
+
+
 def test_the_close_proposal_network_gives_the_heat_near_the_sonar(tmp_path: Path) -> None:
     torch.manual_seed(11)
-    net = PolarNet(near_refiner=True, close_proposal=True)
+    net = PolarNet(near_refiner=True, close_proposal=True, close_width=16)
     assert net.close_proposal is not None
     net.close_max_range_m.fill_(2.5)
     path = tmp_path / "close.pt"

@@ -21,6 +21,7 @@ from capsd.services.sonar_detect.polar_input import (
     coarse_input,
     crop,
     range_value,
+    row_medians,
     with_range_plane,
     with_range_rows,
 )
@@ -47,6 +48,25 @@ def _frame(image: np.ndarray, *, resolution_m: float, half_fov_deg: float = 65.0
         frequency_hz=1.2e6,
         vertical_aperture_rad=math.radians(20.0),
     )
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    rows=st.integers(1, 12),
+    cols=st.integers(1, 140),
+    bits=st.sampled_from([8, 16]),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_row_medians_are_numpys_medians(rows: int, cols: int, bits: int, seed: int) -> None:
+    # Samples as unit_image makes them (ties included), and any float32 besides.
+    rng = np.random.default_rng(seed)
+    top = 255 if bits == 8 else 65535
+    samples = (rng.integers(0, top + 1, size=(rows, cols)) / np.float32(top)).astype(np.float32)
+    floats = rng.standard_normal((rows, cols)).astype(np.float32)
+    for a in (samples, floats, samples[:, ::3]):
+        got = row_medians(a)
+        assert got.dtype == np.float32
+        assert np.array_equal(got, np.median(a, axis=1).astype(np.float32))
 
 
 def test_coarse_grid_is_the_mean_and_max_of_each_cell() -> None:
