@@ -459,8 +459,8 @@ def _proposal_net(state: bytes, inputs: Inputs) -> Any:
         from capsd.services.sonar_detect.polar_net import ProposalNet
 
         torch.set_num_threads(1)
-        net = ProposalNet(channels=2 + inputs.extra_planes)
-        net.load_state_dict(torch.load(io.BytesIO(state), weights_only=True))
+        loaded = torch.load(io.BytesIO(state), weights_only=True)
+        net = ProposalNet.from_state(loaded, channels=2 + inputs.extra_planes)
         net.eval()
         _PROPOSAL_CACHE.clear()
         _PROPOSAL_CACHE[state] = net

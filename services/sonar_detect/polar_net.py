@@ -30,6 +30,7 @@ Weights are a plain state dict with a format tag, loaded with `weights_only=True
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, get_args
 
@@ -84,6 +85,17 @@ class ProposalNet(nn.Module):
     def forward(self, grid: torch.Tensor) -> torch.Tensor:
         out: torch.Tensor = self.body(grid)
         return out[:, 0]
+
+    @classmethod
+    def from_state(cls, state: Mapping[str, torch.Tensor], *, channels: int) -> ProposalNet:
+        """A network with `state` loaded, as wide as the state is (its head's input channels)."""
+        head = state[f"body.{_HEAD_INDEX}.weight"]  # (1, width, 1, 1)
+        net = cls(int(head.shape[1]), channels=channels)
+        net.load_state_dict(state)
+        return net
+
+
+_HEAD_INDEX = 15  # the 1x1 head's place in ProposalNet.body: after five conv, BN, ReLU triples
 
 
 # How far (heat cells) a ProposalNet's output reads its input: 1 + 1 + 2 + 4 + 8 from its 3x3

@@ -13,6 +13,7 @@ import torch
 from capsd.errors import CapsdError
 from capsd.services.sonar_detect.cnn import DEFAULT_WEIGHTS
 from capsd.services.sonar_detect.polar_net import load
+from capsd.train.near_refiner import NearRefinerConfig, train_near_refiner
 from capsd.train.proposal import ProposalConfig, train_proposal
 
 # Two short runs, one epoch, short calibrations: the steps, not the figures.
@@ -72,6 +73,16 @@ def test_the_main_network_trained_again_narrower_the_close_one_kept(tmp_path: Pa
     same = [k for k in kept if "logit_offset" not in k and not k.startswith("proposal.")]
     assert any(k.startswith("close_proposal.") for k in same)
     assert all(torch.equal(trained[k], kept[k]) for k in same)
+    # The other training commands take narrow weights: the near refiner's mines with its
+    # main proposal network.
+    near = NearRefinerConfig(
+        near_runs=1, edge_runs=1, other_runs=1, duration_s=2.0, workers=1, threads=1,
+        epochs=1, calibration_duration_s=0.3, evaluate="none",
+    )  # fmt: skip
+    train_near_refiner(tmp_path / "main" / "polar_net.pt", tmp_path / "near", near)
+    refined = load(tmp_path / "near" / "polar_net.pt")
+    assert refined.close_proposal is not None
+    assert (refined.proposal.width, refined.close_proposal.width) == (8, 32)
     with pytest.raises(CapsdError, match="width 4: 8 to 64 channels"):
         train_proposal(DEFAULT_WEIGHTS, tmp_path / "odd", dataclasses.replace(main, width=4))
 

@@ -30,6 +30,7 @@ from capsd.services.sonar_detect.cnn import (
 from capsd.services.sonar_detect.polar_input import BeamTable, Grid, Inputs, normalised_image
 from capsd.services.sonar_detect.polar_net import (
     PolarNet,
+    ProposalNet,
     RefineNet,
     fused_for_inference,
     load,
@@ -539,6 +540,11 @@ def test_proposal_networks_narrower_than_32_are_kept_through_save_and_load(
     assert (back.proposal.width, back.close_proposal.width) == (16, 8)
     state, loaded = net.state_dict(), back.state_dict()
     assert all(torch.equal(state[k], loaded[k]) for k in state)
+    # As the training data's workers load one from its state alone (hard negatives mined).
+    for proposal in (back.proposal, back.close_proposal):
+        again = ProposalNet.from_state(proposal.state_dict(), channels=2)
+        assert again.width == proposal.width
+        assert all(torch.equal(v, again.state_dict()[k]) for k, v in proposal.state_dict().items())
     # A file that does not say its widths is read as 32 wide (weights before session 60).
     blob = torch.load(path, weights_only=True)
     torch.save({k: v for k, v in blob.items() if k != "close_width"}, tmp_path / "old.pt")
