@@ -96,6 +96,7 @@ def _cmd_train_proposal(args: argparse.Namespace) -> int:
         close_share=args.close_share,
         close_max_range_m=args.close_max_range,
         **({} if args.width is None else {"width": args.width}),
+        targets=args.targets,
         workers=args.workers,
         threads=args.threads,
         evaluate=args.evaluate,
@@ -425,6 +426,13 @@ def register(sub: Subcommands) -> None:
         "--width",
         type=int,
         help="the network's channels (default 32; fewer cost less on every whole-frame search)",
+    )
+    tprop.add_argument(
+        "--targets",
+        choices=("labels", "labels_and_teacher"),
+        default="labels",
+        help="labels_and_teacher: the network it replaces gives its heat as a soft target too "
+        "(a narrow network learns from the wide one; default %(default)s)",
     )
     tprop.add_argument("--workers", type=positive_int, default=2, help="rendering processes")
     tprop.add_argument("--threads", type=positive_int, default=2, help="torch threads")

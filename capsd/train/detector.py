@@ -197,8 +197,22 @@ def focal_loss(logits: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
 
 
 def _train_proposal(
-    net: PolarNet, samples: Samples, config: TrainConfig, gen: torch.Generator
+    net: PolarNet,
+    samples: Samples,
+    config: TrainConfig,
+    gen: torch.Generator,
+    *,
+    teacher: torch.nn.Module | None = None,
 ) -> list[float]:
+    """Train `net.proposal` on the grids' ROV centres; with `teacher`, on its heat as well.
+
+    A teacher (a proposal network already trained, often wider) adds its heat on the same
+    augmented grid as a soft target, summed over the cells like the focal loss and divided
+    by the same number of centres: what it learned about clutter and faint ROVs, which the
+    labels alone say only through the few centres.
+    """
+    if teacher is not None:
+        teacher = teacher.to(config.device).eval()
     by_shape: dict[tuple[int, ...], list[int]] = {}
     for k, g in enumerate(samples.grids):
         by_shape.setdefault(g.shape, []).append(k)
@@ -232,6 +246,15 @@ def _train_proposal(
             logits = net.proposal(x)
             target = _heat_target(targets[batch], logits.shape[1], logits.shape[2], flipped=flipped)
             loss = focal_loss(logits, target.to(config.device))
+            if teacher is not None:
+                with torch.no_grad():
+                    soft = torch.sigmoid(teacher(x))
+                centres = max(int((target >= 1.0).sum()), 1)
+                loss = (
+                    loss
+                    + functional.binary_cross_entropy_with_logits(logits, soft, reduction="sum")
+                    / centres
+                )
             losses.append(_step(opt, sched, loss))
             bar.update(len(losses))
     bar.close()

@@ -62,6 +62,9 @@ class ProposalConfig:
     close_share: float | None = None
     close_max_range_m: float = 2.5  # the close network's rows (kept as stored for main)
     width: int = PROPOSAL_WIDTH  # its channels (fewer cost less on every whole-frame search)
+    # labels_and_teacher: the network it replaces (the weights' own) gives its heat as a soft
+    # target beside the labels (distillation: a narrow network learns from the wide one).
+    targets: Literal["labels", "labels_and_teacher"] = "labels"
     workers: int = 2
     threads: int = 2
     # None: as the weights' own train_config (tests make them small).
@@ -133,7 +136,12 @@ def train_proposal(weights: Path, out_dir: Path, config: ProposalConfig) -> dict
     trainee = PolarNet(inputs=net.inputs)  # from scratch, as train detector
     if config.width != PROPOSAL_WIDTH:
         trainee.proposal = ProposalNet(config.width, channels=2 + net.inputs.extra_planes)
-    losses = _train_proposal(trainee, samples, train_config, gen)
+    teacher = None
+    if config.targets == "labels_and_teacher":
+        teacher = net.proposal if config.network == "main" else net.close_proposal
+        if teacher is None:
+            raise CapsdError(f"{weights}: no close proposal network to learn from")
+    losses = _train_proposal(trainee, samples, train_config, gen, teacher=teacher)
     if config.network == "close":
         net.close_proposal = trainee.proposal
         net.close_max_range_m.fill_(config.close_max_range_m)

@@ -87,6 +87,17 @@ def test_the_main_network_trained_again_narrower_the_close_one_kept(tmp_path: Pa
         train_proposal(DEFAULT_WEIGHTS, tmp_path / "odd", dataclasses.replace(main, width=4))
 
 
+def test_a_teacher_s_heat_changes_what_the_narrow_network_learns(tmp_path: Path) -> None:
+    nets = {}
+    for targets in ("labels", "labels_and_teacher"):
+        config = dataclasses.replace(TINY, network="main", width=8, targets=targets)
+        meta = train_proposal(DEFAULT_WEIGHTS, tmp_path / targets, config)
+        assert meta["main_proposal"]["config"]["targets"] == targets
+        nets[targets] = load(tmp_path / targets / "polar_net.pt").proposal.state_dict()
+    plain, taught = nets["labels"], nets["labels_and_teacher"]
+    assert any(not torch.equal(plain[k], taught[k]) for k in plain if k.endswith("weight"))
+
+
 def test_weights_without_their_training_record_are_refused(tmp_path: Path) -> None:
     bare = tmp_path / "bare" / "polar_net.pt"
     bare.parent.mkdir()
