@@ -12,7 +12,7 @@ import torch
 
 from capsd.errors import CapsdError
 from capsd.services.sonar_detect.cnn import DEFAULT_WEIGHTS
-from capsd.services.sonar_detect.polar_net import load
+from capsd.services.sonar_detect.polar_net import load, save
 from capsd.train.near_refiner import NearRefinerConfig, train_near_refiner
 from capsd.train.proposal import ProposalConfig, train_proposal
 
@@ -96,6 +96,17 @@ def test_a_teacher_s_heat_changes_what_the_narrow_network_learns(tmp_path: Path)
         nets[targets] = load(tmp_path / targets / "polar_net.pt").proposal.state_dict()
     plain, taught = nets["labels"], nets["labels_and_teacher"]
     assert any(not torch.equal(plain[k], taught[k]) for k in plain if k.endswith("weight"))
+
+
+def test_no_close_network_to_learn_from_is_refused(tmp_path: Path) -> None:
+    net = load(DEFAULT_WEIGHTS)
+    net.close_proposal = None
+    save(net, tmp_path / "polar_net.pt", meta={})
+    shutil.copy(DEFAULT_WEIGHTS.with_suffix(".json"), tmp_path / "polar_net.json")
+    config = dataclasses.replace(TINY, targets="labels_and_teacher")
+    with pytest.raises(CapsdError, match="no close proposal network to learn from"):
+        train_proposal(tmp_path / "polar_net.pt", tmp_path / "out", config)
+    assert not (tmp_path / "out").exists()
 
 
 def test_weights_without_their_training_record_are_refused(tmp_path: Path) -> None:
