@@ -354,6 +354,58 @@ def _train_refine(
     return losses
 
 
+def hard_round(
+    net: PolarNet,
+    config: TrainConfig,
+    gen: torch.Generator,
+    *,
+    proposal_state: bytes,
+    plan_seed: int,
+    label: str,
+) -> tuple[list[float], tuple[int, int]]:
+    """One hard-example round of the refiner (stage 4): its losses, (hard examples, crops).
+
+    `config.hard_runs` fresh runs planned from `plan_seed`, seen through the proposal network
+    in `proposal_state`; every crop trains `config.hard_epochs` at `config.hard_lr`, those the
+    refiner gets wrong or only just right `config.hard_repeat` times.
+    """
+    fresh = render(
+        config.plans(runs=config.hard_runs, seed=plan_seed),
+        workers=config.workers,
+        proposal_state=proposal_state,
+        inputs=config.inputs,
+    )
+    hard = _hard_indices(
+        net,
+        torch.from_numpy(np.stack(fresh.crops)),
+        torch.tensor(fresh.crop_targets, dtype=torch.float32),
+        device=config.device,
+    )
+    print(f"hard examples, {label}: {len(hard)} of {len(fresh.crops)} fresh crops")
+    losses = _train_refine(
+        net,
+        fresh,
+        config,
+        gen,
+        label=f"fine-tuning on hard examples, {label}",
+        epochs=config.hard_epochs,
+        lr=config.hard_lr,
+        repeat=hard.repeat(config.hard_repeat - 1),
+    )
+    return losses, (len(hard), len(fresh.crops))
+
+
+def stored_train_config(weights: Path, meta: dict[str, Any]) -> TrainConfig:
+    """The `train_config` that `meta` (the json beside `weights`) says they were trained with."""
+    stored = meta.get("train_config")
+    if not isinstance(stored, dict):
+        raise CapsdError(f"{weights.with_suffix('.json')}: no train_config to train on again")
+    try:
+        return TrainConfig(**stored)
+    except TypeError as exc:
+        raise CapsdError(f"{weights.with_suffix('.json')}: train_config: {exc}") from exc
+
+
 def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
     """Render, train, evaluate and save; returns what `polar_net.json` holds."""
     if config.device == "cuda" and not torch.cuda.is_available():
@@ -390,33 +442,16 @@ def train(config: TrainConfig, out_dir: Path) -> dict[str, Any]:
     hard_losses: list[float] = []
     hard_counts: list[tuple[int, int]] = []  # per round: hard examples, fresh crops
     for round_index in range(config.hard_rounds):
-        hard_set = config.plans(runs=config.hard_runs, seed=config.seed + 2 + round_index)
-        fresh = render(
-            hard_set,
-            workers=config.workers,
-            proposal_state=buffer.getvalue(),
-            inputs=config.inputs,
-        )
-        hard = _hard_indices(
+        losses, counts = hard_round(
             net,
-            torch.from_numpy(np.stack(fresh.crops)),
-            torch.tensor(fresh.crop_targets, dtype=torch.float32),
-            device=config.device,
-        )
-        hard_counts.append((len(hard), len(fresh.crops)))
-        print(
-            f"hard examples, round {round_index + 1}: {len(hard)} of {len(fresh.crops)} fresh crops"
-        )
-        hard_losses += _train_refine(
-            net,
-            fresh,
             config,
             gen,
-            label=f"fine-tuning on hard examples, round {round_index + 1}",
-            epochs=config.hard_epochs,
-            lr=config.hard_lr,
-            repeat=hard.repeat(config.hard_repeat - 1),
+            proposal_state=buffer.getvalue(),
+            plan_seed=config.seed + 2 + round_index,
+            label=f"round {round_index + 1}",
         )
+        hard_losses += losses
+        hard_counts.append(counts)
     trained_s = time.monotonic() - started
     net = net.cpu()
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -46,6 +46,7 @@ from capsd.train.detector import (
     calibrate,
     save_evaluated,
     stored_meta,
+    stored_train_config,
 )
 from capsd.train.near_refiner import NearRefinerConfig, calibrate_near
 
@@ -100,13 +101,7 @@ def train_proposal(weights: Path, out_dir: Path, config: ProposalConfig) -> dict
         if teacher is None:
             raise CapsdError(f"{weights}: no close proposal network to learn from")
     meta = stored_meta(weights)
-    stored = meta.get("train_config")
-    if not isinstance(stored, dict):
-        raise CapsdError(f"{weights.with_suffix('.json')}: no train_config to train on again")
-    try:
-        base = TrainConfig(**stored)
-    except TypeError as exc:
-        raise CapsdError(f"{weights.with_suffix('.json')}: train_config: {exc}") from exc
+    base = stored_train_config(weights, meta)
     train_config = dataclasses.replace(
         base,
         seed=config.seed,
