@@ -32,6 +32,7 @@ from capsd.harness import (
     Processes,
     SonarTilt,
     Watch,
+    detector_settings_of,
     free_port,
     sigterm_as_interrupt,
     start_service,
@@ -89,6 +90,7 @@ def main(
     sonar_tilt: SonarTilt = "fixed",
     install_errors: Literal["realistic", "off"] = "realistic",
     calibration: Literal["off", "dive"] = "off",
+    detector_config: Path | None = None,
     stream: TextIO = sys.stdout,
 ) -> int:
     """Run the demo; returns 0 when every service ran to the end and fixes were good.
@@ -103,7 +105,8 @@ def main(
     `install_errors` "realistic" (the default) the simulated installation is what a tape
     measured (docs/INSTALL-ERRORS.md), uncalibrated unless `calibration` is "dive" (first a
     simulated calibration dive fitted by capsd calibrate's code, as a field team starts);
-    "off" a perfect one. `record_view`:
+    "off" a perfect one. `detector_config`: a sonar_detect config whose detector settings
+    (harness.DETECTOR_KEYS) the detection service runs with instead of its defaults. `record_view`:
     whether the recording also holds the operator's scene (capsd record --view).
     """
     from capsd import plots
@@ -124,6 +127,7 @@ def main(
         raise CapsdError(
             "--calibration dive calibrates a realistic installation: not with --install-errors off"
         )
+    detector_settings = None if detector_config is None else detector_settings_of(detector_config)
     points = None if mission is None else _plan_points(mission, tank)
     rov_start, station, heading = (
         (None, None, None) if points is None else _mission_start(points, tank, asv)
@@ -144,6 +148,7 @@ def main(
         sonar_tilt=sonar_tilt,
         install_errors=install_errors,
         calibration=calibration,
+        detector_settings=detector_settings,
     )
     calibrated = (
         json.loads((logs / "calibration.json").read_text()) if calibration == "dive" else None
@@ -228,6 +233,7 @@ def main(
         "seed": seed,
         "install_errors": installation,
         "calibration": calibrated,
+        "detector_settings": detector_settings,
         "duration_s": duration_s,
         "wall_s": round(elapsed, 1),
         "interrupted": interrupted,

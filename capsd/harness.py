@@ -252,6 +252,25 @@ def start_station(
     return xy, math.degrees(chosen.heading_rad)
 
 
+# The keys of a sonar_detect config that say how it detects (`capsd demo --detector-config`);
+# the rest (bus, site, names, the depth gate's mount) is the demo's to set.
+DETECTOR_KEYS = ("detector", "cnn", "classical", "min_confidence")
+
+
+def detector_settings_of(path: Path) -> dict[str, Any]:
+    """The detector's settings in the sonar_detect config at `path`, validated as the service's.
+
+    Raises ConfigError naming the file and key, as the service would at start.
+    """
+    import msgspec
+
+    from capsd.config import load_config
+    from capsd.services.sonar_detect.service import Config as SonarDetectConfig
+
+    config = msgspec.to_builtins(load_config(path, SonarDetectConfig))
+    return {k: config[k] for k in DETECTOR_KEYS}
+
+
 def write_configs(
     folder: Path,
     endpoint: str,
@@ -271,8 +290,12 @@ def write_configs(
     install_errors: Literal["realistic", "off"] = "realistic",
     calibration: Literal["off", "dive"] = "off",
     calibration_s: float = 120.0,
+    detector_settings: dict[str, Any] | None = None,
 ) -> dict[str, Path]:
     """Every process's config in `folder`, by name.
+
+    `detector_settings` (`detector_settings_of`: the detector's keys of a sonar_detect config)
+    replace the detection service's defaults; its bus, names and mount stay the demo's.
 
     With `calibration` "dive" the realistic installation is first calibrated as a field team
     would, from a calibration dive of it (capsd calibrate's code on the simulator's two
@@ -363,6 +386,7 @@ def write_configs(
         # The depth gate looks through the same mount as the locator (the mockup's sonar is
         # pitched 45 deg; the gate had the default 30 deg).
         "sonar_detect": {
+            **(detector_settings or {}),
             "bus": bus,
             **({"depth_gate": told} if told else {}),
         },

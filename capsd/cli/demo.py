@@ -30,6 +30,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         sonar_tilt=args.sonar_tilt,
         install_errors=args.install_errors,
         calibration=args.calibration,
+        detector_config=args.detector_config,
     )
 
 
@@ -115,5 +116,14 @@ def register(sub: Subcommands) -> None:
         "field team does (a simulated 2-minute calibration dive of it, offline, fitted by "
         "capsd calibrate's code; the services get the calibrated mount); off (default): "
         "the tape's",
+    )
+    dem.add_argument(
+        "--detector-config",
+        type=Path,
+        default=None,
+        help="a sonar_detect config (e.g. a copy of deploy/config/sonar_detect.yaml) whose "
+        "detector settings (detector, cnn, classical, min_confidence) the detection service "
+        "runs with; its bus, names and sonar mount stay the demo's (default: the service's "
+        "defaults)",
     )
     dem.set_defaults(func=_cmd_demo)

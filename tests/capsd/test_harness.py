@@ -11,7 +11,8 @@ import pytest
 import yaml
 
 from capsd.config import load_config
-from capsd.harness import SonarTilt, follow_config, write_configs
+from capsd.errors import ConfigError
+from capsd.harness import SonarTilt, detector_settings_of, follow_config, write_configs
 from capsd.mounts import SonarMountConfig
 from capsd.registry import service_of_config
 from capsd.services.asv_follow.service import Config as FollowConfig
@@ -76,6 +77,35 @@ def test_the_depth_gate_looks_through_the_tanks_sonar_mount(tmp_path: Path) -> N
     configs = _configs(tmp_path / "mockup", tank="mockup")
     assert configs["sonar_detect"]["depth_gate"]["sonar"] == configs["locator"]["sonar"]
     assert configs["locator"]["sonar"]["pitch_deg"] == 45.0
+
+
+def test_a_detector_config_sets_how_it_detects_not_where_it_listens(tmp_path: Path) -> None:
+    # The deployed file with a site's changes (as text: YAML 1.1 reads its `on` as true).
+    text = Path("deploy/config/sonar_detect.yaml").read_text()
+    for old, new in (
+        ("close_proposal: on", "close_proposal: off"),
+        ("  max_candidates: 3\n  refine", "  max_candidates: 5\n  refine"),
+        ("min_confidence: 0.5", "min_confidence: 0.6"),
+        ("connect: [tcp/127.0.0.1:7447]", "connect: [tcp/192.0.2.1:7447]"),  # never the demo's
+    ):
+        text = text.replace(old, new)
+    text += "depth_gate:\n  tolerance_m: 0.4\n  sonar:\n    pitch_deg: 10.0\n"
+    path = tmp_path / "sonar_detect.yaml"
+    path.write_text(text)
+    settings = detector_settings_of(path)
+    configs = _configs(tmp_path / "mockup", tank="mockup", detector_settings=settings)
+    detect = configs["sonar_detect"]
+    assert detect["cnn"]["close_proposal"] == "off"
+    assert detect["cnn"]["max_candidates"] == 5
+    assert detect["min_confidence"] == 0.6
+    assert detect["bus"] == {"connect": [ENDPOINT]}
+    assert detect["depth_gate"]["sonar"] == configs["locator"]["sonar"]
+    assert "tolerance_m" not in detect["depth_gate"]
+    plain = _configs(tmp_path / "plain", tank="mockup")["sonar_detect"]
+    assert "cnn" not in plain
+    path.write_text("cnn:\n  close_proposal: maybe\n")
+    with pytest.raises(ConfigError, match=r"sonar_detect.yaml:2 at 'cnn.close_proposal'"):
+        detector_settings_of(path)
 
 
 def test_a_perfect_installation_is_not_calibrated(tmp_path: Path) -> None:
