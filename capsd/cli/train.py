@@ -467,7 +467,7 @@ def register(sub: Subcommands) -> None:
         "runs planned as their polar_net.json's train_config, seen through their own proposal "
         "network; the crops it gets wrong repeated), keep both proposal networks and the near "
         "refiner, set the main operating point again, write polar_net.pt and polar_net.json "
-        "into --out. About 6 minutes a round and 4 for the operating point on 2 CPU cores.",
+        "into --out. About 6 minutes a round and 5 for the operating point on 2 CPU cores.",
     )
     tref.add_argument(
         "--weights",

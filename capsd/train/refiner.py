@@ -10,7 +10,7 @@ keep its 29 minutes; this runs `rounds` more on fresh plans (seeds after the wei
 rounds, with the weights' stored `train_config`: its runs, look variety, far share), keeps
 both proposal networks and the near refiner, sets the main operating point again on the
 validation runs and writes the weights. Deterministic for a seed. About 6 minutes a round
-and 4 for the operating point on 2 cores.
+and 5 for the operating point on 2 cores.
 """
 
 from __future__ import annotations
