@@ -9,7 +9,9 @@ measured on the very same pings.
 Every fix is paired with the label of its ping. Nothing is taken from truth except the heading
 prior the pose service is configured with (the start heading, deliberately 20 deg off), for
 the paper's box-centre detector, the perfect box the paper's YOLO is granted, and for the
-"perfect detector" ablation the ROV's true centre (what the rest of the pipeline costs).
+"perfect detector" ablation the ROV's true centre (what the rest of the pipeline costs), and
+for the "detector ... exact" variants the truth along one axis or both of the detector's own
+candidate on the ROV (what the detector's range or bearing error costs, on its own pings).
 """
 
 from __future__ import annotations
@@ -65,6 +67,15 @@ TRUTH_AZIMUTH_SIGMA_RAD = math.radians(0.05)
 TiltKind = Literal["ours", "paper"]
 HEADING_PRIOR_ERROR_RAD = math.radians(20.0)
 PERFECT_DETECTOR = "ours, a perfect detector"
+# What of the detector's candidate on the ROV a variant takes from the truth instead (a
+# diagnostic: the cost of the detector's range or bearing error on the pings it finds).
+ExactAxes = Literal["none", "range", "azimuth", "both"]
+DETECTOR_EXACT = "ours + the detector's centre exact"
+DETECTOR_RANGE_EXACT = "ours + the detector's range exact"
+DETECTOR_BEARING_EXACT = "ours + the detector's bearing exact"
+# The detector's candidate on the ROV: the one nearest the label's centre, this near at most
+# (as `capsd bench detect` matches a detection to the truth).
+EXACT_MATCH_M = 0.5
 
 
 @dataclass(frozen=True)
@@ -90,6 +101,9 @@ class Variant:
     # Whose speed of sound the ranges are in: the water's from the ROV's thermometer (the
     # locator's default), or the one the sonar assumed (the paper's method as published).
     sound_speed: Literal["rov_thermometer", "sonar"] = "rov_thermometer"
+    # The detector's candidate on the ROV moved to the truth along these axes (`with_exact`);
+    # its sigmas, confidence and every other candidate as the detector gave them.
+    exact: ExactAxes = "none"
 
 
 def locator_config(variant: Variant, sim: SimConfig) -> LocatorConfig:
@@ -257,7 +271,7 @@ def run(
                 elif v.detector == "truth":
                     candidates = true_centre(p)
                 else:
-                    candidates = found[v.detector]
+                    candidates = with_exact(found[v.detector], p, axes=v.exact)
                 detections = SonarDetections(
                     stamp_ns=frame.stamp_ns,
                     seq=frame.seq,
@@ -289,6 +303,37 @@ def true_centre(label: SonarLabel) -> list[Detection]:
             confidence=1.0,
         )
     ]
+
+
+def with_exact(
+    candidates: list[Detection], label: SonarLabel, *, axes: ExactAxes
+) -> list[Detection]:
+    """`candidates` with the one on the ROV given the label's range and/or azimuth (`axes`).
+
+    The one on the ROV is the candidate nearest the ROV's true centre, within EXACT_MATCH_M;
+    without one (a miss, or the ROV out of view) the candidates are returned as they are.
+    """
+    if axes == "none" or not label.visible or not candidates:
+        return candidates
+    gaps = [_gap(d.range_m, d.azimuth_rad, label.range_m, label.azimuth_rad) for d in candidates]
+    k = int(np.argmin(gaps))
+    if gaps[k] > EXACT_MATCH_M:
+        return candidates
+    d = candidates[k]
+    moved = msgspec.structs.replace(
+        d,
+        range_m=label.range_m if axes in ("range", "both") else d.range_m,
+        azimuth_rad=label.azimuth_rad if axes in ("azimuth", "both") else d.azimuth_rad,
+    )
+    return [*candidates[:k], moved, *candidates[k + 1 :]]
+
+
+def _gap(range_a: float, azimuth_a: float, range_b: float, azimuth_b: float) -> float:
+    """Distance between two places of the sonar image (range, azimuth), in the fan's plane."""
+    return math.hypot(
+        range_a * math.cos(azimuth_a) - range_b * math.cos(azimuth_b),
+        range_a * math.sin(azimuth_a) - range_b * math.sin(azimuth_b),
+    )
 
 
 def ablations(*, box_range_bias_m: float | None = None) -> list[Variant]:
@@ -332,6 +377,12 @@ def ablations(*, box_range_bias_m: float | None = None) -> list[Variant]:
         Variant("ours - tracking filter", method=replace_method(custom, tracking="per_frame")),
         Variant("ours - gyro-dominant tilt", tilt="paper"),
         Variant(PERFECT_DETECTOR, detector="truth"),
+        # Ours with the CNN's own candidates, its error on the ROV taken off along one axis or
+        # both: what its range and its bearing error each cost, on the pings it finds (the
+        # perfect detector's gap to ours less these is what it misses, or its false alarms).
+        Variant(DETECTOR_EXACT, exact="both"),
+        Variant(DETECTOR_RANGE_EXACT, exact="range"),
+        Variant(DETECTOR_BEARING_EXACT, exact="azimuth"),
     ]
 
 
@@ -339,4 +390,4 @@ def replace_method(method: MethodConfig, **changes: str) -> MethodConfig:
     return msgspec.structs.replace(method, **changes)
 
 
-__all__ = ["Variant", "ablations", "box_centre", "locator_config", "run"]
+__all__ = ["Variant", "ablations", "box_centre", "locator_config", "run", "with_exact"]

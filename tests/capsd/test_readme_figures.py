@@ -66,3 +66,26 @@ def test_the_detect_table_names_the_benchs_groups() -> None:
     assert readme_figures._BRIGHTEST == detect.BRIGHTEST
     assert tuple(f"{lo:g}-{hi:g} m" for lo, hi in detect.BANDS) == readme_figures._BANDS
     assert readme_figures._PLACES == detect.APERTURE_PLACES
+
+
+def test_the_detector_budget_names_the_accuracy_benchs_variants() -> None:
+    from capsd import offline_pipeline, readme_figures
+
+    names = {v.name for v in offline_pipeline.ablations()}
+    assert [variant for _, variant in readme_figures._EXACT] == [
+        offline_pipeline.DETECTOR_EXACT,
+        offline_pipeline.DETECTOR_RANGE_EXACT,
+        offline_pipeline.DETECTOR_BEARING_EXACT,
+    ]
+    assert {readme_figures.OURS, readme_figures.PERFECT_DETECTOR} <= names
+    run = {
+        readme_figures.OURS: {"med_mm": 25.4, "availability": 0.5812},
+        readme_figures.PERFECT_DETECTOR: {"med_mm": 12.1, "availability": 0.955},
+        offline_pipeline.DETECTOR_RANGE_EXACT: {"med_mm": 23.2, "availability": 0.582},
+    }
+    lines = readme_figures.detector_budget({"runs": {"pond/lawnmower": run}})
+    # A bench from before the variants: their cells say so rather than break the table.
+    assert lines[2] == (
+        "| pond lawnmower (held out) | 25.4 mm, 58.1 % | - | 23.2 mm, 58.2 % | - "
+        "| 12.1 mm, 95.5 % |"
+    )
