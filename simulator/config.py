@@ -17,7 +17,14 @@ from capsd.simulator.install_errors import InstallErrorsConfig
 from capsd.simulator.lidar import LidarModel
 from capsd.simulator.sonar import SonarModel
 from capsd.simulator.sonar_look import Look, OutsideKnob, Variety
-from capsd.simulator.world import Tank, TankName, TrajectoryName, Waves, make_tank
+from capsd.simulator.world import (
+    RackHeights,
+    Tank,
+    TankName,
+    TrajectoryName,
+    Waves,
+    make_tank,
+)
 
 Rate = Annotated[float, msgspec.Meta(gt=0.0, le=400.0)]
 Sigma = Annotated[float, msgspec.Meta(ge=0.0, le=10.0)]
@@ -186,6 +193,10 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     # preset: the tank's one fixed layout.
     clutter_layout: Literal["per_seed", "preset"] = "per_seed"
     layout_seed: int | None = None
+    # drawn: a per-seed layout's racks and skips of other heights too, some just under the
+    # ROV's lower flight level (capsd.simulator.world.RackHeights; training runs, `capsd train
+    # detector --rack-heights drawn`); preset: the preset's heights.
+    rack_heights: RackHeights = "preset"
     trajectory: TrajectoryName = "square"
     rov_speed_m_s: Annotated[float, msgspec.Meta(gt=0.0, le=0.5)] = 0.3
     # surface: the ROV floats at the surface above its trajectory's start for the whole run
@@ -257,7 +268,12 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
         """The run's tank: the preset with this run's clutter layout."""
         seed = self.seed if self.layout_seed is None else self.layout_seed
         per_seed = self.clutter_layout == "per_seed"
-        return make_tank(self.tank, clutter=self.clutter, layout_seed=seed if per_seed else None)
+        return make_tank(
+            self.tank,
+            clutter=self.clutter,
+            layout_seed=seed if per_seed else None,
+            rack_heights=self.rack_heights,
+        )
 
     def look(self) -> Look | None:
         """The run's draw of the look knobs (None: the fixed look)."""

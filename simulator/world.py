@@ -164,13 +164,29 @@ def _mockup_clutter(
     return boxes, cylinders
 
 
+# How tall a drawn layout's racks and skips stand (make_tank's rack_heights): "preset", the
+# preset's heights; "drawn", each at even odds its preset height or one that leaves
+# RACK_CLEARANCE_M (drawn in that span) between its top and the hull of a ROV at the lower
+# flight level. The presets leave 36 (mockup) and 64 cm (nfp) at its centre; a survey over
+# real racks flies lower (the held-out pond: 15 cm, 2 cm under the hull).
+RackHeights = Literal["preset", "drawn"]
+RACK_CLEARANCE_M = (0.05, 1.0)
+ROV_HULL_HALF_HEIGHT_M = 0.13  # capsd.simulator.scene.BLUEROV2_SEMI_AXES[2]
+MIN_RACK_HEIGHT_M = 0.3
+
+
 def make_tank(
-    name: TankName, *, clutter: Literal["on", "off"] = "on", layout_seed: int | None = None
+    name: TankName,
+    *,
+    clutter: Literal["on", "off"] = "on",
+    layout_seed: int | None = None,
+    rack_heights: RackHeights = "preset",
 ) -> Tank:
     """A tank preset: `nfp` (the paper's pool), `mockup` (its real test tank), or `pond`.
 
     `pond` is a storage pond of another size and layout, held out of training and tuning.
-    With `layout_seed`, the clutter is the preset's kinds and numbers laid out anew (`drawn`).
+    With `layout_seed`, the clutter is the preset's kinds and numbers laid out anew (`drawn`),
+    and with `rack_heights` "drawn" its racks and skips of other heights (RackHeights).
     """
     if name == "nfp":
         dims = (28.0, 16.0, 8.0, 1.0)
@@ -187,7 +203,26 @@ def make_tank(
         # The layout's own stream: a run's other draws (noise, looks) stay as they were.
         rng = np.random.default_rng([layout_seed % 2**32, 0x1A70])
         boxes, cylinders = drawn(boxes, cylinders, dims[:3], rng)
+        if rack_heights == "drawn":
+            # A stream of its own: the layout stays as "preset" heights draw it.
+            heights = np.random.default_rng([layout_seed % 2**32, 0x4AC5])
+            boxes = _drawn_heights(boxes, dims[2], heights)
     return Tank(name, *dims, boxes=boxes, cylinders=cylinders)
+
+
+def _drawn_heights(
+    boxes: tuple[Box, ...], depth: float, rng: np.random.Generator
+) -> tuple[Box, ...]:
+    """Each rack and skip at even odds its own height, else RACK_CLEARANCE_M under the ROV."""
+    lower = -0.57 * depth  # Tank.rov_depths' lower flight level
+    out: list[Box] = []
+    for b in boxes:
+        if b.kind in ("rack", "skip") and rng.random() < 0.5:
+            clearance = float(rng.uniform(*RACK_CLEARANCE_M))
+            top = max(lower - ROV_HULL_HALF_HEIGHT_M - clearance, b.lo[2] + MIN_RACK_HEIGHT_M)
+            b = replace(b, hi=(b.hi[0], b.hi[1], top))
+        out.append(b)
+    return tuple(out)
 
 
 # How far a drawn layout moves things: floor objects (racks, skips) in the plane, fixtures

@@ -201,6 +201,7 @@ def _cmd_train_detector(args: argparse.Namespace) -> int:
         near_share=args.near_share,
         close_share=args.close_share,
         start_spread_s=args.start_spread,
+        rack_heights=args.rack_heights,
         hard_rounds=args.hard_rounds,
         hard_epochs=args.hard_epochs,
         eval_duration_s=args.eval_duration,
@@ -279,6 +280,13 @@ def register(sub: Subcommands) -> None:
         default=0.0,
         help="runs start at a time drawn from 0 to this many seconds into the vehicles' paths "
         "(default 0: every run from the start)",
+    )
+    tdet.add_argument(
+        "--rack-heights",
+        choices=["preset", "drawn"],
+        default="preset",
+        help="drawn: each run's racks and skips at even odds 5-100 cm under the ROV's hull at "
+        "its lower flight level (default preset: the tanks' own heights)",
     )
     tdet.add_argument("--workers", type=int, default=2, help="rendering processes")
     tdet.add_argument("--threads", type=int, default=2, help="torch threads for training")

@@ -49,7 +49,7 @@ from capsd.simulator.config import (
 from capsd.simulator.install_errors import InstallErrorsConfig
 from capsd.simulator.sim import Simulation
 from capsd.simulator.sonar_look import Variety
-from capsd.simulator.world import TUNING_TANKS, TankName, TrajectoryName
+from capsd.simulator.world import TUNING_TANKS, RackHeights, TankName, TrajectoryName
 
 TRAJECTORIES: tuple[TrajectoryName, ...] = (
     "square",
@@ -102,6 +102,8 @@ class RunPlan:
     # profile: the ROV goes down and up through the aperture, the ASV still (close runs).
     rov_mode: Literal["trajectory", "profile"] = "trajectory"
     profile_period_s: float = 120.0
+    # drawn: racks and skips of other heights, some just under the ROV (world.RackHeights).
+    rack_heights: RackHeights = "preset"
 
     def config(self) -> Config:
         sonar = SonarMountConfig()
@@ -117,6 +119,7 @@ class RunPlan:
             asv_standoff_m=self.standoff_m,
             rov_mode=self.rov_mode,
             profile_period_s=self.profile_period_s,
+            rack_heights=self.rack_heights,
             sonar=sonar,
             sonar_image=SonarImageConfig(
                 gain_percent=self.gain_percent,
@@ -146,6 +149,7 @@ def plan_runs(
     start_spread_s: float = 0.0,
     near_standoff_m: tuple[float, float] = NEAR_STANDOFF_M,
     near_yaw_deg: float = NEAR_YAW_DEG,
+    rack_heights: RackHeights = "preset",
 ) -> list[RunPlan]:
     """`runs` varied runs drawn from `seed` (both tanks, every trajectory, both ASV modes).
 
@@ -161,6 +165,7 @@ def plan_runs(
     off, the sonar CLOSE_PITCH_DEG down, half of them the ROV profiling (RunPlan.rov_mode).
     With `start_spread_s`, each run starts at a time drawn from 0 to that (a stream of its
     own again): short runs then see every part of the paths, not only their first seconds.
+    `rack_heights` "drawn": every run's racks and skips of other heights (world.RackHeights).
     """
     rng = np.random.default_rng(seed)
     plans = []
@@ -201,6 +206,8 @@ def plan_runs(
             dataclasses.replace(plan, start_s=float(start_rng.uniform(0.0, start_spread_s)))
             for plan in plans
         ]
+    if rack_heights != "preset":
+        plans = [dataclasses.replace(plan, rack_heights=rack_heights) for plan in plans]
     return plans
 
 

@@ -50,6 +50,7 @@ from capsd.services.sonar_detect.polar_input import (
 )
 from capsd.services.sonar_detect.polar_net import OFFSET_SCALE_M, PolarNet, near_refined, save
 from capsd.simulator.sonar_look import Variety
+from capsd.simulator.world import RackHeights
 from capsd.train.data import RunPlan, Samples, plan_runs, render
 
 # How training samples are varied (_augment).
@@ -88,6 +89,9 @@ class TrainConfig:
     close_share: float = 0.0
     # Runs start at a time drawn from 0 to this into the vehicles' paths (data.plan_runs).
     start_spread_s: float = 0.0
+    # "drawn": the runs' racks and skips of other heights, some just under the ROV's lower
+    # flight level (world.RackHeights; data.plan_runs); "preset": the shipped weights'.
+    rack_heights: RackHeights = "preset"
     eval_duration_s: float = 20.0
     # Seconds of each validation run (in each look) the operating point is set on (calibrate;
     # also `capsd train calibrate`'s default): 40 s gives 9612 frames, so the offset sits where
@@ -126,6 +130,7 @@ class TrainConfig:
             near_share=self.near_share,
             close_share=self.close_share,
             start_spread_s=self.start_spread_s,
+            rack_heights=self.rack_heights,
         )
 
 

@@ -1,4 +1,4 @@
-"""The training plan: far, near and close runs and later starts on request, else as it was."""
+"""The training plan: far, near and close runs, later starts, other rack heights on request."""
 
 from __future__ import annotations
 
@@ -174,6 +174,21 @@ def test_a_start_spread_moves_each_run_into_its_paths_and_leaves_the_rest_as_pla
     assert len(set(starts)) == len(starts)
     assert max(starts) > 150.0
     assert [dataclasses.replace(q, start_s=0.0) for q in spread] == plain
+
+
+def test_drawn_rack_heights_reach_every_runs_tank_and_change_nothing_else() -> None:
+    plain = plan_runs(runs=10, seed=4, duration_s=10.0, sonar_hz=2.0, far_share=0.2)
+    racks = plan_runs(
+        runs=10, seed=4, duration_s=10.0, sonar_hz=2.0, far_share=0.2, rack_heights="drawn"
+    )
+    assert [dataclasses.replace(q, rack_heights="preset") for q in racks] == plain
+    tanks = [
+        (p.config().world_tank(), q.config().world_tank())
+        for p, q in zip(plain, racks, strict=True)
+    ]
+    # Each rack at even odds: a mockup with its two racks keeps both a quarter of the time.
+    assert sum(a.boxes != b.boxes for a, b in tanks) >= 8
+    assert all(a.cylinders == b.cylinders for a, b in tanks)
 
 
 def test_pings_from_a_later_time_are_that_time_s_pings() -> None:
