@@ -258,6 +258,13 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
             )
         if (self.asv_mode == "guided") != (self.asv_guided is not None):
             raise ValueError("`asv_guided`: needed with `asv_mode: guided`, and only then")
+        if self.rack_heights == "drawn" and (
+            self.clutter_layout == "preset" or self.clutter == "off"
+        ):
+            raise ValueError(
+                "`rack_heights: drawn` draws a per-seed layout's racks: it needs "
+                "`clutter_layout: per_seed` and `clutter: on`"
+            )
         for i, (start, end) in enumerate(self.sonar_dropouts_s):
             if not 0.0 <= start < end:
                 raise ValueError(

@@ -62,6 +62,11 @@ class Cylinder:
     reflectivity: float = 0.7
 
 
+# The ROV's flight levels as shares of the tank's depth (Tank.rov_depths).
+UPPER_LEVEL_SHARE = 0.3
+LOWER_LEVEL_SHARE = 0.57
+
+
 @dataclass(frozen=True)
 class Tank:
     """A rectangular tank with its clutter."""
@@ -90,7 +95,7 @@ class Tank:
         The lower one passes ~0.6 m over the racks, where their echoes share the ROV's range in
         the image (the paper's failure case).
         """
-        return -0.3 * self.depth_m, -0.57 * self.depth_m
+        return -UPPER_LEVEL_SHARE * self.depth_m, -LOWER_LEVEL_SHARE * self.depth_m
 
 
 def _nfp_clutter(
@@ -214,7 +219,7 @@ def _drawn_heights(
     boxes: tuple[Box, ...], depth: float, rng: np.random.Generator
 ) -> tuple[Box, ...]:
     """Each rack and skip at even odds its own height, else RACK_CLEARANCE_M under the ROV."""
-    lower = -0.57 * depth  # Tank.rov_depths' lower flight level
+    lower = -LOWER_LEVEL_SHARE * depth  # Tank.rov_depths' lower flight level
     out: list[Box] = []
     for b in boxes:
         if b.kind in ("rack", "skip") and rng.random() < 0.5:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -54,7 +55,7 @@ def test_drawn_rack_heights_leave_the_rov_its_clearance_and_the_layout_its_place
     layout = make_tank(name, layout_seed=seed)
     tall = make_tank(name, layout_seed=seed, rack_heights="drawn")
     assert make_tank(name, layout_seed=seed, rack_heights="drawn") == tall  # same seed, same
-    lowest_hull = -0.57 * tall.depth_m - ROV_HULL_HALF_HEIGHT_M
+    lowest_hull = tall.rov_depths[1] - ROV_HULL_HALF_HEIGHT_M
     for a, b in zip(layout.boxes, tall.boxes, strict=True):
         # Where it stands and its footprint as the layout drew them: only a height changes.
         assert (b.kind, b.lo, b.hi[:2]) == (a.kind, a.lo, a.hi[:2])
@@ -70,7 +71,7 @@ def test_some_drawn_racks_stand_just_under_the_rovs_lower_flight_level() -> None
     # The presets never leave less than 36 cm under the ROV's centre (mockup); drawn heights
     # put some racks within 20 cm of its hull over a handful of seeds.
     tops = [
-        (-0.57 * tank.depth_m - ROV_HULL_HALF_HEIGHT_M) - b.hi[2]
+        (tank.rov_depths[1] - ROV_HULL_HALF_HEIGHT_M) - b.hi[2]
         for tank in (make_tank("nfp", layout_seed=s, rack_heights="drawn") for s in range(8))
         for b in tank.boxes
         if b.kind == "rack"
@@ -80,3 +81,7 @@ def test_some_drawn_racks_stand_just_under_the_rovs_lower_flight_level() -> None
         "nfp", layout_seed=3, rack_heights="drawn"
     )
     assert BLUEROV2_SEMI_AXES[2] == ROV_HULL_HALF_HEIGHT_M
+    # Only a per-seed layout has racks to draw: said before the first ping, not ignored.
+    for wrong in ({"clutter_layout": "preset"}, {"clutter": "off"}):
+        with pytest.raises(ValueError, match="rack_heights: drawn"):
+            Config(seed=3, rack_heights="drawn", **wrong)  # type: ignore[arg-type]
