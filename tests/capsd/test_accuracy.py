@@ -248,10 +248,10 @@ def test_the_detectors_own_errors_cost_what_its_exact_variants_take_off() -> Non
     config = SimConfig(
         tank="pond", trajectory="random", seed=0, install_errors=InstallErrorsConfig(mode="off")
     )
-    results = {k: a.summary() for k, a in run(config, duration_s=8.0, variants=variants).items()}
+    results = {k: a.summary() for k, a in run(config, duration_s=5.0, variants=variants).items()}
     assert len({s["pings"] for s in results.values()}) == 1
     ours = results["ours (CAP-SD)"]
-    assert ours["good"] >= 50
+    assert ours["good"] >= 30
     assert results[DETECTOR_EXACT]["med_mm"] < ours["med_mm"]
     assert results[DETECTOR_RANGE_EXACT]["med_mm"] < ours["med_mm"]
 
