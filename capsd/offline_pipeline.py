@@ -74,7 +74,7 @@ DETECTOR_EXACT = "ours + the detector's centre exact"
 DETECTOR_RANGE_EXACT = "ours + the detector's range exact"
 DETECTOR_BEARING_EXACT = "ours + the detector's bearing exact"
 # The detector's candidate on the ROV: the one nearest the label's centre, this near at most
-# (as `capsd bench detect` matches a detection to the truth).
+# in the fan's plane (`capsd bench detect`'s MATCH_M, there per axis: range and cross-range).
 EXACT_MATCH_M = 0.5
 
 
