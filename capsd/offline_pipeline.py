@@ -58,6 +58,7 @@ from capsd.simulator.config import OFFLINE_START_NS
 from capsd.simulator.config import Config as SimConfig
 from capsd.simulator.sim import Simulation
 from capsd.simulator.world import make_tank, tank_bounds
+from capsd.sonar_geometry import fan_distance_m
 
 # truth: the label's ROV centre as the one candidate, told tight sigmas (a perfect detector:
 # what the rest of our pipeline costs without any detector error; never in a service).
@@ -315,7 +316,7 @@ def with_exact(
     """
     if axes == "none" or not label.visible or not candidates:
         return candidates
-    gaps = [_gap(d.range_m, d.azimuth_rad, label.range_m, label.azimuth_rad) for d in candidates]
+    gaps = [fan_distance_m(d, label) for d in candidates]
     k = int(np.argmin(gaps))
     if gaps[k] > EXACT_MATCH_M:
         return candidates
@@ -326,14 +327,6 @@ def with_exact(
         azimuth_rad=label.azimuth_rad if axes in ("azimuth", "both") else d.azimuth_rad,
     )
     return [*candidates[:k], moved, *candidates[k + 1 :]]
-
-
-def _gap(range_a: float, azimuth_a: float, range_b: float, azimuth_b: float) -> float:
-    """Distance between two places of the sonar image (range, azimuth), in the fan's plane."""
-    return math.hypot(
-        range_a * math.cos(azimuth_a) - range_b * math.cos(azimuth_b),
-        range_a * math.sin(azimuth_a) - range_b * math.sin(azimuth_b),
-    )
 
 
 def ablations(*, box_range_bias_m: float | None = None) -> list[Variant]:

@@ -8,7 +8,7 @@ point p_S in the sonar frame and back. The simulator and the solver must use the
 from __future__ import annotations
 
 import math
-from typing import Literal
+from typing import Literal, NamedTuple, Protocol
 
 import numpy as np
 
@@ -46,3 +46,28 @@ def to_polar(model: BeamModel, p_s: Array) -> tuple[float, float, float]:
     # conical: y = r sin(theta); x, z = r cos(theta) (cos psi, sin psi)
     azimuth = math.asin(max(-1.0, min(1.0, y / r)))
     return r, azimuth, math.atan2(z, x)
+
+
+class FanPoint(Protocol):
+    """A place in the sonar image: a detection, a candidate, a label."""
+
+    @property
+    def range_m(self) -> float: ...
+
+    @property
+    def azimuth_rad(self) -> float: ...
+
+
+class FanPlace(NamedTuple):
+    """A bare place in the sonar image."""
+
+    range_m: float
+    azimuth_rad: float
+
+
+def fan_distance_m(a: FanPoint, b: FanPoint) -> float:
+    """Metres between two places of the sonar image, in the fan's plane (elevation 0)."""
+    return math.hypot(
+        a.range_m * math.cos(a.azimuth_rad) - b.range_m * math.cos(b.azimuth_rad),
+        a.range_m * math.sin(a.azimuth_rad) - b.range_m * math.sin(b.azimuth_rad),
+    )

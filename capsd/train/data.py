@@ -14,7 +14,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from multiprocessing import get_context
 from typing import Any, Literal
@@ -50,6 +52,7 @@ from capsd.simulator.install_errors import InstallErrorsConfig
 from capsd.simulator.sim import Simulation
 from capsd.simulator.sonar_look import Variety
 from capsd.simulator.world import TUNING_TANKS, RackHeights, TankName, TrajectoryName
+from capsd.sonar_geometry import FanPlace, fan_distance_m
 
 TRAJECTORIES: tuple[TrajectoryName, ...] = (
     "square",
@@ -333,7 +336,7 @@ def samples_of_ping(
     ranged = inputs.range_input == "channel"
     out.grids.append(to_u8(with_range_rows(coarse, frame, grid) if ranged else coarse))
     table = BeamTable(frame.azimuths_rad)
-    truth: tuple[float, float] | None = None
+    truth: SonarLabel | None = None
     if (
         label.visible
         and label.range_min_m is not None
@@ -341,7 +344,7 @@ def samples_of_ping(
         and label.azimuth_min_rad is not None
         and label.azimuth_max_rad is not None
     ):
-        truth = (label.range_m, label.azimuth_rad)
+        truth = label
         beam = float(table.index(label.azimuth_rad))
         row, col = heat_coordinates(frame, grid, label.range_m, beam)
         extent_beams = abs(
@@ -400,7 +403,8 @@ def samples_of_ping(
         )
         places += [(c.range_m, c.azimuth_rad) for c in peaks]
     for range_m, azimuth in places:
-        if truth is not None and _distance(truth, (range_m, azimuth)) < NEGATIVE_MIN_DISTANCE_M:
+        place = FanPlace(range_m, azimuth)
+        if truth is not None and fan_distance_m(truth, place) < NEGATIVE_MIN_DISTANCE_M:
             continue
         patch = crop_pair(image, frame, table, range_m=range_m, azimuth_rad=azimuth)
         if ranged:
@@ -409,13 +413,6 @@ def samples_of_ping(
         out.crop_ranges_m.append(range_m)
         out.crop_targets.append((0.0, 0.0, 0.0, 0.0, 0.0, float(label.overlap)))
     return out
-
-
-def _distance(a: tuple[float, float], b: tuple[float, float]) -> float:
-    """Planar distance between two (range, azimuth) points in the sonar's fan."""
-    ax, ay = a[0] * math.cos(a[1]), a[0] * math.sin(a[1])
-    bx, by = b[0] * math.cos(b[1]), b[0] * math.sin(b[1])
-    return math.hypot(ax - bx, ay - by)
 
 
 def _negative_places(
@@ -465,7 +462,6 @@ def _proposal_net(state: bytes, inputs: Inputs) -> Any:
 
         from capsd.services.sonar_detect.polar_net import ProposalNet
 
-        torch.set_num_threads(1)
         loaded = torch.load(io.BytesIO(state), weights_only=True)
         net = ProposalNet.from_state(loaded, channels=2 + inputs.extra_planes)
         net.eval()
@@ -509,9 +505,30 @@ def render(
         what = "rendering near crops"
     bar = Progress(len(plans), label=what, unit=" runs")
     jobs = [(plan, proposal_state, inputs, crops_within_m) for plan in plans]
-    with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
-        for done, samples in enumerate(pool.map(render_run, jobs), start=1):
+    with ExitStack() as stack:
+        results: Iterator[Samples]
+        if workers == 1:
+            # Here, in this process: a spawned worker costs seconds of imports per call.
+            results = map(render_run, jobs)
+        else:
+            # Each mining worker's torch on one thread: the workers already take every core.
+            pool = stack.enter_context(
+                ProcessPoolExecutor(
+                    max_workers=workers,
+                    mp_context=get_context("spawn"),
+                    initializer=_one_thread if proposal_state is not None else None,
+                )
+            )
+            results = pool.map(render_run, jobs)
+        for done, samples in enumerate(results, start=1):
             out.extend(samples)
             bar.update(done)
     bar.close()
     return out
+
+
+def _one_thread() -> None:
+    """A mining worker's setup: torch on one thread."""
+    import torch
+
+    torch.set_num_threads(1)

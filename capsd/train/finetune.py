@@ -25,6 +25,7 @@ from capsd.errors import CapsdError
 from capsd.payloads import SonarLabel
 from capsd.services.sonar_detect.polar_input import BeamTable
 from capsd.services.sonar_detect.polar_net import PolarNet, load, near_refined, save
+from capsd.sonar_geometry import fan_distance_m
 from capsd.train.data import Samples, plan_runs, render, samples_of_ping
 from capsd.train.detector import (
     TrainConfig,
@@ -82,7 +83,7 @@ def recalibrate_on_labels(net: PolarNet, labels: list[LabelledPing]) -> dict[str
     becomes the lowest that keeps those at most MAX_SITE_FALSE_ALARMS_PER_FRAME (never lower
     than the shipped one: fine-tuning only ever makes the detector more cautious here).
     """
-    from capsd.services.sonar_detect.cnn import NETWORK_ALONE, Candidate, CnnDetector, distance
+    from capsd.services.sonar_detect.cnn import NETWORK_ALONE, Candidate, CnnDetector
 
     shipped = float(net.logit_offset)
     net.logit_offset.zero_()
@@ -99,7 +100,7 @@ def recalibrate_on_labels(net: PolarNet, labels: list[LabelledPing]) -> dict[str
             near = near_refined(
                 net, range_m=d.range_m, azimuth_rad=d.azimuth_rad, half_fov_rad=half_fov_rad
             )
-            if not near and distance(d, where) > FALSE_ALARM_M:
+            if not near and fan_distance_m(d, where) > FALSE_ALARM_M:
                 c = min(max(d.confidence, 1e-12), 1 - 1e-12)
                 false_logits.append(math.log(c / (1 - c)))
     site = operating_offset(false_logits, frames, MAX_SITE_FALSE_ALARMS_PER_FRAME)

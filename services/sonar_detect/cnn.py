@@ -58,6 +58,7 @@ from capsd.services.sonar_detect.polar_net import (
     near_refined,
 )
 from capsd.sonar_image import Image
+from capsd.sonar_geometry import fan_distance_m
 
 DEFAULT_WEIGHTS = Path(__file__).with_name("weights") / "polar_net.pt"
 LAPLACE_SIGMA = math.sqrt(2.0)  # standard deviation of a Laplace law per unit scale
@@ -211,7 +212,7 @@ class CnnDetector:
                 candidates += [
                     c
                     for c in tracked
-                    if all(distance(c, p) >= s.merge_distance_m for p in candidates)
+                    if all(fan_distance_m(c, p) >= s.merge_distance_m for p in candidates)
                 ]
             passes = max(1, s.refine_passes)
             searched_ns = frame.stamp_ns
@@ -263,7 +264,7 @@ class CnnDetector:
     def _with_prior(self, d: Detection, tracked: list[Candidate]) -> Detection:
         """`d` with the track's prior added to its logit when it continues a tracked one."""
         s = self.settings
-        if not any(distance(d, c) < s.track_gate_m for c in tracked):
+        if not any(fan_distance_m(d, c) < s.track_gate_m for c in tracked):
             return d
         c = min(max(d.confidence, 1e-12), 1.0 - 1e-12)
         logit = math.log(c / (1.0 - c)) + s.track_prior_logit
@@ -396,7 +397,7 @@ class CnnDetector:
     def _merge(self, found: list[Detection]) -> list[Detection]:
         kept: list[Detection] = []
         for d in sorted(found, key=lambda d: -d.confidence):
-            if all(distance(d, k) >= self.settings.merge_distance_m for k in kept):
+            if all(fan_distance_m(d, k) >= self.settings.merge_distance_m for k in kept):
                 kept.append(d)
         return kept
 
@@ -486,7 +487,7 @@ def propose(
             frame.range_start_m + bin_index * frame.range_resolution_m,
             float(table.azimuth(beam)),
         )
-        if score >= threshold or any(distance(candidate, t) < tracked_gate_m for t in tracked):
+        if score >= threshold or any(fan_distance_m(candidate, t) < tracked_gate_m for t in tracked):
             out.append(candidate)
     return out
 
@@ -518,10 +519,3 @@ def _mirrored(proposal: torch.nn.Module, coarse: torch.Tensor, *, mirror: bool) 
     if mirror:
         logits = 0.5 * (logits + torch.flip(proposal(torch.flip(coarse, dims=[-1])), dims=[-1]))
     return logits
-
-
-def distance(a: Detection | Candidate, b: Detection | Candidate) -> float:
-    """Metres between two points of the fan (range, azimuth), in the sonar's plane."""
-    dx = a.range_m * math.cos(a.azimuth_rad) - b.range_m * math.cos(b.azimuth_rad)
-    dy = a.range_m * math.sin(a.azimuth_rad) - b.range_m * math.sin(b.azimuth_rad)
-    return math.hypot(dx, dy)

@@ -122,8 +122,9 @@ def test_a_pan_tilt_mount_reaches_every_service_that_looks_through_it(tmp_path: 
         tmp_path / "followed", tank="mockup", sonar_tilt="pan-tilt", asv="follow",
         asv_mav_port=5761, rov_start_m=(3.8, 1.0, -1.0),
     )  # fmt: skip
+    # (Ten seconds a manoeuvre: what reaches the services, not what the fits determine.)
     dived = _configs(tmp_path / "dived", sonar_tilt="pan-tilt", calibration="dive",
-                     calibration_s=30.0)  # fmt: skip
+                     calibration_s=10.0)  # fmt: skip
     told = [
         (configs, name) for configs in (followed, dived) for name in ("locator", "sonar_detect")
     ]

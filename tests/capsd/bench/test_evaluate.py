@@ -18,7 +18,7 @@ from tests.conftest import REPO
 def dive(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, Any]]:
     out = tmp_path_factory.mktemp("bench-evaluate")
     result = bench(
-        tank="nfp", trajectory="bouncing", seed=3, duration_s=60.0, out_dir=out, detector="truth"
+        tank="nfp", trajectory="bouncing", seed=3, duration_s=40.0, out_dir=out, detector="truth"
     )
     return out, result
 
@@ -27,7 +27,7 @@ def test_the_alignment_and_the_figures_come_back(dive: tuple[Path, dict[str, Any
     out, result = dive
     checks = result["checks"]
     alignment = result["evaluation"]["alignment"]
-    # A minute of bouncing: the errors stay within three of the sigmas the evaluation states.
+    # 40 s of bouncing: the errors stay within three of the sigmas the evaluation states.
     assert checks["rotation_error_deg"] <= 3 * alignment["rotation_sigma_deg"]
     assert checks["rotation_error_deg"] < 0.3
     assert abs(checks["offset_error_ms"]) <= 3 * alignment["offset_sigma_ms"]
