@@ -57,8 +57,8 @@ from capsd.services.sonar_detect.polar_net import (
     load,
     near_refined,
 )
-from capsd.sonar_image import Image
 from capsd.sonar_geometry import fan_distance_m
+from capsd.sonar_image import Image
 
 DEFAULT_WEIGHTS = Path(__file__).with_name("weights") / "polar_net.pt"
 LAPLACE_SIGMA = math.sqrt(2.0)  # standard deviation of a Laplace law per unit scale
@@ -487,7 +487,9 @@ def propose(
             frame.range_start_m + bin_index * frame.range_resolution_m,
             float(table.azimuth(beam)),
         )
-        if score >= threshold or any(fan_distance_m(candidate, t) < tracked_gate_m for t in tracked):
+        if score >= threshold or any(
+            fan_distance_m(candidate, t) < tracked_gate_m for t in tracked
+        ):
             out.append(candidate)
     return out
 

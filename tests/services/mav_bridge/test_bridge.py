@@ -561,7 +561,6 @@ def test_mav_check_for_the_asv_sets_up_the_sonars_tilt_servo(tmp_path: Path) -> 
     """
     bridge, follow = _servo_configs(tmp_path)
     with _fresh_ardurover() as rover:
-
         # A fresh ArduRover never answers for the MNT1_* it does not list yet: each check waits
         # out its timeout for them (2 s: loopback; a field link keeps the default 5 s).
         def check(*extra: str) -> subprocess.CompletedProcess[str]:
