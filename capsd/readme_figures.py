@@ -254,6 +254,8 @@ _BANDS = ("0.5-1.5 m", "1.5-4 m", "4-8 m", "8-14 m", "14-20 m")
 _PLACES = ("lower third", "middle third", "upper third", "beyond an edge")
 # The bench's row that is no detector (capsd.bench.detect.BRIGHTEST).
 _BRIGHTEST = "(no detector) the ROV brightest in its band"
+# capsd.bench.detect.ALARM_KINDS: what the ping held when a false alarm came.
+_ALARM_KINDS = ("rov_found", "rov_missed", "rov_out_of_view")
 
 
 def detect_table(figures: dict[str, Any]) -> list[str]:
@@ -309,6 +311,16 @@ def detect_table(figures: dict[str, Any]) -> list[str]:
         places = [f"cnn / {look} / under 4 m, {p}" for p in _PLACES]
         if all(name in groups for name in places):
             lines.append(by_place(places))
+        every = groups[f"cnn / {look} / all"]
+        if "false_alarms_per_frame_on_rov_bearing" in every:  # since session 63
+            kinds = " / ".join(
+                f"{every[f'false_alarms_per_frame_{kind}']:.3f}" for kind in _ALARM_KINDS
+            )
+            lines.append(
+                "| ... false alarms: the ROV found beside them / the ROV missed / the ROV out "
+                f"of view; on the ROV's bearing | | {kinds}; "
+                f"{every['false_alarms_per_frame_on_rov_bearing']:.3f} | | |"
+            )
     lines.append(whole("classical (CFAR) fallback, held-out look", "classical / heldout / all"))
     return lines
 

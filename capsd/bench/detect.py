@@ -141,6 +141,9 @@ BENCH_WINDOW_S = 5.0
 PERIOD_40HZ_NS = 25_000_000
 MIN_CONFIDENCE = 0.5  # the sonar_detect service's default
 MATCH_M = 0.5
+# What the ping held when a false alarm came (Tally.alarms_by_rov).
+AlarmKind = Literal["rov_found", "rov_missed", "rov_out_of_view"]
+ALARM_KINDS: tuple[AlarmKind, ...] = ("rov_found", "rov_missed", "rov_out_of_view")
 GHOST_M = 0.3
 
 
@@ -180,6 +183,12 @@ class Tally:
     hits: int = 0
     false_alarms: int = 0
     ghost_alarms: int = 0
+    # Each false alarm by what the ping held: the ROV found beside it, the ROV in view and
+    # missed, the ROV out of view; and those on the ROV's bearing (nearer or further along it).
+    alarms_by_rov: dict[AlarmKind, int] = field(
+        default_factory=lambda: dict.fromkeys(ALARM_KINDS, 0)
+    )
+    alarms_on_rov_bearing: int = 0
     range_err: list[float] = field(default_factory=list)
     azimuth_err: list[float] = field(default_factory=list)
 
@@ -197,6 +206,13 @@ class Tally:
             "detection_rate": round(self.hits / self.visible, 4) if self.visible else None,
             "false_alarms_per_frame": round(self.false_alarms / max(self.frames, 1), 4),
             "ghost_alarms_per_frame": round(self.ghost_alarms / max(self.frames, 1), 4),
+            **{
+                f"false_alarms_per_frame_{kind}": round(n / max(self.frames, 1), 4)
+                for kind, n in self.alarms_by_rov.items()
+            },
+            "false_alarms_per_frame_on_rov_bearing": round(
+                self.alarms_on_rov_bearing / max(self.frames, 1), 4
+            ),
             "range_err_cm_median": pct(self.range_err, 50, 100),
             # Signed: positive, the detector's range is longer than the ROV centre's.
             "range_bias_cm_median": (
@@ -478,10 +494,18 @@ def _score(tally: Tally, label: SonarLabel, found: list[Detection]) -> None:
             tally.hits += 1
             tally.range_err.append(match.range_m - label.range_m)
             tally.azimuth_err.append(math.degrees(match.azimuth_rad - label.azimuth_rad))
+    kind: AlarmKind = (
+        "rov_found" if match is not None else "rov_missed" if label.visible else "rov_out_of_view"
+    )
     for d in found:
         if d is match:
             continue
         tally.false_alarms += 1
+        tally.alarms_by_rov[kind] += 1
+        # Within MATCH_M across the ROV's bearing at the alarm's own range: in the ROV's
+        # beams, before or behind it.
+        if abs(d.azimuth_rad - label.azimuth_rad) * d.range_m < MATCH_M:
+            tally.alarms_on_rov_bearing += 1
         if any(
             abs(d.range_m - g.range_m) < GHOST_M
             and abs(d.azimuth_rad - g.azimuth_rad) * g.range_m < GHOST_M
@@ -655,6 +679,13 @@ def run(
             value = s[key]
             ok = value is not None and test(float(value))
             print(f"  {key:<24} {value!s:>8}  target {target:<12} {'met' if ok else 'NOT met'}")
+        print(
+            "  false alarms per frame with the ROV found beside them "
+            f"{s['false_alarms_per_frame_rov_found']}, the ROV missed "
+            f"{s['false_alarms_per_frame_rov_missed']}, the ROV out of view "
+            f"{s['false_alarms_per_frame_rov_out_of_view']}; on the ROV's bearing (nearer or "
+            f"further along it) {s['false_alarms_per_frame_on_rov_bearing']}"
+        )
     if fixtures is not None and fixtures.is_dir():
         frames = [f for raw in sorted(fixtures.glob("*.raw")) for f in real_pings(raw)]
         print(f"\nreal Oculus pings ({fixtures}, {len(frames)} frames, no ROV in view):")

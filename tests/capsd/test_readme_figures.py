@@ -66,6 +66,7 @@ def test_the_detect_table_names_the_benchs_groups() -> None:
     assert readme_figures._BRIGHTEST == detect.BRIGHTEST
     assert tuple(f"{lo:g}-{hi:g} m" for lo, hi in detect.BANDS) == readme_figures._BANDS
     assert readme_figures._PLACES == detect.APERTURE_PLACES
+    assert readme_figures._ALARM_KINDS == detect.ALARM_KINDS
 
 
 def test_the_detector_budget_names_the_accuracy_benchs_variants() -> None:

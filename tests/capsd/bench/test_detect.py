@@ -63,6 +63,29 @@ def test_a_near_rov_is_scored_by_its_place_in_the_aperture_with_a_signed_range_b
     assert sorted(bare) == ["d / 1.5-4 m", "d / all", "d / clear"]
 
 
+def _alarm(range_m: float, azimuth_rad: float) -> Detection:
+    return Detection(range_m=range_m, azimuth_rad=azimuth_rad, range_sigma_m=0.01,
+                     azimuth_sigma_rad=0.01, confidence=0.8)  # fmt: skip
+
+
+def test_false_alarms_are_told_by_what_the_ping_held_and_whether_on_the_rov_s_bearing() -> None:
+    tallies: dict[str, Tally] = defaultdict(Tally)
+    # The ROV found at 8 m (azimuth 0.1), with an echo 3 m nearer in its beams.
+    score(tallies, "d", _label(8.0, 0.0), [*_at(8.02), _alarm(5.0, 0.1)])
+    # The ROV missed: one alarm 0.4 m across its bearing at 12 m (0.033 rad), one far off it.
+    score(tallies, "d", _label(8.0, 0.0), [_alarm(12.0, 0.1 + 0.4 / 12.0), _alarm(6.0, -0.3)])
+    out_of_view = msgspec.structs.replace(_label(8.0, 14.0), visible=False)
+    score(tallies, "d", out_of_view, [_alarm(9.0, 0.1)])
+    score(tallies, "d", _label(8.0, 0.0), _at(8.0))  # nothing else
+    s = tallies["d / all"].summary()
+    assert s["frames"] == 4
+    assert s["false_alarms_per_frame"] == 4 / 4
+    assert s["false_alarms_per_frame_rov_found"] == 1 / 4
+    assert s["false_alarms_per_frame_rov_missed"] == 2 / 4
+    assert s["false_alarms_per_frame_rov_out_of_view"] == 1 / 4
+    assert s["false_alarms_per_frame_on_rov_bearing"] == 3 / 4  # not the one at -0.3 rad
+
+
 class _Stamps:
     """Finds nothing; notes each frame's stamp."""
 
