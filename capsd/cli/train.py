@@ -288,7 +288,9 @@ def register(sub: Subcommands) -> None:
         help="drawn: each run's racks and skips at even odds 5-100 cm under the ROV's hull at "
         "its lower flight level (default preset: the tanks' own heights)",
     )
-    tdet.add_argument("--workers", type=int, default=2, help="rendering processes")
+    tdet.add_argument(
+        "--workers", type=positive_int, default=2, help="rendering processes (1: this one)"
+    )
     tdet.add_argument("--threads", type=int, default=2, help="torch threads for training")
     tdet.add_argument("--proposal-epochs", type=int, default=6)
     tdet.add_argument("--refine-epochs", type=int, default=6)
@@ -399,7 +401,9 @@ def register(sub: Subcommands) -> None:
         action="store_true",
         help="keep --weights' near refiner, set where it takes over and its operating point",
     )
-    tnear.add_argument("--workers", type=positive_int, default=2, help="rendering processes")
+    tnear.add_argument(
+        "--workers", type=positive_int, default=2, help="rendering processes (1: this one)"
+    )
     tnear.add_argument("--threads", type=positive_int, default=2, help="torch threads")
     tnear.add_argument(
         "--evaluate",
@@ -459,7 +463,9 @@ def register(sub: Subcommands) -> None:
         help="labels_and_teacher: the network it replaces gives its heat as a soft target too "
         "(a narrow network learns from the wide one; default %(default)s)",
     )
-    tprop.add_argument("--workers", type=positive_int, default=2, help="rendering processes")
+    tprop.add_argument(
+        "--workers", type=positive_int, default=2, help="rendering processes (1: this one)"
+    )
     tprop.add_argument("--threads", type=positive_int, default=2, help="torch threads")
     tprop.add_argument(
         "--evaluate",
@@ -491,7 +497,9 @@ def register(sub: Subcommands) -> None:
         default=0,
         help="plan the rounds' runs this many seeds further on (default 0: the next unused)",
     )
-    tref.add_argument("--workers", type=positive_int, default=2, help="rendering processes")
+    tref.add_argument(
+        "--workers", type=positive_int, default=2, help="rendering processes (1: this one)"
+    )
     tref.add_argument("--threads", type=positive_int, default=2, help="torch threads")
     tref.add_argument(
         "--evaluate",

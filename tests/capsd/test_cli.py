@@ -17,6 +17,7 @@ from capsd.cli import main
         (["bench", "detect", "--frames", "0"], "not allowed"),
         (["bench", "detect", "--track-hold", "-1"], "must be a positive number"),
         (["replay", "x.mcap", "--speed", "0"], "must be a positive number"),
+        (["train", "detector", "--workers", "0"], "not allowed"),
     ],
 )
 def test_bad_numbers_on_the_command_line_are_usage_errors(
