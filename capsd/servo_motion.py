@@ -13,7 +13,7 @@ When did the servo take a new target? The autopilot reports at a steady rate (th
 taken half way (at most MAX_BACKDATE_NS before the report). Taken at the report's stamp
 (session 45's model), the modelled slew ran up to a report period behind the servo: at 60 deg/s,
 3 deg of azimuth (a mockup demo's fixes scattered 27-57 mm across the line of sight while the
-pan turned, 8-11 mm with it still; README, session 45).
+pan turned, 8-11 mm with it still; docs/JOURNAL.md, session 45).
 """
 
 from __future__ import annotations

@@ -56,7 +56,7 @@ LOSS_REPORTED_S = 5.0
 OFF_BINS_DEG = (15.0, 45.0)
 EDGE_DEG = 2.0  # the ROV this near the aperture's edge: in view, but barely
 # Nearer than this the shipped detector lost 25-45 % of the pings in the mockup pan-tilt
-# demo's recordings (`capsd losses`), about 1 % beyond 1.0 m (README, session 45).
+# demo's recordings (`capsd losses`), about 1 % beyond 1.0 m (docs/JOURNAL.md, session 45).
 NEAR_M = 0.95
 
 

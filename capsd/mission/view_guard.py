@@ -12,7 +12,8 @@ A sonar on a tilt servo (the mount's `tilt`) is judged at the servo's zero, as a
 ROV keeps to where the follower's stations see it, and the servo covers the hull's turns and
 lags. Judged at the servo's reported angle, the ROV flew on while the servo followed it, to
 0.2 m from the sonar, steeper than the servo reaches, and was lost there for 60 s (the mockup
-demo, README session 42); `capsd bench follow --sonar-tilt servo` gives 94.7 % in view either
+demo, docs/JOURNAL.md session 42); `capsd bench follow --sonar-tilt servo` gives 94.7 % in view
+either
 way (perfect fixes, no lag). A pan servo under it (the mount's `pan`) is judged where it is (the
 newest reported pan): it turns the sonar's look off the hull's bow, which a tilt does not.
 """

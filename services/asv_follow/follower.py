@@ -305,7 +305,7 @@ class Follower:
         `next_m`: the waypoint after it (None: the last, or not told). Where the rest of the
         leg is shorter than `path_ahead_m`, stations are also to see the start of the next leg:
         a station that sees a lane to its end but not the turn after it is driven into a wall
-        there (`capsd bench follow`, README session 38).
+        there (`capsd bench follow`, docs/JOURNAL.md session 38).
 
         A hold pauses the leg, it does not end it: the mission resumes the same waypoint. (The
         leg dropped at each hold made the stations alternate between one chosen for the leg
@@ -946,7 +946,8 @@ class Follower:
         Or a ROV holding still (it waits for the ASV: the mission's view guard) is outside the
         aperture's margin seen from where the hull settled: an autopilot stops short of its
         target (ArduRover's WP_RADIUS, 0.2 m), and from there the guard waits for a view the
-        station promised and the hull never reaches (ArduRover SITL, README session 38: 130 s).
+        station promised and the hull never reaches (ArduRover SITL, docs/JOURNAL.md session 38:
+        130 s).
         """
         if self.station is None:
             return True

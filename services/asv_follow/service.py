@@ -108,7 +108,7 @@ class MotionConfig(ConfigSection, frozen=True, kw_only=True):
     # Stations are to see this much of the ROV's mission leg ahead of it too. None: by the
     # drive (PATH_AHEAD_M): a steered hull watches by turning where it stands, so its station
     # is to see the rest of the leg, where one can: a move after the ROV along its lane is
-    # across the line of sight, blind (ArduRover SITL, README session 33).
+    # across the line of sight, blind (ArduRover SITL, docs/JOURNAL.md session 33).
     path_ahead_m: Annotated[float, msgspec.Meta(ge=0.0, le=50.0)] | None = None
     reacquire_after_s: Positive = 6.0
     max_speed_m_s: Annotated[float, msgspec.Meta(gt=0.0, le=2.0)] = 0.5

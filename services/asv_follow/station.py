@@ -260,7 +260,7 @@ class StationPlanner:
         turns, lags or overshoots, the stations the slow one that keeps the geometry the fixes
         are good in. (Stations chosen for any angle the servo can take put the ASV nearly over
         the ROV and lost it as it passed under: `capsd bench follow --tank mockup --sonar-tilt
-        servo`, 80.6 % in view against 91.3 %, the view guard alike, README session 42.)
+        servo`, 80.6 % in view against 91.3 %, the view guard alike, docs/JOURNAL.md session 42.)
         """
         if self.tilt is None:
             return 0.0
@@ -490,7 +490,7 @@ class StationPlanner:
                     + rov_velocity_m_s[1] * math.sin(bearing)
                 )
                 # d(elevation)/dt = drop / range^2 * (the ROV's speed away from the sonar)
-                # (the steered drive too: its bearing's rate was tried, README session 32)
+                # (the steered drive too: its bearing's rate was tried, docs/JOURNAL.md session 32)
                 rate = drop / view.range_m**2 * away
                 cost += s.drift_cost_per_deg_s * math.degrees(abs(rate))
             if current_bearing_rad is not None:

@@ -275,7 +275,7 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     # pattern is -5 dB at 1.3 times the half-aperture). Off by default: such fixes are biased
     # (only the part of the ROV inside the beam echoes; in `capsd bench accuracy`'s mockup
     # and pond random runs, by hand, the fixes 3 deg allowed had MEDs of 64 and 109 mm), though
-    # in the closed loop they raised availability (README, "ROV missions on CAP-SD fixes").
+    # in the closed loop they raised availability (docs/JOURNAL.md, the ASV keeps the ROV in view).
     aperture_skirt_deg: Annotated[float, msgspec.Meta(ge=0.0, le=15.0)] = 0.0
     min_confidence: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.5
     # A detection whose own range 1-sigma (the refiner's Laplace scale) is over this is not

@@ -76,7 +76,7 @@ class CnnSettings:
     # heat but under 0.1 (0.06-0.09: the pond, by hand, session 28), and never proposed; the
     # refiner called it ROV (0.82-0.93). Not set by default: at 0.03 the mockup's MED in
     # `capsd bench accuracy` rose 20.8 -> 26.2 mm as its availability rose 53.5 -> 63.7 %
-    # (README, the detector section).
+    # (docs/JOURNAL.md, the detector).
     gated_proposal_threshold: float | None = None
     max_candidates: int = 3
     refine_passes: int = 2
@@ -108,13 +108,13 @@ class CnnSettings:
     # called it ROV (0.9): each search under 0.1 ended the track (seconds of misses). Unlike
     # `proposals_and_track` it needs a peak there: `capsd bench accuracy` MED within +6.6 % on
     # every run at 0.03 (availability up to +6.1 points), pond random's 34.6 -> 39.0 mm
-    # (p95 93 -> 150) with `proposals_and_track` (README, session 49).
+    # (p95 93 -> 150) with `proposals_and_track` (docs/JOURNAL.md, session 49).
     track_proposal_threshold: float | None = 0.03
     # A sonar image mirrored across the boresight is as real as the original (both networks
     # train on mirrored samples): averaging a network's answers on a crop (or the frame) and
     # on its mirror cancels part of what it learnt of one renderer's texture. "refiner": the
     # refiner's last pass; "both": the proposals' heat as well (a third more time per search
-    # again). Figures: README, session 52 (`capsd bench detect --mirror-average ...`).
+    # again). Figures: docs/JOURNAL.md, session 52 (`capsd bench detect --mirror-average ...`).
     mirror_average: MirrorAverage = "refiner"
     # Only candidates this far off: nearer, the averaged refiner lost a ROV 0.5-1.5 m off a
     # sonar 60 deg down (`capsd bench detect --runs near`, fixed look: 43.8 -> 40.5 % found,

@@ -203,7 +203,8 @@ def test_the_rov_waits_where_it_is_near_the_views_edge_until_the_asv_has_it_agai
 def test_every_command_of_a_leg_names_its_end_even_while_the_rov_waits_at_its_place() -> None:
     """The follower re-stations for where the leg goes, not for where the ROV waits.
 
-    And for the waypoint after it: its stations are to see the turn after a lane too (README
+    And for the waypoint after it: its stations are to see the turn after a lane too
+    (docs/JOURNAL.md
     session 38); the plan's last leg has none.
     """
     ctl = _guarded()

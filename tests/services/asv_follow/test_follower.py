@@ -767,7 +767,9 @@ def test_a_rov_holding_on_a_leg_along_the_sight_is_led_at_the_plans_speed() -> N
 
 
 def test_the_path_a_station_is_to_see_runs_on_into_the_next_leg() -> None:
-    """The rest of the leg, then the next leg's start within `path_ahead_m` (README session 38).
+    """The rest of the leg, then the next leg's start within `path_ahead_m`.
+
+    docs/JOURNAL.md, session 38.
 
     A station that sees a lane to its end but not the turn after it is driven into a wall
     there: `capsd bench follow` (nfp) lost the ROV at the lanes' west ends without it.
@@ -809,7 +811,7 @@ def test_a_holding_rov_out_of_the_margin_seen_from_where_the_hull_settled_gets_a
     A station whose view keeps the ROV just inside the aperture's margin, the hull settled
     0.3 m nearer the ROV, from where it is beyond the margin: while the ROV holds still (the
     mission's view guard waits for the ASV) a new station is chosen; while the ROV flies on,
-    or with the hull at its station, the dead band rules as before (ArduRover SITL, README
+    or with the hull at its station, the dead band rules as before (ArduRover SITL, docs/JOURNAL.md
     session 38: 130 s of waiting without it).
     """
     planner = StationPlanner(SonarMountConfig(), TankBounds(), StationSettings(drive="steered"))

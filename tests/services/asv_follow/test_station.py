@@ -423,7 +423,8 @@ def test_a_steered_hull_takes_a_station_that_sees_the_rest_of_the_lane() -> None
 
     North of this lane the walls leave the ASV 4 m at most: stations abeam look at the ROV from
     40-60 deg off the lane, and each move after it along the lane is across the line of sight,
-    blind for a steered hull (ArduRover SITL, README session 33). With the rest of the lane as
+    blind for a steered hull (ArduRover SITL, docs/JOURNAL.md session 33). With the rest of the
+    lane as
     its path (the steered default) the planner takes a station from which the hull, pursuing
     the ROV along the line of sight alone, keeps the whole lane inside the aperture's margin:
     ahead of the ROV, about along the lane, backing away before it facing it (since session
@@ -461,7 +462,7 @@ def test_a_steered_hull_pursues_along_the_sight_and_a_wall_that_stops_it_costs_b
     """A ROV flying west at the west wall, then north (the nfp lawnmower's lane end).
 
     The hull watches by turning and moves only along the line of sight, which carries the
-    bearing round as the ROV goes on (README session 38). From ahead of the ROV on its lane
+    bearing round as the ROV goes on (docs/JOURNAL.md session 38). From ahead of the ROV on its lane
     it backs into the wall's clearance and must slide along the wall, blind; from 20-40 deg
     north of the lane the lane stays in view but the leg after it comes at the hull; from as
     far south nothing leaves the aperture's margin. (Every point weighed alike: the pursuit's
