@@ -54,6 +54,7 @@ from capsd.services.sonar_detect.service import (
     GateInputs,
     detect_gated,
 )
+from capsd.services.sonar_detect.service import Config as DetectConfig
 from capsd.simulator.config import OFFLINE_START_NS
 from capsd.simulator.config import Config as SimConfig
 from capsd.simulator.sim import Simulation
@@ -148,6 +149,10 @@ def _estimator(kind: TiltKind, sim: SimConfig, heading_prior_rad: float) -> AsvP
         ),
         tilt=tilt,
     )
+
+
+# The sonar_detect service's defaults where the pipeline runs its detectors as the service.
+DETECT_CONFIG = DetectConfig()
 
 
 def _detectors(kinds: set[DetectorKind]) -> dict[DetectorKind, Detector]:
@@ -255,8 +260,9 @@ def run(
                     p,
                     gate,
                     min_confidence=0.5,
+                    confidence=DETECT_CONFIG.cnn.confidence if kind == "cnn" else "independent",
                     range_bias=range_bias if kind == "cnn" else None,
-                )[0]
+                ).detections
                 for kind, d in detect.items()
             }
             if sink is not None:

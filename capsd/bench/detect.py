@@ -50,6 +50,7 @@ from capsd.mounts import SonarMountConfig
 from capsd.payloads import Detection, SonarFrame, SonarLabel
 from capsd.progress import Progress
 from capsd.services.sonar_detect.depth_gate import DepthGate
+from capsd.services.sonar_detect.one_rov import Confidence, scored
 from capsd.services.sonar_detect.paper_box import box_centre
 from capsd.services.sonar_detect.polar_input import BeamTable
 from capsd.services.sonar_detect.service import CnnConfig, DepthGateConfig, detect_gated
@@ -402,11 +403,14 @@ def evaluate(
     starts_s: tuple[float, ...] = (0.0,),
     depth_gate: DepthGateMode = "off",
     outside_knobs: tuple[OutsideKnob, ...] | None = None,
+    confidence: Confidence = "exclusive",
 ) -> dict[str, Tally]:
     """Every detector on every held-out run in every look (drawn from `look_seed` if given).
 
     Each run's pings from each of `starts_s` s into its vehicles' paths, for `duration_s`;
-    with `depth_gate` "truth", through the service's depth-aware search (`truth_gate`).
+    with `depth_gate` "truth", through the service's depth-aware search (`truth_gate`); the
+    CNN's candidates scored as the service's `cnn.confidence` says (one_rov), the classical
+    detector's as they are.
 
     Tallies are keyed 'detector / look / group', group: clear, overlap (clutter overlapping
     the ROV), all, or a range band of the ROV's true range.
@@ -434,10 +438,11 @@ def evaluate(
                 ):
                     gate = truth_gate(sim, t_s, label) if depth_gate == "truth" else None
                     for name, detect in detectors.items():
-                        found, _ = detect_gated(
+                        found = detect_gated(
                             _Bound(detect), frame, gate, min_confidence=MIN_CONFIDENCE,
+                            confidence=confidence if name.startswith("cnn") else "independent",
                             range_bias=range_bias if name in SHIPPED_CNN else None,
-                        )  # fmt: skip
+                        ).detections  # fmt: skip
                         score(tallies, f"{name} / {look}", label, found,
                               half_aperture_rad=half_aperture)  # fmt: skip
                     score(tallies, f"paper: box centre / {look}", label, box_centre(label),
@@ -583,7 +588,13 @@ def evaluate_cnn(net: Any, *, duration_s: float) -> dict[str, Any]:
 
     detector = CnnDetector(NETWORK_ALONE, net=net)
     stretch_s = duration_s / len(BENCH_STARTS_S)
-    tallies = evaluate({"cnn": detector.detect}, duration_s=stretch_s, starts_s=BENCH_STARTS_S)
+    # The network's own scores: the operating point it is calibrated at scores candidates alone.
+    tallies = evaluate(
+        {"cnn": detector.detect},
+        duration_s=stretch_s,
+        starts_s=BENCH_STARTS_S,
+        confidence="independent",
+    )
     return {
         "runs": [list(r) for r in RUNS],
         "looks": list(LOOKS),
@@ -631,6 +642,7 @@ def run(
     looks: tuple[Variety, ...] = LOOKS,
     outside_knobs: tuple[OutsideKnob, ...] | None = None,
     runs: tuple[Run, ...] = RUNS,
+    confidence: Confidence = "exclusive",
 ) -> int:
     detectors = _detectors(which, weights, options=options)
     tallies = evaluate(
@@ -641,6 +653,7 @@ def run(
         depth_gate=depth_gate,
         looks=looks,
         outside_knobs=outside_knobs,
+        confidence=confidence,
     )
     if json_out is not None:
         json_out.parent.mkdir(parents=True, exist_ok=True)
@@ -651,6 +664,7 @@ def run(
             "stretches_start_s_into_paths": list(starts_s),
             "min_confidence": MIN_CONFIDENCE,
             "depth_gate": depth_gate,
+            "confidence": confidence,
             "outside_knobs": None if outside_knobs is None else list(outside_knobs),
             "groups": {name: tally.summary() for name, tally in sorted(tallies.items())},
         }
@@ -662,7 +676,12 @@ def run(
         + f" s into their paths, in each look ({', '.join(looks)}): "
         + ", ".join(f"{t}/{tr} ({m}) seed {s}" for t, tr, m, s in runs)
     )
-    print(f"candidates with confidence >= {MIN_CONFIDENCE}; a match is within {MATCH_M} m")
+    print(
+        f"candidates with confidence >= {MIN_CONFIDENCE} (the CNN's {confidence}: "
+        + ("each the probability that it is the one ROV" if confidence == "exclusive"
+           else "each scored alone")
+        + f"); a match is within {MATCH_M} m"
+    )  # fmt: skip
     if depth_gate == "truth":
         print("depth-aware search as the service runs it, from the true ASV pose and ROV depth")
     if "outside" in looks and outside_knobs is not None:
@@ -691,7 +710,12 @@ def run(
         print(f"\nreal Oculus pings ({fixtures}, {len(frames)} frames, no ROV in view):")
         for name, detect in detectors.items():
             alarms = sum(
-                1 for frame in frames for d in detect(frame) if d.confidence >= MIN_CONFIDENCE
+                1
+                for frame in frames
+                for d in scored(
+                    detect(frame), confidence if name.startswith("cnn") else "independent"
+                )
+                if d.confidence >= MIN_CONFIDENCE
             )
             print(f"  {name:<24} {alarms} detections (target 0)")
     return 0

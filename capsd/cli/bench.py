@@ -117,6 +117,7 @@ def _cmd_bench_detect(args: argparse.Namespace) -> int:
         looks=tuple(dict.fromkeys(args.looks)) if args.looks else detect.LOOKS,
         outside_knobs=outside_knobs,
         runs=detect.RUN_SETS[args.runs],
+        confidence=args.confidence,
     )
 
 
@@ -321,6 +322,14 @@ def register(sub: Subcommands) -> None:
         default="off",
         help="truth: the service's depth-aware search, given the true ASV pose and ROV depth "
         "(what the deployed detector finds); off: the detector alone (default: %(default)s)",
+    )
+    bdet.add_argument(
+        "--confidence",
+        choices=("exclusive", "independent"),
+        default="exclusive",
+        help="the service's cnn.confidence: exclusive, each CNN candidate the probability that "
+        "it is the one ROV among the frame's; independent, each scored alone (default: "
+        "%(default)s; the classical detector's scores as they are either way)",
     )
     bdet.add_argument(
         "--looks",

@@ -141,7 +141,10 @@ def samples(plans: list[RunPlan], *, duration_s: float, label: str) -> Iterator[
             start_ns=OFFLINE_START_NS, duration_s=duration_s, from_s=plan.start_s
         ):
             gate = truth_gate(sim, t_s, truth)
-            found, _ = detect_gated(detector, frame, gate, min_confidence=MIN_CONFIDENCE)
+            found = detect_gated(
+                detector, frame, gate, min_confidence=MIN_CONFIDENCE,
+                confidence=detect_config.cnn.confidence,
+            ).detections  # fmt: skip
             if not truth.visible or truth.range_m >= WITHIN_M:
                 continue
             near = [

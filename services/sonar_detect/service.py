@@ -15,7 +15,7 @@ import threading
 import time
 from collections import deque
 from pathlib import Path
-from typing import Annotated, Literal, Protocol
+from typing import Annotated, Literal, NamedTuple, Protocol
 
 import msgspec
 import numpy as np
@@ -37,6 +37,7 @@ from capsd.payloads import (
 from capsd.runner import Publisher, ServiceRunner
 from capsd.services.sonar_detect.classical import ClassicalDetector, ClassicalSettings
 from capsd.services.sonar_detect.depth_gate import DepthGate
+from capsd.services.sonar_detect.one_rov import Confidence, scored
 from capsd.services.sonar_detect.range_bias import DEFAULT_TABLE as DEFAULT_RANGE_BIAS
 from capsd.services.sonar_detect.range_bias import RangeBias
 from capsd.services.sonar_detect.range_bias import load as load_range_bias
@@ -97,6 +98,11 @@ class CnnConfig(ConfigSection, frozen=True, kw_only=True):
     # the shipped ones: nearer than 2.5 m) from it (`capsd train proposal`); off: the main
     # proposal network everywhere. Weights without one: the main one either way.
     close_proposal: Literal["on", "off"] = "on"
+    # exclusive: each candidate's confidence the probability that it is the one ROV among the
+    # frame's, from the network's calibrated scores (capsd.services.sonar_detect.one_rov: a
+    # confident echo beside a surer one is not sent as sure); independent: each scored alone.
+    # (The classical detector's scores are no probabilities: it reports them as they are.)
+    confidence: Confidence = "exclusive"
     threads: Annotated[int, msgspec.Meta(ge=1, le=64)] = 1
     # by_elevation: with the depth gate, a near ROV's range corrected for where it lies in the
     # vertical aperture and how steeply the sonar looks down at it (capsd.services.sonar_detect
@@ -127,35 +133,45 @@ class Detector(Protocol):
     ) -> list[Detection]: ...
 
 
+class Found(NamedTuple):
+    """What `detect_gated` leaves of a frame's candidates, and what it took out."""
+
+    detections: list[Detection]  # as the locator gets them: plausible, confident
+    rejected_by_depth: int  # confident candidates the depth gate ruled out
+    ambiguous: int  # confident alone, not as the one ROV beside the others (one_rov)
+
+
 def detect_gated(
     detector: Detector,
     frame: SonarFrame,
     gate: DepthGate | None,
     *,
     min_confidence: float,
+    confidence: Confidence,
     range_bias: RangeBias | None = None,
-) -> tuple[list[Detection], int]:
-    """(kept, rejected by depth): the frame's confident candidates as the service finds them.
+) -> Found:
+    """The frame's confident candidates as the service finds them, and what it took out.
 
     With a gate, proposals only at the ranges where the ROV's depth plane crosses the fan, and
     candidates that cannot lie on that plane inside the aperture rejected (depth-aware search);
-    with a `range_bias` table too, each kept candidate's range corrected for where the gate
-    places it in the aperture.
+    then each candidate's confidence as `confidence` says (one_rov: "exclusive", the
+    probability that it is the one ROV among those the gate left); with a `range_bias` table
+    too, each kept candidate's range corrected for where the gate places it in the aperture.
     """
     window = None
     if gate is not None:
         half_fov = max(abs(a) for a in frame.azimuths_rad)
         window = gate.range_window(half_fov) or (0.0, 0.0)
-    found = [
-        d for d in detector.detect(frame, range_window=window) if d.confidence >= min_confidence
-    ]
-    if gate is None:
-        return found, 0
-    kept = [d for d in found if gate.plausible(d.range_m, d.azimuth_rad)]
-    rejected = len(found) - len(kept)
-    if range_bias is not None:
+    found = detector.detect(frame, range_window=window)
+    plausible = (
+        found if gate is None else [d for d in found if gate.plausible(d.range_m, d.azimuth_rad)]
+    )
+    sure_alone = sum(d.confidence >= min_confidence for d in plausible)
+    rejected = sum(d.confidence >= min_confidence for d in found) - sure_alone
+    kept = [d for d in scored(plausible, confidence) if d.confidence >= min_confidence]
+    if gate is not None and range_bias is not None:
         kept = [range_bias.corrected(d, gate) for d in kept]
-    return kept, rejected
+    return Found(kept, rejected, sure_alone - len(kept))
 
 
 class DepthGateConfig(ConfigSection, frozen=True, kw_only=True):
@@ -320,6 +336,7 @@ def main(config: Config) -> int:
     """Run the detector until stopped."""
     detector = make_detector(config)
     range_bias = config.cnn.range_bias_correction() if config.detector == "cnn" else None
+    confidence: Confidence = config.cnn.confidence if config.detector == "cnn" else "independent"
     if config.detector == "cnn" and config.cnn.range_bias != "off" and range_bias is None:
         logger.warning(
             "cnn.range_bias: off, the shipped table is for the shipped weights "
@@ -335,6 +352,8 @@ def main(config: Config) -> int:
         # Depth-aware search: frames it applied to, and candidates it rejected.
         "depth_gated_frames": 0,
         "rejected_by_depth": 0,
+        # Confident alone, not as the one ROV beside the frame's others (config.confidence).
+        "ambiguous_candidates": 0,
     }
     inputs = GateInputs(config.depth_gate)
     cadence = Cadence()
@@ -386,10 +405,11 @@ def main(config: Config) -> int:
                 try:
                     gate = inputs.gate(frame.stamp_ns)
                     started_ns = time.time_ns()
-                    found, rejected = detect_gated(
+                    found, rejected, ambiguous = detect_gated(
                         detector, frame, gate, min_confidence=config.min_confidence,
-                        range_bias=range_bias,
+                        confidence=confidence, range_bias=range_bias,
                     )  # fmt: skip
+                    counts["ambiguous_candidates"] += ambiguous
                     inference.record_ns(time.time_ns() - started_ns)
                     if gate is not None:
                         counts["depth_gated_frames"] += 1

@@ -122,26 +122,35 @@ def _candidate(range_m: float, confidence: float = 0.9) -> Detection:
     )
 
 
-def test_detect_gated_searches_the_window_and_rejects_what_is_off_the_rov_plane() -> None:
-    # Sonar 0.2 m under the surface, 30 deg down; ROV 4.5 m deep: on the boresight at about
-    # 8.6 m; at 3 m the aperture (+-15 deg with the skirts) reaches 1.5-2.4 m deep only.
-    gate = DepthGate(
+def _gate_30_deg_down() -> DepthGate:
+    """Sonar 0.2 m under the surface, 30 deg down; ROV 4.5 m deep."""
+    return DepthGate(
         sonar_in_world=_sonar(30.0, 0.0, 0.0),
         rov_z_m=-4.5,
         tolerance_m=0.6,
         half_aperture_rad=math.radians(15.0),
         beam_model="conical",
     )
+
+
+def test_detect_gated_searches_the_window_and_rejects_what_is_off_the_rov_plane() -> None:
+    # Sonar 0.2 m under the surface, 30 deg down; ROV 4.5 m deep: on the boresight at about
+    # 8.6 m; at 3 m the aperture (+-15 deg with the skirts) reaches 1.5-2.4 m deep only.
+    gate = _gate_30_deg_down()
     frame = SAMPLES_FRAME
     on_plane, near, faint = _candidate(8.6), _candidate(3.0), _candidate(8.6, confidence=0.3)
     detector = _Fixed([on_plane, near, faint])
-    kept, rejected = detect_gated(detector, frame, gate, min_confidence=0.5)
+    kept, rejected, _ = detect_gated(
+        detector, frame, gate, min_confidence=0.5, confidence="independent"
+    )
     assert kept == [on_plane]
     assert rejected == 1  # the faint one is below the confidence, not rejected by depth
     window = detector.windows[-1]
     assert window is not None
     assert 3.0 < window[0] < 8.6 < window[1]
-    kept, rejected = detect_gated(detector, frame, None, min_confidence=0.5)
+    kept, rejected, _ = detect_gated(
+        detector, frame, None, min_confidence=0.5, confidence="independent"
+    )
     assert kept == [on_plane, near]
     assert rejected == 0
     assert detector.windows[-1] is None
@@ -180,3 +189,25 @@ def test_a_sonar_on_a_servo_is_gated_through_its_reported_angle_or_not_at_all() 
     panned = panning.sonar.transform(tilt_rad=0.3, pan_rad=0.8)
     assert np.allclose(gate.sonar_in_world.rotation, panned.rotation)
     assert np.allclose(gate.sonar_in_world.translation, panned.translation)
+
+
+def test_what_the_gate_rules_out_takes_nothing_from_the_one_rov() -> None:
+    # The same gate: a ROV at 0.95 and clutter at 0.6 on its plane, a 0.9 echo off it at 3 m.
+    gate = _gate_30_deg_down()
+    rov, clutter, off_plane = _candidate(8.6, 0.95), _candidate(8.9, 0.6), _candidate(3.0)
+    detector = _Fixed([rov, clutter, off_plane])
+    kept, rejected, ambiguous = detect_gated(
+        detector, SAMPLES_FRAME, gate, min_confidence=0.5, confidence="exclusive"
+    )
+    # The ROV as the one among the two on the plane: 0.95 x 0.4 / (0.05 x 0.4 + 0.38 + 0.03).
+    assert [d.range_m for d in kept] == [8.6]
+    assert kept[0].confidence == pytest.approx(0.38 / 0.43)
+    assert (rejected, ambiguous) == (1, 1)
+    # Without the gate the 0.9 echo off the plane shares the frame too: the ROV less sure,
+    # 19 x 0.002 against 0.002 (none) + 0.038 + 0.003 (the clutter) + 0.018 (the 0.9 echo).
+    kept, rejected, ambiguous = detect_gated(
+        detector, SAMPLES_FRAME, None, min_confidence=0.5, confidence="exclusive"
+    )
+    assert [d.range_m for d in kept] == [8.6]
+    assert kept[0].confidence == pytest.approx(0.038 / 0.061)
+    assert (rejected, ambiguous) == (0, 2)

@@ -96,13 +96,15 @@ def test_detect_gated_corrects_only_with_a_gate_and_a_table() -> None:
         ) -> list[Detection]:
             return [detection]
 
-    kept, rejected = detect_gated(_One(), SAMPLES_FRAME, gate, min_confidence=0.5,
-                                  range_bias=TABLE)  # fmt: skip
+    kept, rejected, _ = detect_gated(_One(), SAMPLES_FRAME, gate, min_confidence=0.5,
+                                     confidence="exclusive", range_bias=TABLE)  # fmt: skip
     assert rejected == 0
     assert kept[0].range_m == pytest.approx(detection.range_m - 0.04)
-    assert detect_gated(_One(), SAMPLES_FRAME, gate, min_confidence=0.5)[0] == [detection]
-    assert detect_gated(_One(), SAMPLES_FRAME, None, min_confidence=0.5,
-                        range_bias=TABLE)[0] == [detection]  # fmt: skip
+    assert detect_gated(_One(), SAMPLES_FRAME, gate, min_confidence=0.5,
+                        confidence="exclusive").detections == [detection]  # fmt: skip
+    ungated = detect_gated(_One(), SAMPLES_FRAME, None, min_confidence=0.5,
+                           confidence="exclusive", range_bias=TABLE)  # fmt: skip
+    assert ungated.detections == [detection]
 
 
 def test_a_near_refiner_s_detections_take_the_near_grid() -> None:

@@ -88,6 +88,7 @@ def test_cnn_service_detects_the_simulated_rov_stamped_at_the_ping(
     # The gate ran on (nearly) every ping and kept the ROV (the median error above).
     assert health.counters["depth_gated_frames"] >= 30
     assert "rejected_by_depth" in health.counters
+    assert "ambiguous_candidates" in health.counters
     for sub in subs:
         sub.undeclare()
 
