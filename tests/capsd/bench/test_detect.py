@@ -338,3 +338,28 @@ def test_the_close_runs_put_the_rov_across_the_aperture_of_a_sonar_30_deg_down()
     elevations = [math.degrees(label.elevation_rad) for label in seen]
     assert min(elevations) < -6.0
     assert max(elevations) > 6.0
+
+
+class _Twins:
+    """Two equally sure echoes off the ROV on every ping."""
+
+    def __call__(
+        self, frame: SonarFrame, *, range_window: tuple[float, float] | None = None
+    ) -> list[Detection]:
+        return [
+            Detection(range_m=r, azimuth_rad=a, range_sigma_m=0.01, azimuth_sigma_rad=0.01,
+                      confidence=0.9)
+            for r, a in ((0.4, -0.5), (0.5, 0.5))
+        ]  # fmt: skip
+
+
+def test_the_cnn_s_candidates_are_scored_as_the_one_rov_and_the_classical_ones_alone() -> None:
+    detectors = {"cnn": _Twins(), "classical": _Twins()}
+    one_rov = evaluate(detectors, duration_s=1.0, runs=RUNS[:1], looks=("off",))
+    alone = evaluate(
+        detectors, duration_s=1.0, runs=RUNS[:1], looks=("off",), confidence="independent"
+    )
+    # Two at 0.9 are each 0.47 as the one ROV: neither is sure, neither a false alarm.
+    assert one_rov["cnn / off / all"].summary()["false_alarms_per_frame"] == 0.0
+    assert alone["cnn / off / all"].summary()["false_alarms_per_frame"] == 2.0
+    assert one_rov["classical / off / all"].summary()["false_alarms_per_frame"] == 2.0
