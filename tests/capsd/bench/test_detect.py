@@ -12,6 +12,7 @@ import pytest
 
 from capsd.bench.detect import (
     RUNS,
+    Detector,
     Tally,
     aperture_place,
     azimuth_band,
@@ -354,7 +355,7 @@ class _Twins:
 
 
 def test_the_cnn_s_candidates_are_scored_as_the_one_rov_and_the_classical_ones_alone() -> None:
-    detectors = {"cnn": _Twins(), "classical": _Twins()}
+    detectors: dict[str, Detector] = {"cnn": _Twins(), "classical": _Twins()}
     one_rov = evaluate(detectors, duration_s=1.0, runs=RUNS[:1], looks=("off",))
     alone = evaluate(
         detectors, duration_s=1.0, runs=RUNS[:1], looks=("off",), confidence="independent"
