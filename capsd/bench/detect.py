@@ -251,6 +251,9 @@ HEADER = (
 BRIGHTEST = "(no detector) the ROV brightest in its band"
 # The shipped weights as `_detectors` names them: the range table was measured for them.
 SHIPPED_CNN = ("cnn", "cnn, every frame alone")
+# Detectors whose scores are no probabilities (the classical one's saturate near 1 on any bright
+# blob): their candidates are never scored as the one ROV, as in the service.
+SCORED_ALONE = frozenset({"classical"})
 # Range bands of issue 18 (truth range of the ROV), metres, after a closer one for small tanks
 # (in the mockup the follower keeps the ROV 1.1-1.3 m from the sonar).
 BANDS: tuple[tuple[float, float], ...] = (
@@ -408,9 +411,9 @@ def evaluate(
     """Every detector on every held-out run in every look (drawn from `look_seed` if given).
 
     Each run's pings from each of `starts_s` s into its vehicles' paths, for `duration_s`;
-    with `depth_gate` "truth", through the service's depth-aware search (`truth_gate`); the
-    CNN's candidates scored as the service's `cnn.confidence` says (one_rov), the classical
-    detector's as they are.
+    with `depth_gate` "truth", through the service's depth-aware search (`truth_gate`); every
+    detector's candidates scored as `confidence` says (one_rov), but SCORED_ALONE's as they
+    are (the service's `cnn.confidence` applies to the CNN only).
 
     Tallies are keyed 'detector / look / group', group: clear, overlap (clutter overlapping
     the ROV), all, or a range band of the ROV's true range.
@@ -440,7 +443,7 @@ def evaluate(
                     for name, detect in detectors.items():
                         found = detect_gated(
                             _Bound(detect), frame, gate, min_confidence=MIN_CONFIDENCE,
-                            confidence=confidence if name.startswith("cnn") else "independent",
+                            confidence="independent" if name in SCORED_ALONE else confidence,
                             range_bias=range_bias if name in SHIPPED_CNN else None,
                         ).detections  # fmt: skip
                         score(tallies, f"{name} / {look}", label, found,
@@ -713,7 +716,7 @@ def run(
                 1
                 for frame in frames
                 for d in scored(
-                    detect(frame), confidence if name.startswith("cnn") else "independent"
+                    detect(frame), "independent" if name in SCORED_ALONE else confidence
                 )
                 if d.confidence >= MIN_CONFIDENCE
             )
