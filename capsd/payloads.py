@@ -265,6 +265,8 @@ class Detection(msgspec.Struct, frozen=True, kw_only=True):
     azimuth_rad: Annotated[float, msgspec.Meta(ge=-math.pi, le=math.pi)]
     range_sigma_m: NonNegFloat
     azimuth_sigma_rad: NonNegFloat
+    # The CNN's: the probability that this candidate is the ROV, the frame's other candidates
+    # considered (sonar_detect's cnn.confidence); the classical detector's: its blob's score.
     confidence: UnitFloat
     range_extent_m: NonNegFloat = 0.0
     azimuth_extent_rad: NonNegFloat = 0.0
