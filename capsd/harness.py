@@ -140,9 +140,8 @@ class Processes:
 # do not fit: the mockup (4.8 x 3.6 m) takes a small ASV (0.6 m across) and near ranges. In the
 # nfp tank the ROV 4 m deep sits on the boresight 8.4 m off, and a ROV flying away from the
 # ASV rises above it (p90 +2.4 deg, `capsd bench follow`) to 8-9 m, where the detector misses
-# most (docs/JOURNAL.md, session 40): aimed 3 deg below the boresight, 7.7 m off, the upward tail
-# stays
-# below the boresight (p90 -1 deg), 3 deg of margin still to the lower edge.
+# most (docs/JOURNAL.md, session 40): aimed 3 deg below the boresight, 7.7 m off, the upward
+# tail stays below the boresight (p90 -1 deg), 3 deg of margin still to the lower edge.
 FOLLOW_STATION: dict[str, dict[str, float]] = {
     "nfp": {"target_elevation_deg": -3.0},
     "mockup": {
@@ -167,8 +166,7 @@ SonarTilt = Literal["fixed", "servo", "pan-tilt"]
 
 # With the sonar on a pan and a tilt servo, what changes from FOLLOW_STATION. In the mockup the
 # detector misses a ROV nearer than about 1 m (docs/JOURNAL.md, session 45: 25 % of pings missed at
-# 0.90-0.95
-# m, 67 % under 0.9 m), so stations keep it 1.2 m off where any can, 1.1 m where none can
+# 0.90-0.95 m, 67 % under 0.9 m), so stations keep it 1.2 m off where any can, 1.1 m where none can
 # (`preferred_min_range_m`: on the plan's middle lanes, through the ASV's box, a hull facing the ROV
 # is at most 1.13 m off; held to 1.2 m there, the follower kept a station from before, 0.9 m off,
 # and a demo lost the ROV for 70 s; 1.1 m rather than 1.0 since session 47: the follower also leaves
@@ -179,10 +177,9 @@ SonarTilt = Literal["fixed", "servo", "pan-tilt"]
 # follow --sonar-tilt pan-tilt --detect-from 0.95` prefers it (97.2 % in view against 95.4 %), but
 # the demo does not: seeds 0-4, 95.0 % good fixes a run facing against 88.9 % turned (53.4 % on seed
 # 4, the hull swinging between its two sides through facing), and the ROV waited for the ASV 42-81 s
-# a run against 137-233 s (docs/JOURNAL.md, session 46). A tilt servo alone loses more with
-# stations further
-# off (the hull turns to face, the tilt cannot: `--sonar-tilt servo`, 90.3 % with 1.2 m stations
-# against 94.5 %).
+# a run against 137-233 s (docs/JOURNAL.md, session 46). A tilt servo alone loses more with stations
+# further off (the hull turns to face, the tilt cannot: `--sonar-tilt servo`, 90.3 % with 1.2 m
+# stations against 94.5 %).
 PAN_TILT_STATION: dict[str, dict[str, float]] = {
     "mockup": {"preferred_min_range_m": 1.2, "min_range_m": 1.1}
 }

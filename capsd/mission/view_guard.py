@@ -13,9 +13,8 @@ ROV keeps to where the follower's stations see it, and the servo covers the hull
 lags. Judged at the servo's reported angle, the ROV flew on while the servo followed it, to
 0.2 m from the sonar, steeper than the servo reaches, and was lost there for 60 s (the mockup
 demo, docs/JOURNAL.md session 42); `capsd bench follow --sonar-tilt servo` gives 94.7 % in view
-either
-way (perfect fixes, no lag). A pan servo under it (the mount's `pan`) is judged where it is (the
-newest reported pan): it turns the sonar's look off the hull's bow, which a tilt does not.
+either way (perfect fixes, no lag). A pan servo under it (the mount's `pan`) is judged where it
+is (the newest reported pan): it turns the sonar's look off the hull's bow, which a tilt does not.
 """
 
 from __future__ import annotations

@@ -241,8 +241,7 @@ def test_with_exact_moves_only_the_candidate_on_the_rov_along_its_axes(
 
 def test_the_detectors_own_errors_cost_what_its_exact_variants_take_off() -> None:
     # The held-out pond, where the CNN's ranges run 1-2 cm short (docs/JOURNAL.md, the accuracy
-    # bench's
-    # detector rows): taking its range and bearing error off lowers ours on the same pings.
+    # bench's detector rows): taking its range and bearing error off lowers ours on the same pings.
     names = {"ours (CAP-SD)", DETECTOR_EXACT, DETECTOR_RANGE_EXACT, DETECTOR_BEARING_EXACT}
     variants = [v for v in ablations() if v.name in names]
     assert len(variants) == 4

@@ -204,8 +204,7 @@ def test_every_command_of_a_leg_names_its_end_even_while_the_rov_waits_at_its_pl
     """The follower re-stations for where the leg goes, not for where the ROV waits.
 
     And for the waypoint after it: its stations are to see the turn after a lane too
-    (docs/JOURNAL.md
-    session 38); the plan's last leg has none.
+    (docs/JOURNAL.md, session 38); the plan's last leg has none.
     """
     ctl = _guarded()
     here = (4.0, 4.0, -3.0)

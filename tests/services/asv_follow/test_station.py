@@ -424,8 +424,7 @@ def test_a_steered_hull_takes_a_station_that_sees_the_rest_of_the_lane() -> None
     North of this lane the walls leave the ASV 4 m at most: stations abeam look at the ROV from
     40-60 deg off the lane, and each move after it along the lane is across the line of sight,
     blind for a steered hull (ArduRover SITL, docs/JOURNAL.md session 33). With the rest of the
-    lane as
-    its path (the steered default) the planner takes a station from which the hull, pursuing
+    lane as its path (the steered default) the planner takes a station from which the hull, pursuing
     the ROV along the line of sight alone, keeps the whole lane inside the aperture's margin:
     ahead of the ROV, about along the lane, backing away before it facing it (since session
     38 on whichever side of the lane's line that pursuit works out; one move there, against
