@@ -51,7 +51,9 @@ from capsd.services.sonar_detect.service import (
     CnnConfig,
     DepthGateConfig,
     Detector,
+    DetectorName,
     GateInputs,
+    confidence_of,
     detect_gated,
 )
 from capsd.services.sonar_detect.service import Config as DetectConfig
@@ -155,8 +157,8 @@ def _estimator(kind: TiltKind, sim: SimConfig, heading_prior_rad: float) -> AsvP
 DETECT_CONFIG = DetectConfig()
 
 
-def _detectors(kinds: set[DetectorKind]) -> dict[DetectorKind, Detector]:
-    out: dict[DetectorKind, Detector] = {}
+def _detectors(kinds: set[DetectorKind]) -> dict[DetectorName, Detector]:
+    out: dict[DetectorName, Detector] = {}
     if "cnn" in kinds:
         from capsd.services.sonar_detect.cnn import CnnDetector
 
@@ -260,7 +262,7 @@ def run(
                     p,
                     gate,
                     min_confidence=0.5,
-                    confidence=DETECT_CONFIG.cnn.confidence if kind == "cnn" else "independent",
+                    confidence=confidence_of(kind, DETECT_CONFIG.cnn),
                     range_bias=range_bias if kind == "cnn" else None,
                 ).detections
                 for kind, d in detect.items()

@@ -254,6 +254,13 @@ SHIPPED_CNN = ("cnn", "cnn, every frame alone")
 # Detectors whose scores are no probabilities (the classical one's saturate near 1 on any bright
 # blob): their candidates are never scored as the one ROV, as in the service.
 SCORED_ALONE = frozenset({"classical"})
+
+
+def _scoring(name: str, confidence: Confidence) -> Confidence:
+    """How the bench scores detector `name`'s candidates: as `confidence` says, or alone."""
+    return "independent" if name in SCORED_ALONE else confidence
+
+
 # Range bands of issue 18 (truth range of the ROV), metres, after a closer one for small tanks
 # (in the mockup the follower keeps the ROV 1.1-1.3 m from the sonar).
 BANDS: tuple[tuple[float, float], ...] = (
@@ -443,7 +450,7 @@ def evaluate(
                     for name, detect in detectors.items():
                         found = detect_gated(
                             _Bound(detect), frame, gate, min_confidence=MIN_CONFIDENCE,
-                            confidence="independent" if name in SCORED_ALONE else confidence,
+                            confidence=_scoring(name, confidence),
                             range_bias=range_bias if name in SHIPPED_CNN else None,
                         ).detections  # fmt: skip
                         score(tallies, f"{name} / {look}", label, found,
@@ -715,9 +722,7 @@ def run(
             alarms = sum(
                 1
                 for frame in frames
-                for d in scored(
-                    detect(frame), "independent" if name in SCORED_ALONE else confidence
-                )
+                for d in scored(detect(frame), _scoring(name, confidence))
                 if d.confidence >= MIN_CONFIDENCE
             )
             print(f"  {name:<24} {alarms} detections (target 0)")

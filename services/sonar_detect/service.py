@@ -127,6 +127,18 @@ class CnnConfig(ConfigSection, frozen=True, kw_only=True):
             raise ConfigError("config", "cnn.range_bias_table", str(exc)) from None
 
 
+DetectorName = Literal["cnn", "classical"]
+
+
+def confidence_of(detector: DetectorName, cnn: CnnConfig) -> Confidence:
+    """How a detector's candidates are scored (its `confidence` in `detect_gated`).
+
+    The CNN's as `cnn.confidence` says; the classical detector's as they are (its scores are no
+    probabilities: a bright blob saturates near 1).
+    """
+    return cnn.confidence if detector == "cnn" else "independent"
+
+
 class Detector(Protocol):
     def detect(
         self, frame: SonarFrame, *, range_window: tuple[float, float] | None = None
@@ -208,7 +220,7 @@ class Config(ServiceConfig, frozen=True, kw_only=True):
     vehicle: str = "asv"
     sonar_vehicle: str = "asv"
     # cnn: the polar network (needs the `detect` extra, torch); classical: CFAR, no torch.
-    detector: Literal["cnn", "classical"] = "cnn"
+    detector: DetectorName = "cnn"
     cnn: CnnConfig = CnnConfig()
     classical: ClassicalConfig = ClassicalConfig()
     min_confidence: Annotated[float, msgspec.Meta(ge=0.0, le=1.0)] = 0.5
@@ -336,7 +348,7 @@ def main(config: Config) -> int:
     """Run the detector until stopped."""
     detector = make_detector(config)
     range_bias = config.cnn.range_bias_correction() if config.detector == "cnn" else None
-    confidence: Confidence = config.cnn.confidence if config.detector == "cnn" else "independent"
+    confidence = confidence_of(config.detector, config.cnn)
     if config.detector == "cnn" and config.cnn.range_bias != "off" and range_bias is None:
         logger.warning(
             "cnn.range_bias: off, the shipped table is for the shipped weights "
