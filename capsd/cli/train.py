@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import get_args
 
 from capsd.cli.common import Subcommands, fail
 from capsd.errors import CapsdError
@@ -14,6 +15,7 @@ from capsd.launch import (
     positive_float,
     positive_int,
 )
+from capsd.services.sonar_detect.one_rov import DEFAULT_CONFIDENCE, Confidence
 
 
 def _cmd_train_calibrate(args: argparse.Namespace) -> int:
@@ -25,6 +27,7 @@ def _cmd_train_calibrate(args: argparse.Namespace) -> int:
             duration_s=(
                 TrainConfig.calibration_duration_s if args.duration is None else args.duration
             ),
+            confidence=args.confidence,
         )
     except CapsdError as exc:
         return fail(f"calibrate: {exc}", EXIT_CONFIG)
@@ -524,6 +527,13 @@ def register(sub: Subcommands) -> None:
         default=None,
         help="seconds per validation run (default: the training's, 40; the held-out "
         "evaluation then runs twice as long)",
+    )
+    tcal.add_argument(
+        "--confidence",
+        choices=get_args(Confidence),
+        default=DEFAULT_CONFIDENCE,
+        help="how the false alarms are counted: each candidate as the one ROV among the "
+        "frame's (exclusive, the service's cnn.confidence default) or scored alone",
     )
     tcal.set_defaults(func=_cmd_train_calibrate)
     tbias = train.add_parser(

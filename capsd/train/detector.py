@@ -39,6 +39,7 @@ from capsd.bench.detect import Run
 from capsd.errors import CapsdError
 from capsd.payloads import Detection, SonarFrame, SonarLabel
 from capsd.progress import Progress
+from capsd.services.sonar_detect.one_rov import DEFAULT_CONFIDENCE, Confidence
 from capsd.services.sonar_detect.polar_input import (
     COARSE_BEAMS,
     NORM_HIGH,
@@ -516,11 +517,35 @@ MAX_FALSE_ALARMS_PER_FRAME = 0.005
 def operating_offset(false_logits: list[float], frames: int, max_per_frame: float) -> float:
     """The lowest logit offset leaving at most `max_per_frame` false alarms per frame.
 
-    0 when there are fewer false alarms than that anyway.
+    0 when there are fewer false alarms than that anyway (-inf: one that no offset passes).
     """
     allowed = int(max_per_frame * frames)
-    ordered = sorted(false_logits, reverse=True)
+    ordered = sorted((v for v in false_logits if v > -math.inf), reverse=True)
     return ordered[allowed] + 1e-6 if len(ordered) > allowed else 0.0
+
+
+def exclusive_logits(scored: list[float], fixed: list[float]) -> list[float]:
+    """Each scored candidate's logit as the one ROV: the highest offset it still passes 0.5 at.
+
+    `scored`: raw logits of the candidates whose offset is being set; `fixed`: logits (their
+    own offset applied) of the frame's other candidates. With offset o, one_rov.exclusive
+    gives candidate i e^(l_i - o) / (1 + sum_k e^(l_k - o) + sum_f e^f) over the scored k and
+    the fixed f, which is >= 0.5 exactly when o <= log(e^l_i - sum_(k != i) e^l_k) -
+    log(1 + sum_f e^f): that bound is returned (-inf where no offset makes it the ROV), so
+    `operating_offset` counts candidates as the service's exclusive confidences would.
+    """
+    fixed_odds = math.log1p(sum(math.exp(min(f, 700.0)) for f in fixed))
+    out = []
+    for i, own in enumerate(scored):
+        others = [v for k, v in enumerate(scored) if k != i]
+        if not others:
+            out.append(own - fixed_odds)
+            continue
+        top = max(others)
+        rest = top + math.log(sum(math.exp(v - top) for v in others))  # log sum_(k != i) e^l_k
+        share = -math.expm1(rest - own) if rest < own else 0.0  # 1 - e^rest / e^own
+        out.append(own + math.log(share) - fixed_odds if share > 0.0 else -math.inf)
+    return out
 
 
 def validation_pings(
@@ -574,12 +599,15 @@ def validation_logits(
     label: str,
     scored: Callable[[Detection, float], bool],
     counted: Callable[[SonarLabel, float], bool],
+    confidence: Confidence,
 ) -> ValidationLogits:
     """The network alone on `validation_pings(duration_s, runs=runs)`.
 
     Only candidates `scored` accepts count; a ping whose label `counted` accepts adds its best
     candidate on the ROV to the hits (-inf when none was). Both are also given the frame's
-    half field of view (radians).
+    half field of view (radians). With `confidence` "exclusive", each scored candidate's logit
+    is the one it has as the frame's one ROV (`exclusive_logits`: as the service scores it,
+    one_rov), the other candidates at their own operating point.
     """
     from capsd.bench.detect import MATCH_M
     from capsd.services.sonar_detect.cnn import NETWORK_ALONE, CnnDetector
@@ -591,11 +619,13 @@ def validation_logits(
         out.frames += 1
         best = -math.inf
         half_fov_rad = BeamTable(frame.azimuths_rad).half_fov_rad
-        for d in detector.detect(frame):
-            if not scored(d, half_fov_rad):
-                continue
-            c = min(max(d.confidence, 1e-12), 1 - 1e-12)
-            logit = math.log(c / (1 - c))
+        found = detector.detect(frame)
+        chosen = [scored(d, half_fov_rad) for d in found]
+        logits = [_logit(d.confidence) for d in found]
+        own = [v for v, s in zip(logits, chosen, strict=True) if s]
+        if confidence == "exclusive":
+            own = exclusive_logits(own, [v for v, s in zip(logits, chosen, strict=True) if not s])
+        for d, logit in zip([d for d, s in zip(found, chosen, strict=True) if s], own, strict=True):
             near = p.visible and (
                 abs(d.range_m - p.range_m) < MATCH_M
                 and abs(d.azimuth_rad - p.azimuth_rad) * p.range_m < MATCH_M
@@ -613,11 +643,19 @@ def validation_logits(
     return out
 
 
-def calibrate(net: PolarNet, *, duration_s: float) -> dict[str, Any]:
+def _logit(confidence: float) -> float:
+    c = min(max(confidence, 1e-12), 1 - 1e-12)
+    return math.log(c / (1 - c))
+
+
+def calibrate(
+    net: PolarNet, *, duration_s: float, confidence: Confidence = DEFAULT_CONFIDENCE
+) -> dict[str, Any]:
     """Set the operating point on the validation runs (the refiner logit's offset).
 
     Confidence 0.5 becomes the lowest threshold with at most MAX_FALSE_ALARMS_PER_FRAME, on
-    `validation_pings(duration_s)`.
+    `validation_pings(duration_s)`, each candidate's confidence as `confidence` says (the
+    service's `cnn.confidence` unless told).
     """
     from capsd.bench.detect import BENCH_STARTS_S
 
@@ -635,6 +673,7 @@ def calibrate(net: PolarNet, *, duration_s: float) -> dict[str, Any]:
             )
         ),
         counted=lambda p, _half_fov_rad: p.visible,
+        confidence=confidence,
     )
     # Never below the raw 50%: the offset only ever makes the detector more cautious.
     offset = max(
@@ -655,6 +694,7 @@ def calibrate(net: PolarNet, *, duration_s: float) -> dict[str, Any]:
             "duration_s": duration_s / len(BENCH_STARTS_S),
         },
         "frames": logits.frames,
+        "confidence": confidence,
         "max_false_alarms_per_frame": MAX_FALSE_ALARMS_PER_FRAME,
         "at_raw_0.5": rates(0.0),
         "at_operating_point": rates(offset),
@@ -692,7 +732,9 @@ def stored_meta(weights: Path) -> dict[str, Any]:
     return meta
 
 
-def recalibrate(weights: Path, *, duration_s: float) -> dict[str, Any]:
+def recalibrate(
+    weights: Path, *, duration_s: float, confidence: Confidence = DEFAULT_CONFIDENCE
+) -> dict[str, Any]:
     """Calibrate existing weights in place and refresh their evaluation (capsd train calibrate)."""
     from capsd.bench.detect import evaluate_cnn
     from capsd.services.sonar_detect.polar_net import load
@@ -700,7 +742,7 @@ def recalibrate(weights: Path, *, duration_s: float) -> dict[str, Any]:
     net = load(weights)
     meta_path = weights.with_suffix(".json")
     meta = stored_meta(weights)
-    meta["calibration"] = calibrate(net, duration_s=duration_s)
+    meta["calibration"] = calibrate(net, duration_s=duration_s, confidence=confidence)
     save(net, weights, meta={k: v for k, v in meta.items() if k != "evaluation"})
     meta["evaluation"] = evaluate_cnn(net, duration_s=2 * duration_s)
     meta_path.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")

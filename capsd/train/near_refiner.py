@@ -40,6 +40,7 @@ import torch
 
 from capsd.bench.detect import Run
 from capsd.errors import CapsdError
+from capsd.services.sonar_detect.one_rov import DEFAULT_CONFIDENCE, Confidence
 from capsd.services.sonar_detect.polar_input import DEFAULT_INPUTS
 from capsd.services.sonar_detect.polar_net import (
     PROPOSAL_WIDTH,
@@ -251,12 +252,15 @@ def recalibrate_near_refiner(
     return meta
 
 
-def calibrate_near(net: PolarNet, *, duration_s: float) -> dict[str, Any]:
+def calibrate_near(
+    net: PolarNet, *, duration_s: float, confidence: Confidence = DEFAULT_CONFIDENCE
+) -> dict[str, Any]:
     """Set the near refiner's operating point (its logit offset) on validation runs.
 
     Every candidate the near refiner scores (`polar_net.near_refined`) that is not the ROV (or
     is a second one on it) is a false alarm; the offset is the lowest that leaves at most
-    MAX_NEAR_FALSE_ALARMS_PER_FRAME of them over all frames, never below the raw 50 %.
+    MAX_NEAR_FALSE_ALARMS_PER_FRAME of them over all frames, never below the raw 50 %; each
+    candidate's confidence as `confidence` says (the service's `cnn.confidence` unless told).
     """
     net.near_logit_offset.zero_()
     runs = NEAR_VALIDATION_RUNS + VALIDATION_RUNS
@@ -274,6 +278,7 @@ def calibrate_near(net: PolarNet, *, duration_s: float) -> dict[str, Any]:
                 net, range_m=p.range_m, azimuth_rad=p.azimuth_rad, half_fov_rad=half_fov_rad
             )
         ),
+        confidence=confidence,
     )
     offset = max(
         0.0,
@@ -290,6 +295,7 @@ def calibrate_near(net: PolarNet, *, duration_s: float) -> dict[str, Any]:
         "validation_runs": [list(r) for r in runs],
         "frames": logits.frames,
         "pings_with_the_rov_near": len(logits.hit_logits),
+        "confidence": confidence,
         "max_near_false_alarms_per_frame": MAX_NEAR_FALSE_ALARMS_PER_FRAME,
         "at_raw_0.5": rates(0.0),
         "at_operating_point": rates(offset),

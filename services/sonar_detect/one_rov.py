@@ -28,6 +28,7 @@ import msgspec
 from capsd.payloads import Detection
 
 Confidence = Literal["exclusive", "independent"]
+DEFAULT_CONFIDENCE: Confidence = "exclusive"  # the service's `cnn.confidence` unless configured
 _EDGE = 1e-9  # scores of exactly 0 or 1 kept finite in the odds
 
 

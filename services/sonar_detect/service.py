@@ -37,7 +37,7 @@ from capsd.payloads import (
 from capsd.runner import Publisher, ServiceRunner
 from capsd.services.sonar_detect.classical import ClassicalDetector, ClassicalSettings
 from capsd.services.sonar_detect.depth_gate import DepthGate
-from capsd.services.sonar_detect.one_rov import Confidence, scored
+from capsd.services.sonar_detect.one_rov import DEFAULT_CONFIDENCE, Confidence, scored
 from capsd.services.sonar_detect.range_bias import DEFAULT_TABLE as DEFAULT_RANGE_BIAS
 from capsd.services.sonar_detect.range_bias import RangeBias
 from capsd.services.sonar_detect.range_bias import load as load_range_bias
@@ -102,7 +102,7 @@ class CnnConfig(ConfigSection, frozen=True, kw_only=True):
     # frame's, from the network's calibrated scores (capsd.services.sonar_detect.one_rov: a
     # confident echo beside a surer one is not sent as sure); independent: each scored alone.
     # (The classical detector's scores are no probabilities: it reports them as they are.)
-    confidence: Confidence = "exclusive"
+    confidence: Confidence = DEFAULT_CONFIDENCE
     threads: Annotated[int, msgspec.Meta(ge=1, le=64)] = 1
     # by_elevation: with the depth gate, a near ROV's range corrected for where it lies in the
     # vertical aperture and how steeply the sonar looks down at it (capsd.services.sonar_detect

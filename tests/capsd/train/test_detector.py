@@ -2,11 +2,18 @@
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 
+import pytest
 import torch
+from hypothesis import given
+from hypothesis import strategies as st
+from msgspec.structs import replace
 
 from capsd.bench.detect import BENCH_STARTS_S
+from capsd.payloads import Detection
+from capsd.services.sonar_detect.one_rov import exclusive
 from capsd.services.sonar_detect.polar_input import NORM_HIGH, NORM_LOW
 from capsd.services.sonar_detect.polar_net import PolarNet
 from capsd.simulator.config import OFFLINE_START_NS
@@ -15,6 +22,8 @@ from capsd.train.detector import (
     VARIETIES,
     _augment,
     calibrate,
+    exclusive_logits,
+    operating_offset,
     validation_pings,
 )
 
@@ -39,6 +48,52 @@ def test_the_operating_point_records_its_stretches() -> None:
     result = calibrate(PolarNet(), duration_s=0.3)
     assert result["validation_stretches"]["start_s"] == list(BENCH_STARTS_S)
     assert result["frames"] > 0
+
+
+def _as_the_one_rov(logits: list[float], offset: float, fixed: list[float]) -> list[float]:
+    """The service's exclusive confidences of `logits` at `offset` beside `fixed` (one_rov)."""
+    echo = Detection(
+        range_m=1.0, azimuth_rad=0.0, range_sigma_m=0.02, azimuth_sigma_rad=0.003, confidence=0.5
+    )
+    found = [replace(echo, confidence=1 / (1 + math.exp(offset - v))) for v in logits]
+    found += [replace(echo, confidence=1 / (1 + math.exp(-v))) for v in fixed]
+    return [d.confidence for d in exclusive(found)[: len(logits)]]
+
+
+def test_a_lone_candidate_keeps_its_logit_and_a_tie_never_passes() -> None:
+    assert exclusive_logits([1.5], []) == [1.5]
+    assert exclusive_logits([2.0, 2.0], []) == [-math.inf, -math.inf]
+    # A ROV at logit 3 beside clutter at 1: it passes 0.5 up to offset log(e^3 - e^1).
+    rov, clutter = exclusive_logits([3.0, 1.0], [])
+    assert rov == pytest.approx(math.log(math.exp(3.0) - math.exp(1.0)))
+    assert clutter == -math.inf
+    # A candidate at its own operating point (the near refiner's) takes its share.
+    assert exclusive_logits([1.5], [0.0]) == pytest.approx([1.5 - math.log(2.0)])
+
+
+@given(
+    st.lists(st.floats(-6.0, 6.0), min_size=1, max_size=6),
+    st.lists(st.floats(-6.0, 6.0), max_size=3),
+    st.floats(-3.0, 3.0),
+)
+def test_exclusive_logits_pass_where_the_services_confidences_do(
+    logits: list[float], fixed: list[float], offset: float
+) -> None:
+    bounds = exclusive_logits(logits, fixed)
+    confidences = _as_the_one_rov(logits, offset, fixed)
+    for bound, confidence in zip(bounds, confidences, strict=True):
+        if abs(bound - offset) > 1e-6:  # not on the boundary itself
+            assert (confidence >= 0.5) == (offset <= bound)
+
+
+def test_the_offset_counts_false_alarms_as_the_service_scores_them() -> None:
+    # Two frames: clutter at logit 2 alone, then clutter at 2 beside a ROV at 4. Scored alone
+    # both clutters are false alarms until the offset passes 2; as the one ROV the second is
+    # none at any offset, so a budget of one false alarm in two frames allows a lower offset.
+    alone = [2.0, 2.0]
+    as_one = exclusive_logits([2.0], []) + exclusive_logits([2.0, 4.0], [])[:1]
+    assert operating_offset(alone, 2, 0.5) > 2.0
+    assert operating_offset(as_one, 2, 0.5) == 0.0
 
 
 def test_look_augmentation_stays_in_the_normalised_span_and_leaves_the_range_plane() -> None:
