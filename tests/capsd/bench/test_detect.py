@@ -18,6 +18,8 @@ from capsd.bench.detect import (
     azimuth_band,
     band_of,
     evaluate,
+    over_runs,
+    run_group,
     score,
     sonar_only,
     truth_gate,
@@ -129,6 +131,46 @@ def test_several_starts_score_each_stretch_of_every_run() -> None:
     assert not any(3.0 < s < 29.0 for s in seconds)
     # The later stretch is the same pings whether scored alone or after another.
     assert sorted(both.stamps)[-len(one.stamps) :] == sorted(one.stamps)
+
+
+def test_every_run_is_tallied_apart_and_together() -> None:
+    stamps = _Stamps()
+    tallies = evaluate({"none": stamps}, duration_s=1.0, runs=RUNS[:2], looks=("off",))
+    apart = [tallies[run_group("none / off", run)] for run in RUNS[:2]]
+    assert all(t.frames > 0 for t in apart)
+    assert sum(t.frames for t in apart) == tallies["none / off / all"].frames
+    assert over_runs(tallies, "none / off", RUNS[:2]) is not None
+    assert over_runs(tallies, "none / off", RUNS[:3]) is None  # a run it never scored
+
+
+def _run_tally(hits: int, visible: int, false_alarms: int, frames: int) -> Tally:
+    return Tally(frames=frames, visible=visible, hits=hits, false_alarms=false_alarms)
+
+
+def test_the_interval_over_runs_resamples_runs_not_pings() -> None:
+    runs = RUNS[:3]
+    # One run found the ROV on every ping, two on none: 1000 pings each, but three samples.
+    tallies = {
+        run_group("cnn / heldout", runs[0]): _run_tally(1000, 1000, 0, 1000),
+        run_group("cnn / heldout", runs[1]): _run_tally(0, 1000, 30, 1000),
+        run_group("cnn / heldout", runs[2]): _run_tally(0, 1000, 30, 1000),
+    }
+    spread = over_runs(tallies, "cnn / heldout", runs)
+    assert spread is not None
+    assert spread["runs"] == 3
+    assert spread["detection_rate_by_run"] == [1.0, 0.0, 0.0]
+    assert spread["false_alarms_per_frame_by_run"] == [0.0, 0.03, 0.03]
+    low, high = spread["detection_rate_ci95"]
+    # Pooled 1/3; with runs resampled, three draws of the first run alone (1/27 of draws, more
+    # than 2.5 %) give 1, of the others alone 0: the interval spans both, where pings
+    # resampled one by one would give about +-3 points.
+    assert (low, high) == (0.0, 1.0)
+    assert spread["false_alarms_per_frame_ci95"] == [0.0, 0.03]
+    # Every run alike: the interval is the one value.
+    same = {run_group("cnn / heldout", r): _run_tally(800, 1000, 20, 1000) for r in runs}
+    again = over_runs(same, "cnn / heldout", runs)
+    assert again is not None
+    assert again["detection_rate_ci95"] == [0.8, 0.8]
 
 
 @pytest.mark.parametrize(
