@@ -591,7 +591,7 @@ def _score(tally: Tally, label: SonarLabel, found: list[Detection]) -> None:
 
 @dataclass(frozen=True)
 class CnnOptions:
-    """The service's cnn settings the bench varies: search_refines, track_hold_s, thresholds.
+    """The service's cnn settings the bench varies: how it searches, tracks and proposes.
 
     The threshold applies to the network searching every frame alone too: it is where its
     candidates come from (a network on a finer grid gives lower heat).
@@ -601,6 +601,7 @@ class CnnOptions:
     track_hold_s: float = 0.0
     proposal_threshold: float = 0.1  # the service's default
     track_proposal_threshold: float | None = 0.03  # the service's default (None: off)
+    max_candidates: int = 3  # the service's default: proposals refined per whole-frame search
     # The service's cnn.mirror_average; several: the CNN once with each, named by it.
     mirror_averages: tuple[Literal["off", "refiner", "both"], ...] = ("refiner",)
 
@@ -632,6 +633,7 @@ def _detectors(
                     proposal_threshold=options.proposal_threshold,
                     track_proposal_threshold=options.track_proposal_threshold,
                     mirror_average=mirror,
+                    max_candidates=options.max_candidates,
                 )
                 if path is not None:
                     service = replace(service, weights=path)
@@ -644,6 +646,7 @@ def _detectors(
                         weights=service.weights,
                         proposal_threshold=options.proposal_threshold,
                         mirror_average=mirror,
+                        max_candidates=options.max_candidates,
                     )
                 ).detect
     return out
@@ -822,7 +825,8 @@ def sweep_prior(
         f"search refines {options.search_refines}, "
         f"track hold {options.track_hold_s:g} s, "
         f"proposal threshold {options.proposal_threshold:g}, "
-        f"near the track {options.track_proposal_threshold or 'off'}"
+        f"near the track {options.track_proposal_threshold or 'off'}, "
+        f"{options.max_candidates} candidates a search"
     )
     print(f"{'prior':>6} {'look':<8} {'detected':>9} {'FA/frame':>9}")
     for prior in priors:
@@ -833,6 +837,7 @@ def sweep_prior(
                 track_hold_s=options.track_hold_s,
                 proposal_threshold=options.proposal_threshold,
                 track_proposal_threshold=options.track_proposal_threshold,
+                max_candidates=options.max_candidates,
             )
         )
         tallies = evaluate(

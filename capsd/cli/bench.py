@@ -48,7 +48,7 @@ def _cmd_bench_detect(args: argparse.Namespace) -> int:
             frames=args.frames,
             which=args.detector,
             weights=args.weights,
-            options=detect.CnnOptions(mirror_averages=mirrors),
+            options=detect.CnnOptions(mirror_averages=mirrors, max_candidates=args.max_candidates),
         )
     if not 0.0 < args.proposal_threshold < 1.0:
         return fail(
@@ -73,6 +73,7 @@ def _cmd_bench_detect(args: argparse.Namespace) -> int:
         proposal_threshold=args.proposal_threshold,
         track_proposal_threshold=track_bar,
         mirror_averages=mirrors,
+        max_candidates=args.max_candidates,
     )
     starts = tuple(args.start) if args.start is not None else detect.BENCH_STARTS_S
     duration_s = args.duration if args.duration is not None else detect.BENCH_WINDOW_S
@@ -369,6 +370,14 @@ def register(sub: Subcommands) -> None:
         metavar="P",
         help="the service's cnn.proposal_threshold for the CNN, searching alone too (default: "
         "%(default)s)",
+    )
+    bdet.add_argument(
+        "--max-candidates",
+        type=positive_int,
+        default=3,  # CnnOptions and the service (not imported here: start-up time)
+        metavar="K",
+        help="the service's cnn.max_candidates: proposals refined per whole-frame search, "
+        "for the CNN with its settings and alone, and in --throughput (default: %(default)s)",
     )
     bdet.add_argument(
         "--track-proposal-threshold",

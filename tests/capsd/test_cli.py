@@ -16,6 +16,8 @@ from capsd.cli import main
         (["tap", "cap/**", "--duration", "nan"], "must be a positive number"),
         (["bench", "detect", "--frames", "0"], "not allowed"),
         (["bench", "detect", "--track-hold", "-1"], "must be a positive number"),
+        (["bench", "detect", "--max-candidates", "0"], "not allowed"),
+        (["train", "calibrate", "--confidence", "both"], "invalid choice"),
         (["replay", "x.mcap", "--speed", "0"], "must be a positive number"),
         (["train", "detector", "--workers", "0"], "not allowed"),
     ],

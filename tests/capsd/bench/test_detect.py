@@ -407,3 +407,15 @@ def test_candidates_are_scored_as_the_one_rov_but_the_classical_detector_s_alone
     assert one_rov["fine-tuned / off / all"].summary()["false_alarms_per_frame"] == 0.0
     assert alone["fine-tuned / off / all"].summary()["false_alarms_per_frame"] == 2.0
     assert one_rov["classical / off / all"].summary()["false_alarms_per_frame"] == 2.0
+
+
+def test_the_bench_s_cnn_settings_reach_both_of_its_cnns() -> None:
+    from capsd.bench.detect import CnnOptions, _detectors
+
+    detectors = _detectors("cnn", options=CnnOptions(max_candidates=6, proposal_threshold=0.2))
+    assert set(detectors) == {"cnn", "cnn, every frame alone"}
+    for detect in detectors.values():
+        settings = detect.__self__.settings  # type: ignore[attr-defined]
+        assert settings.max_candidates == 6
+        assert settings.proposal_threshold == 0.2
+    assert detectors["cnn, every frame alone"].__self__.settings.search_every_s == 0.0  # type: ignore[attr-defined]
