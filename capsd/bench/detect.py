@@ -601,7 +601,7 @@ class CnnOptions:
     track_hold_s: float = 0.0
     proposal_threshold: float = 0.1  # the service's default
     track_proposal_threshold: float | None = 0.03  # the service's default (None: off)
-    max_candidates: int = 3  # the service's default: proposals refined per whole-frame search
+    max_candidates: int = 6  # the service's default: proposals refined per whole-frame search
     # The service's cnn.mirror_average; several: the CNN once with each, named by it.
     mirror_averages: tuple[Literal["off", "refiner", "both"], ...] = ("refiner",)
 

@@ -374,7 +374,7 @@ def register(sub: Subcommands) -> None:
     bdet.add_argument(
         "--max-candidates",
         type=positive_int,
-        default=3,  # CnnOptions and the service (not imported here: start-up time)
+        default=6,  # CnnOptions and the service (not imported here: start-up time)
         metavar="K",
         help="the service's cnn.max_candidates: proposals refined per whole-frame search, "
         "for the CNN with its settings and alone, and in --throughput (default: %(default)s)",

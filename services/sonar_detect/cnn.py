@@ -78,7 +78,14 @@ class CnnSettings:
     # `capsd bench accuracy` rose 20.8 -> 26.2 mm as its availability rose 53.5 -> 63.7 %
     # (docs/JOURNAL.md, the detector).
     gated_proposal_threshold: float | None = None
-    max_candidates: int = 3
+    # Proposals refined per whole-frame search, strongest heat first. 6 since session 65: on the
+    # validation runs (seeds 301-306, never the bench's; `capsd bench detect --prior-sweep 1
+    # --max-candidates K`) 3 / 6 / 10 found 97.2 / 98.0 / 98.4 % on the fixed look at 0.0017 /
+    # 0.0006 / 0.0006 false alarms per frame and 72.0 / 74.1 / 74.3 % on drawn looks at 0.0033
+    # each: more candidates put one on a ROV the heat ranks below clutter, and scored as the one
+    # ROV (service's cnn.confidence) the clutter's do not pass. Past 6 little more for the
+    # refiner's time (docs/JOURNAL.md, the detector).
+    max_candidates: int = 6
     refine_passes: int = 2
     merge_distance_m: float = 0.3
     threads: int = 1  # torch intra-op threads: one core keeps the service's CPU predictable

@@ -68,7 +68,9 @@ class CnnConfig(ConfigSection, frozen=True, kw_only=True):
     # The same inside the depth gate's range window if lower (capsd.services.sonar_detect.cnn;
     # null: proposal_threshold there too).
     gated_proposal_threshold: Annotated[float, msgspec.Meta(gt=0.0, lt=1.0)] | None = None
-    max_candidates: Annotated[int, msgspec.Meta(ge=1, le=20)] = 3
+    # Proposals refined per whole-frame search (capsd.services.sonar_detect.cnn, since session
+    # 65: 6; 3 before).
+    max_candidates: Annotated[int, msgspec.Meta(ge=1, le=20)] = 6
     refine_passes: Annotated[int, msgspec.Meta(ge=1, le=5)] = 2
     # Ping time between whole-frame searches; between them only the last ping's confident
     # detections are refined (a quarter of the work at 40 Hz). 0: search every frame.

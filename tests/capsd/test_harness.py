@@ -84,7 +84,7 @@ def test_a_detector_config_sets_how_it_detects_not_where_it_listens(tmp_path: Pa
     text = Path("deploy/config/sonar_detect.yaml").read_text()
     for old, new in (
         ("close_proposal: on", "close_proposal: off"),
-        ("  max_candidates: 3\n  refine", "  max_candidates: 5\n  refine"),
+        ("  max_candidates: 6 ", "  max_candidates: 5 "),  # the cnn's (the classical's: 3)
         ("min_confidence: 0.5", "min_confidence: 0.6"),
         ("connect: [tcp/127.0.0.1:7447]", "connect: [tcp/192.0.2.1:7447]"),  # never the demo's
     ):
