@@ -296,11 +296,14 @@ def detect_table(figures: dict[str, Any]) -> list[str]:
         lines.append(whole(f"{label}, all", f"cnn / {look} / all"))
         spread = figures.get("over_runs", {}).get(f"cnn / {look}")  # since session 65
         if spread is not None:
-            by_run = [r for r in spread["detection_rate_by_run"] if r is not None]
+            # Runs without the ROV in view have no detection rate.
+            by_run = [r for r in spread["detection_rate_by_run"] if r is not None] or [None]
+            low = min(by_run, key=lambda r: -1.0 if r is None else r)
+            high = max(by_run, key=lambda r: -1.0 if r is None else r)
             found, alarms = spread["detection_rate_ci95"], spread["false_alarms_per_frame_ci95"]
             lines.append(
                 f"| ... run by run ({spread['runs']} runs): lowest to highest; 95 % interval, "
-                f"runs resampled | {_pct(min(by_run))} to {_pct(max(by_run))}; "
+                f"runs resampled | {_pct(low)} to {_pct(high)}; "
                 f"{_pct(found[0])} to {_pct(found[1])} | {alarms[0]:.3f} to {alarms[1]:.3f} "
                 "| | |"
             )

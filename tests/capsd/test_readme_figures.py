@@ -90,3 +90,20 @@ def test_the_detector_budget_names_the_accuracy_benchs_variants() -> None:
         "| pond lawnmower (held out) | 25.4 mm, 58.1 % | - | 23.2 mm, 58.2 % | - "
         "| 12.1 mm, 95.5 % |"
     )
+
+
+def test_the_detect_table_gives_the_spread_over_runs() -> None:
+    from capsd import readme_figures
+
+    figures = json.loads((REPO / "docs/figures/detect.json").read_text())
+    spread = figures["over_runs"]["cnn / heldout"]
+    spread["detection_rate_by_run"] = [0.5, None, 0.25]
+    spread["detection_rate_ci95"], spread["false_alarms_per_frame_ci95"] = [0.2, 0.6], [0.0, 0.1]
+    rows = [line for line in readme_figures.detect_table(figures) if "run by run" in line]
+    assert len(rows) == 2  # each look
+    held_out = rows[1]
+    assert "| 25.0 % to 50.0 %; 20.0 % to 60.0 % | 0.000 to 0.100 |" in held_out
+    # A look whose runs never had the ROV in view says so rather than break the table.
+    spread["detection_rate_by_run"] = [None, None, None]
+    rows = [line for line in readme_figures.detect_table(figures) if "run by run" in line]
+    assert "| - to -; " in rows[1]
