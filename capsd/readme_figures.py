@@ -297,9 +297,8 @@ def detect_table(figures: dict[str, Any]) -> list[str]:
         spread = figures.get("over_runs", {}).get(f"cnn / {look}")  # since session 65
         if spread is not None:
             # Runs without the ROV in view have no detection rate.
-            by_run = [r for r in spread["detection_rate_by_run"] if r is not None] or [None]
-            low = min(by_run, key=lambda r: -1.0 if r is None else r)
-            high = max(by_run, key=lambda r: -1.0 if r is None else r)
+            by_run = [r for r in spread["detection_rate_by_run"] if r is not None]
+            low, high = (min(by_run), max(by_run)) if by_run else (None, None)
             found, alarms = spread["detection_rate_ci95"], spread["false_alarms_per_frame_ci95"]
             lines.append(
                 f"| ... run by run ({spread['runs']} runs): lowest to highest; 95 % interval, "

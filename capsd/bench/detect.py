@@ -497,12 +497,11 @@ def over_runs(
     another set of runs would give is read from resampling the runs (a bootstrap over runs),
     not the pings. None when the tallies hold no run of `prefix`.
     """
-    per_run = [tallies.get(run_group(prefix, run)) for run in runs]
-    if any(t is None for t in per_run):
+    per_run = [t for run in runs if (t := tallies.get(run_group(prefix, run))) is not None]
+    if len(per_run) < len(runs):
         return None
     counts = np.array(
-        [[t.hits, t.visible, t.false_alarms, t.frames] for t in per_run if t is not None],
-        dtype=np.float64,
+        [[t.hits, t.visible, t.false_alarms, t.frames] for t in per_run], dtype=np.float64
     )
     rng = np.random.default_rng(seed)
     drawn = counts[rng.integers(0, len(counts), size=(RESAMPLES, len(counts)))].sum(axis=1)
@@ -513,12 +512,13 @@ def over_runs(
         low, high = np.percentile(values, [2.5, 97.5])
         return [round(float(low), 4), round(float(high), 4)]
 
-    rates = [round(t.hits / t.visible, 4) if t.visible else None for t in per_run if t]
     return {
-        "runs": len(counts),
-        "detection_rate_by_run": rates,
+        "runs": len(per_run),
+        "detection_rate_by_run": [
+            round(t.hits / t.visible, 4) if t.visible else None for t in per_run
+        ],
         "false_alarms_per_frame_by_run": [
-            round(t.false_alarms / max(t.frames, 1), 4) for t in per_run if t
+            round(t.false_alarms / max(t.frames, 1), 4) for t in per_run
         ],
         "detection_rate_ci95": interval(found),
         "false_alarms_per_frame_ci95": interval(alarms),

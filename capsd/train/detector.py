@@ -620,12 +620,12 @@ def validation_logits(
         best = -math.inf
         half_fov_rad = BeamTable(frame.azimuths_rad).half_fov_rad
         found = detector.detect(frame)
-        chosen = [scored(d, half_fov_rad) for d in found]
-        logits = [_logit(d.confidence) for d in found]
-        own = [v for v, s in zip(logits, chosen, strict=True) if s]
+        mine = [d for d in found if scored(d, half_fov_rad)]
+        own = [_logit(d.confidence) for d in mine]
         if confidence == "exclusive":
-            own = exclusive_logits(own, [v for v, s in zip(logits, chosen, strict=True) if not s])
-        for d, logit in zip([d for d, s in zip(found, chosen, strict=True) if s], own, strict=True):
+            others = [_logit(d.confidence) for d in found if not scored(d, half_fov_rad)]
+            own = exclusive_logits(own, others)
+        for d, logit in zip(mine, own, strict=True):
             near = p.visible and (
                 abs(d.range_m - p.range_m) < MATCH_M
                 and abs(d.azimuth_rad - p.azimuth_rad) * p.range_m < MATCH_M

@@ -412,10 +412,31 @@ def test_candidates_are_scored_as_the_one_rov_but_the_classical_detector_s_alone
 def test_the_bench_s_cnn_settings_reach_both_of_its_cnns() -> None:
     from capsd.bench.detect import CnnOptions, _detectors
 
-    detectors = _detectors("cnn", options=CnnOptions(max_candidates=6, proposal_threshold=0.2))
+    # Neither value the service's default, so a setting not handed on is seen.
+    detectors = _detectors("cnn", options=CnnOptions(max_candidates=4, proposal_threshold=0.2))
     assert set(detectors) == {"cnn", "cnn, every frame alone"}
     for detect in detectors.values():
         settings = detect.__self__.settings  # type: ignore[attr-defined]
-        assert settings.max_candidates == 6
+        assert settings.max_candidates == 4
         assert settings.proposal_threshold == 0.2
     assert detectors["cnn, every frame alone"].__self__.settings.search_every_s == 0.0  # type: ignore[attr-defined]
+
+
+def test_the_bench_s_cnn_defaults_are_the_service_s() -> None:
+    # The bench's options and its command line repeat the service's defaults (the CLI does not
+    # import the service, for start-up time): what the bench measures is what ships.
+    from capsd.bench.detect import CnnOptions
+    from capsd.cli import build_parser
+    from capsd.services.sonar_detect.cnn import CnnSettings
+    from capsd.services.sonar_detect.service import CnnConfig
+
+    options, config, settings = CnnOptions(), CnnConfig(), CnnSettings()
+    for key in ("max_candidates", "proposal_threshold", "track_proposal_threshold",
+                "track_hold_s", "search_refines"):  # fmt: skip
+        assert getattr(options, key) == getattr(config, key) == getattr(settings, key), key
+    args = build_parser().parse_args(["bench", "detect"])
+    assert args.max_candidates == options.max_candidates
+    assert args.proposal_threshold == options.proposal_threshold
+    assert float(args.track_proposal_threshold) == options.track_proposal_threshold
+    assert args.track_hold == options.track_hold_s
+    assert args.search_refines == options.search_refines
