@@ -258,8 +258,8 @@ _BRIGHTEST = "(no detector) the ROV brightest in its band"
 _ALARM_KINDS = ("rov_found", "rov_missed", "rov_out_of_view")
 
 
-def detect_table(figures: dict[str, Any]) -> list[str]:
-    """The configured CNN per look (all pings, range bands, clutter), and the fallback."""
+def _cnn_rows(figures: dict[str, Any]) -> tuple[list[str], Callable[[str, str], str]]:
+    """The configured CNN's rows per look (all pings, range bands, clutter), and a row maker."""
     groups = figures["groups"]
     lines = [
         "| look / pings | detected | false alarms / frame | range err median (p90) "
@@ -333,8 +333,20 @@ def detect_table(figures: dict[str, Any]) -> list[str]:
                 f"of view; on the ROV's bearing | | {kinds}; "
                 f"{every['false_alarms_per_frame_on_rov_bearing']:.3f} | | |"
             )
-    lines.append(whole("classical (CFAR) fallback, held-out look", "classical / heldout / all"))
-    return lines
+    return lines, whole
+
+
+def detect_table(figures: dict[str, Any]) -> list[str]:
+    """The configured CNN per look (all pings, range bands, clutter), and the fallback."""
+    lines, whole = _cnn_rows(figures)
+    return [*lines, whole("classical (CFAR) fallback, held-out look", "classical / heldout / all")]
+
+
+def detect_gated_table(figures: dict[str, Any]) -> list[str]:
+    """The configured CNN through the service's depth-aware search, given the truth."""
+    if figures["depth_gate"] != "truth":  # another run of the bench: not this table's
+        raise KeyError("depth_gate")
+    return _cnn_rows(figures)[0]
 
 
 def finetune_table(figures: dict[str, Any]) -> list[str]:
@@ -541,6 +553,10 @@ RENDERERS: dict[str, tuple[Callable[[dict[str, Any]], list[str]], str]] = {
     "demo_summary": (demo_summary, "capsd demo"),
     "latency_table": (latency_table, "capsd bench latency"),
     "detect_table": (detect_table, "capsd bench detect --json FILE"),
+    "detect_gated_table": (
+        detect_gated_table,
+        "capsd bench detect --detector cnn --depth-gate truth --json FILE",
+    ),
     "consistency_table": (consistency_table, "capsd bench consistency"),
     "finetune_table": (finetune_table, "capsd bench finetune"),
     "calibrate_table": (calibrate_table, "capsd bench calibrate"),

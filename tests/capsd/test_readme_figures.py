@@ -107,3 +107,21 @@ def test_the_detect_table_gives_the_spread_over_runs() -> None:
     spread["detection_rate_by_run"] = [None, None, None]
     rows = [line for line in readme_figures.detect_table(figures) if "run by run" in line]
     assert "| - to -; " in rows[1]
+
+
+def test_the_gated_detect_table_takes_only_the_gated_bench() -> None:
+    from capsd import readme_figures
+
+    figures = json.loads((REPO / "docs/figures/detect.json").read_text())
+    assert figures["depth_gate"] == "off"
+    with pytest.raises(KeyError, match="depth_gate"):
+        readme_figures.detect_gated_table(figures)
+    # The gated bench runs the CNN alone: no fallback row, the CNN's rows as the plain table's.
+    figures["depth_gate"] = "truth"
+    figures["groups"] = {k: v for k, v in figures["groups"].items() if "classical" not in k}
+    gated = readme_figures.detect_gated_table(figures)
+    assert not any("classical" in line for line in gated)
+    with pytest.raises(KeyError, match="classical"):
+        readme_figures.detect_table(figures)
+    assert gated[0].startswith("| look / pings |")
+    assert any(line.startswith("| held-out look, all |") for line in gated)

@@ -211,3 +211,50 @@ def test_what_the_gate_rules_out_takes_nothing_from_the_one_rov() -> None:
     assert [d.range_m for d in kept] == [8.6]
     assert kept[0].confidence == pytest.approx(0.038 / 0.061)
     assert (rejected, ambiguous) == (0, 2)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    pitch=st.floats(15.0, 45.0),
+    pitch_error=st.floats(-2.0, 2.0),
+    roll_error=st.floats(-2.0, 2.0),
+    range_m=st.floats(0.5, 20.0),
+    azimuth_deg=st.floats(-60.0, 60.0),
+    elevation_deg=st.floats(-10.0, 10.0),
+    off_plane_m=st.floats(-0.3, 0.3),
+)
+def test_the_default_gate_keeps_a_rov_within_its_error_budget(
+    pitch: float,
+    pitch_error: float,
+    roll_error: float,
+    range_m: float,
+    azimuth_deg: float,
+    elevation_deg: float,
+    off_plane_m: float,
+) -> None:
+    # The sonar truly pitched and rolled up to 2 deg off what the gate is told, the ROV's
+    # echo inside the nominal aperture and up to 0.3 m off the plane the depth reading gives.
+    told = DepthGateConfig()
+    true_sonar = _sonar(pitch + pitch_error, 0.0, roll_error)
+    p_s = range_m * beam_direction(
+        "conical", math.radians(azimuth_deg), math.radians(elevation_deg)
+    )
+    rov_z = float(true_sonar.apply(p_s)[2]) + off_plane_m
+    r, theta, _ = to_polar("conical", p_s)
+    gate = told.gate_at(_sonar(pitch, 0.0, 0.0), rov_z)
+    assert gate.plausible(r, theta)
+
+
+def test_the_default_gate_rejects_clutter_over_a_near_rov() -> None:
+    # Session 66's run 121 (mockup, the ASV still): the sonar 0.19 m deep, 31 deg down, the
+    # ROV's centre 1.14 m deep 1.42 m off; a box 0.83 m off on the boresight reaches 0.81 m
+    # deep at most within the aperture and its margin (48 deg down): 0.33 m above the ROV's
+    # plane. The 0.6 m tolerance before session 66 let it through.
+    sonar = Transform.from_euler_zyx(
+        (0.0, 0.0, -0.19), yaw_rad=0.0, pitch_rad=math.radians(31.0), roll_rad=0.0
+    )
+    gate = DepthGateConfig().gate_at(sonar, -1.14)
+    assert not gate.plausible(0.83, 0.0)
+    assert DepthGateConfig(tolerance_m=0.6).gate_at(sonar, -1.14).plausible(0.83, 0.0)
+    # The ROV itself, 1.42 m off and 11 deg under the boresight, passes.
+    assert gate.plausible(1.42, 0.0)
