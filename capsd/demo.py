@@ -106,8 +106,9 @@ def main(
     measured (docs/INSTALL-ERRORS.md), uncalibrated unless `calibration` is "dive" (first a
     simulated calibration dive fitted by capsd calibrate's code, as a field team starts);
     "off" a perfect one. `detector_config`: a sonar_detect config whose detector settings
-    (harness.DETECTOR_KEYS) the detection service runs with instead of its defaults. `record_view`:
-    whether the recording also holds the operator's scene (capsd record --view).
+    (harness.DETECTOR_KEYS, the depth gate's GATE_KEYS) the detection service runs with
+    instead of its defaults. `record_view`: whether the recording also holds the operator's
+    scene (capsd record --view).
     """
     from capsd import plots
 

@@ -255,6 +255,9 @@ def start_station(
 # The keys of a sonar_detect config that say how it detects (`capsd demo --detector-config`);
 # the rest (bus, site, names, the depth gate's mount) is the demo's to set.
 DETECTOR_KEYS = ("detector", "cnn", "classical", "min_confidence")
+# The depth gate's own settings a detector config carries into the demo; not its vehicles or
+# its sonar mount (where it listens and what it looks through: the demo's).
+GATE_KEYS = ("mode", "tolerance_m", "aperture_margin_deg", "max_age_s")
 
 
 def detector_settings_of(path: Path) -> dict[str, Any]:
@@ -268,7 +271,8 @@ def detector_settings_of(path: Path) -> dict[str, Any]:
     from capsd.services.sonar_detect.service import Config as SonarDetectConfig
 
     config = msgspec.to_builtins(load_config(path, SonarDetectConfig))
-    return {k: config[k] for k in DETECTOR_KEYS}
+    gate = {k: config["depth_gate"][k] for k in GATE_KEYS}
+    return {**{k: config[k] for k in DETECTOR_KEYS}, "depth_gate": gate}
 
 
 def write_configs(
@@ -384,11 +388,16 @@ def write_configs(
             "lidar_height_m": run.lidar.position_m[2],
         },
         # The depth gate looks through the same mount as the locator (the mockup's sonar is
-        # pitched 45 deg; the gate had the default 30 deg).
+        # pitched 45 deg; the gate had the default 30 deg), its other settings the detector
+        # config's.
         "sonar_detect": {
             **(detector_settings or {}),
             "bus": bus,
-            **({"depth_gate": told} if told else {}),
+            **(
+                {"depth_gate": gate}
+                if (gate := {**(detector_settings or {}).get("depth_gate", {}), **told})
+                else {}
+            ),
         },
         "locator": {
             "bus": bus,

@@ -122,8 +122,8 @@ def register(sub: Subcommands) -> None:
         type=Path,
         default=None,
         help="a sonar_detect config (e.g. a copy of deploy/config/sonar_detect.yaml) whose "
-        "detector settings (detector, cnn, classical, min_confidence) the detection service "
-        "runs with; its bus, names and sonar mount stay the demo's (default: the service's "
-        "defaults)",
+        "detector settings (detector, cnn, classical, min_confidence, and the depth gate's "
+        "mode, tolerance, margin and age) the detection service runs with; its bus, names and "
+        "sonar mount stay the demo's (default: the service's defaults)",
     )
     dem.set_defaults(func=_cmd_demo)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import msgspec
 import pytest
 import yaml
 
@@ -116,3 +117,15 @@ def test_a_bare_off_is_the_choice_off_and_true_stays_a_boolean() -> None:
     }  # fmt: skip
     # The stock loader is left as it was.
     assert yaml.safe_load("d: on\n") == {"d": True}
+
+
+def test_the_shipped_depth_gate_sees_the_sonar_where_the_locator_does() -> None:
+    # Two services, two files: a mount changed in one only would gate every ping against a
+    # sonar that is not there (the gate's margins allow for a protractor's error, not more).
+    from capsd.services.sonar_detect.service import Config as DetectConfig
+
+    locator = load_config(Path("deploy/config/locator.yaml"), LocatorConfig).sonar
+    gate = load_config(Path("deploy/config/sonar_detect.yaml"), DetectConfig).depth_gate
+    assert gate.mode == "reject"
+    # The range offset is the locator's alone (the gate never reads a range so finely).
+    assert msgspec.structs.replace(gate.sonar, range_offset_m=locator.range_offset_m) == locator

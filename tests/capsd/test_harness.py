@@ -87,9 +87,12 @@ def test_a_detector_config_sets_how_it_detects_not_where_it_listens(tmp_path: Pa
         ("  max_candidates: 6 ", "  max_candidates: 5 "),  # the cnn's (the classical's: 3)
         ("min_confidence: 0.5", "min_confidence: 0.6"),
         ("connect: [tcp/127.0.0.1:7447]", "connect: [tcp/192.0.2.1:7447]"),  # never the demo's
+        ("  tolerance_m: 0.3 ", "  tolerance_m: 0.4 "),  # the depth gate's
+        ("    pitch_deg: 30.0", "    pitch_deg: 10.0"),  # the depth gate's sonar: never the demo's
+        ("  mode: reject ", "  mode: reject\n  rov_vehicle: bluerov "),  # never the demo's
     ):
+        assert old in text
         text = text.replace(old, new)
-    text += "depth_gate:\n  tolerance_m: 0.4\n  sonar:\n    pitch_deg: 10.0\n"
     path = tmp_path / "sonar_detect.yaml"
     path.write_text(text)
     settings = detector_settings_of(path)
@@ -99,8 +102,10 @@ def test_a_detector_config_sets_how_it_detects_not_where_it_listens(tmp_path: Pa
     assert detect["cnn"]["max_candidates"] == 5
     assert detect["min_confidence"] == 0.6
     assert detect["bus"] == {"connect": [ENDPOINT]}
+    # The gate's own settings the file's, what it looks through and listens to the demo's.
     assert detect["depth_gate"]["sonar"] == configs["locator"]["sonar"]
-    assert "tolerance_m" not in detect["depth_gate"]
+    assert detect["depth_gate"]["tolerance_m"] == 0.4
+    assert "rov_vehicle" not in detect["depth_gate"]
     plain = _configs(tmp_path / "plain", tank="mockup")["sonar_detect"]
     assert "cnn" not in plain
     path.write_text("cnn:\n  close_proposal: maybe\n")
