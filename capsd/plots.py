@@ -1,4 +1,4 @@
-"""The paper's figures as PNGs: 3D trajectory against truth, per-axis position, error histograms.
+"""The benches' PNGs: 3D trajectory against truth, per-axis position, errors, detector examples.
 
 matplotlib with the Agg backend (no display needed); only topside installs draw.
 """
@@ -6,6 +6,7 @@ matplotlib with the Agg backend (no display needed); only topside installs draw.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import matplotlib
 
@@ -15,6 +16,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from capsd.accuracy import Accuracy
+
+if TYPE_CHECKING:
+    from capsd.bench.detect import Example
 
 
 def _series(accuracy: Accuracy) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -152,3 +156,58 @@ def sigma_strips(groups: dict[str, list[float]], out: Path, *, title: str, limit
     fig.tight_layout()
     fig.savefig(out, dpi=110)
     plt.close(fig)
+
+
+def example_sheets(
+    found: dict[tuple[str, str], list[Example]], out: Path, *, detector: str
+) -> list[Path]:
+    """One PNG per look: a row per run, its misses then its false alarms (`bench.detect`).
+
+    `found` maps (look, run) to examples: a crop of the normalised image
+    around the place (range up, cross-range right), what it was, and when.
+    """
+    paths = []
+    for look in dict.fromkeys(look for look, _ in found):
+        rows = [(run, found[(lk, run)]) for lk, run in found if lk == look and found[(lk, run)]]
+        if not rows:
+            continue
+        columns = max(len(examples) for _, examples in rows)
+        fig, axes = plt.subplots(
+            len(rows), columns, figsize=(1.9 * columns, 2.1 * len(rows)), squeeze=False
+        )
+        for (run, examples), line in zip(rows, axes, strict=True):
+            for k, ax in enumerate(line):
+                ax.set_xticks([])
+                ax.set_yticks([])
+                if k >= len(examples):
+                    ax.axis("off")
+                    continue
+                e = examples[k]
+                colour = "green" if e.kind == "missed" else "red"
+                show_crop(ax, e.crop, title=e.title, colour=colour, fontsize=6)
+                if k == 0:
+                    ax.set_ylabel(run, fontsize=6)
+        fig.suptitle(
+            f"{detector}, look '{look}': misses (green cross: the ROV's centre) and false alarms "
+            "(red cross), a 1.9 m square each, range up, cross-range right"
+        )
+        paths.append(save_sheet(fig, out / f"examples_{look}.png"))
+    return paths
+
+
+def show_crop(ax: Any, crop: np.ndarray, *, title: str, colour: str, fontsize: int) -> None:
+    """A polar_input crop of the normalised image, a cross on its centre, titled."""
+    from capsd.services.sonar_detect.polar_input import NORM_HIGH, NORM_LOW
+
+    ax.imshow(crop, cmap="gray", vmin=NORM_LOW, vmax=NORM_HIGH, origin="lower")
+    c = (crop.shape[0] - 1) / 2
+    ax.plot([c], [c], "+", color=colour, markersize=10)
+    ax.set_title(title, fontsize=fontsize, color=colour)
+
+
+def save_sheet(fig: Any, path: Path) -> Path:
+    """Lay out, write (70 dpi) and close a sheet of crops."""
+    fig.tight_layout()
+    fig.savefig(path, dpi=70)
+    plt.close(fig)
+    return path

@@ -54,7 +54,7 @@ from capsd.progress import Progress
 from capsd.services.sonar_detect.depth_gate import DepthGate
 from capsd.services.sonar_detect.one_rov import Confidence, scored
 from capsd.services.sonar_detect.paper_box import box_centre
-from capsd.services.sonar_detect.polar_input import BeamTable
+from capsd.services.sonar_detect.polar_input import BeamTable, crop, normalised_image
 from capsd.services.sonar_detect.service import CnnConfig, DepthGateConfig, detect_gated
 from capsd.simulator.config import OFFLINE_START_NS, Config, SonarImageConfig, Streams
 from capsd.simulator.install_errors import InstallErrorsConfig
@@ -415,6 +415,61 @@ def sonar_only(
     return config
 
 
+# `capsd bench detect --examples DIR`: per look and run, this many misses and false alarms of
+# the configured CNN, at most one of each kind per EXAMPLE_SPACING_S of the run's time (a
+# run's consecutive pings look alike).
+EXAMPLES_PER_KIND = 4
+EXAMPLE_SPACING_S = 1.0
+ExampleKind = Literal["missed", "false alarm"]
+
+
+@dataclass(frozen=True)
+class Example:
+    """One ping's miss or false alarm: the detector's input around it, and what it was."""
+
+    kind: ExampleKind
+    crop: np.ndarray  # polar_input.crop of the normalised image, centred on the place
+    title: str
+
+
+@dataclass
+class Examples:
+    """Misses and false alarms of one detector, by look and run, for a person to look at."""
+
+    detector: str = "cnn"
+    found: dict[tuple[str, str], list[Example]] = field(default_factory=dict)
+    _last_s: dict[tuple[str, str, ExampleKind], float] = field(default_factory=dict)
+
+    def note(
+        self, look: str, run: Run, t_s: float, frame: SonarFrame, label: SonarLabel,
+        found: list[Detection],
+    ) -> None:  # fmt: skip
+        """Keep this ping's miss and first false alarm where the run still wants them."""
+        match = matched(label, found)
+        places: list[tuple[ExampleKind, float, float, str]] = []
+        if label.visible and match is None:
+            surest = max((d.confidence for d in found), default=None)
+            others = "nothing else" if surest is None else f"else {surest:.2f}"
+            places.append(("missed", label.range_m, label.azimuth_rad,
+                           f"missed {label.range_m:.1f} m, {others}"))  # fmt: skip
+        alarms = [d for d in found if d is not match]
+        if alarms:
+            d = alarms[0]
+            places.append(("false alarm", d.range_m, d.azimuth_rad,
+                           f"alarm {d.range_m:.1f} m, {d.confidence:.2f}"))  # fmt: skip
+        key = (look, run_group("", run).removeprefix(" / run "))
+        kept = self.found.setdefault(key, [])
+        for kind, range_m, azimuth_rad, title in places:
+            last = self._last_s.get((*key, kind))
+            count = sum(e.kind == kind for e in kept)
+            if count >= EXAMPLES_PER_KIND or (last is not None and t_s - last < EXAMPLE_SPACING_S):
+                continue
+            image = crop(normalised_image(frame), frame, BeamTable(frame.azimuths_rad),
+                         range_m=range_m, azimuth_rad=azimuth_rad)  # fmt: skip
+            kept.append(Example(kind, image, f"{title} ({t_s:.1f} s)"))
+            self._last_s[(*key, kind)] = t_s
+
+
 def evaluate(
     detectors: dict[str, Detector],
     *,
@@ -426,6 +481,7 @@ def evaluate(
     depth_gate: DepthGateMode = "off",
     outside_knobs: tuple[OutsideKnob, ...] | None = None,
     confidence: Confidence = "exclusive",
+    examples: Examples | None = None,
 ) -> dict[str, Tally]:
     """Every detector on every held-out run in every look (drawn from `look_seed` if given).
 
@@ -435,7 +491,8 @@ def evaluate(
     are (the service's `cnn.confidence` applies to the CNN only).
 
     Tallies are keyed 'detector / look / group', group: clear, overlap (clutter overlapping
-    the ROV), all, a range band of the ROV's true range, or one run (`run_group`).
+    the ROV), all, a range band of the ROV's true range, or one run (`run_group`). With
+    `examples`, its detector's misses and false alarms kept for a person to look at.
     """
     tallies: dict[str, Tally] = defaultdict(Tally)
     # The shipped weights' range table, where the service's default applies it (gated only).
@@ -469,6 +526,8 @@ def evaluate(
                         score(tallies, f"{name} / {look}", label, found,
                               half_aperture_rad=half_aperture)  # fmt: skip
                         _score(tallies[run_group(f"{name} / {look}", run)], label, found)
+                        if examples is not None and name == examples.detector:
+                            examples.note(look, run, t_s, frame, label, found)
                     score(tallies, f"paper: box centre / {look}", label, box_centre(label),
                           half_aperture_rad=half_aperture)  # fmt: skip
                     score(tallies, f"{BRIGHTEST} / {look}", label,
@@ -553,19 +612,25 @@ def score(
         _score(tallies[group], label, found)
 
 
+def matched(label: SonarLabel, found: list[Detection]) -> Detection | None:
+    """The candidate scored as the ROV found: the surest within MATCH_M of it (None: missed)."""
+    if not label.visible:
+        return None
+    near = [
+        d
+        for d in found
+        if abs(d.range_m - label.range_m) < MATCH_M
+        and abs(d.azimuth_rad - label.azimuth_rad) * label.range_m < MATCH_M
+    ]
+    return max(near, key=lambda d: d.confidence) if near else None
+
+
 def _score(tally: Tally, label: SonarLabel, found: list[Detection]) -> None:
     tally.frames += 1
-    match = None
+    match = matched(label, found)
     if label.visible:
         tally.visible += 1
-        near = [
-            d
-            for d in found
-            if abs(d.range_m - label.range_m) < MATCH_M
-            and abs(d.azimuth_rad - label.azimuth_rad) * label.range_m < MATCH_M
-        ]
-        if near:
-            match = max(near, key=lambda d: d.confidence)
+        if match is not None:
             tally.hits += 1
             tally.range_err.append(match.range_m - label.range_m)
             tally.azimuth_err.append(math.degrees(match.azimuth_rad - label.azimuth_rad))
@@ -716,8 +781,10 @@ def run(
     outside_knobs: tuple[OutsideKnob, ...] | None = None,
     runs: tuple[Run, ...] = RUNS,
     confidence: Confidence = "exclusive",
+    examples_dir: Path | None = None,
 ) -> int:
     detectors = _detectors(which, weights, options=options)
+    examples = Examples() if examples_dir is not None and "cnn" in detectors else None
     tallies = evaluate(
         detectors,
         duration_s=duration_s,
@@ -727,7 +794,14 @@ def run(
         looks=looks,
         outside_knobs=outside_knobs,
         confidence=confidence,
+        examples=examples,
     )
+    if examples is not None and examples_dir is not None:
+        from capsd.plots import example_sheets
+
+        examples_dir.mkdir(parents=True, exist_ok=True)
+        for path in example_sheets(examples.found, examples_dir, detector=examples.detector):
+            print(f"examples: {path}")
     if json_out is not None:
         json_out.parent.mkdir(parents=True, exist_ok=True)
         figures = {

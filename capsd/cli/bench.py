@@ -118,6 +118,7 @@ def _cmd_bench_detect(args: argparse.Namespace) -> int:
         looks=tuple(dict.fromkeys(args.looks)) if args.looks else detect.LOOKS,
         outside_knobs=outside_knobs,
         runs=detect.RUN_SETS[args.runs],
+        examples_dir=args.examples,
         confidence=args.confidence,
     )
 
@@ -277,6 +278,14 @@ def register(sub: Subcommands) -> None:
         "(default 0 120 240: the start and two later stretches)",
     )
     bdet.add_argument("--json", type=Path, default=None, help="also write the figures as JSON")
+    bdet.add_argument(
+        "--examples",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="also write PNGs of the configured CNN's misses and false alarms here, one per "
+        "look, a row per run",
+    )
     bdet.add_argument(
         "--runs",
         choices=["held-out", "near", "close"],

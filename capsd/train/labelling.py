@@ -157,18 +157,10 @@ def frames_of(labels: Iterable[LabelledPing]) -> Iterable[tuple[SonarFrame, Labe
 
 def contact_sheets(labels: list[LabelledPing], out: Path) -> list[Path]:
     """PNG pages of numbered crops, each centred on its label (a cross marks the centre)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from capsd.services.sonar_detect.polar_input import (
-        NORM_HIGH,
-        NORM_LOW,
-        BeamTable,
-        crop,
-        normalised_image,
-    )
+    from capsd.plots import save_sheet, show_crop  # matplotlib's Agg backend chosen there
+    from capsd.services.sonar_detect.polar_input import BeamTable, crop, normalised_image
 
     per_sheet = SHEET_COLUMNS * SHEET_ROWS
     paths = []
@@ -189,17 +181,11 @@ def contact_sheets(labels: list[LabelledPing], out: Path) -> list[Path]:
                 range_m=label.range_m,
                 azimuth_rad=label.azimuth_rad,
             )
-            ax.imshow(patch, cmap="gray", vmin=NORM_LOW, vmax=NORM_HIGH, origin="lower")
-            c = (patch.shape[0] - 1) / 2
-            ax.plot([c], [c], "r+", markersize=10)
-            ax.set_title(f"{first + k}: {label.range_m:.1f} m", fontsize=8)
+            show_crop(ax, patch, title=f"{first + k}: {label.range_m:.1f} m", colour="red",
+                      fontsize=8)  # fmt: skip
         fig.suptitle(
             f"labelled crops {first}-{min(first + per_sheet, len(items)) - 1} "
             "(1.9 m square; range up, cross-range right); reject by number in rejected.txt"
         )
-        fig.tight_layout()
-        path = out / f"sheet_{first // per_sheet:03d}.png"
-        fig.savefig(path, dpi=70)
-        plt.close(fig)
-        paths.append(path)
+        paths.append(save_sheet(fig, out / f"sheet_{first // per_sheet:03d}.png"))
     return paths

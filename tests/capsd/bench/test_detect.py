@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from collections import defaultdict
@@ -11,8 +12,11 @@ import msgspec
 import pytest
 
 from capsd.bench.detect import (
+    EXAMPLE_SPACING_S,
+    EXAMPLES_PER_KIND,
     RUNS,
     Detector,
+    Examples,
     Tally,
     aperture_place,
     azimuth_band,
@@ -440,3 +444,40 @@ def test_the_bench_s_cnn_defaults_are_the_service_s() -> None:
     assert float(args.track_proposal_threshold) == options.track_proposal_threshold
     assert args.track_hold == options.track_hold_s
     assert args.search_refines == options.search_refines
+
+
+def test_examples_keep_misses_and_false_alarms_spaced_and_few(tmp_path: Path) -> None:
+    from capsd.plots import example_sheets
+
+    frame = _band_frame([(40, 30, 200), (70, 10, 200)])
+    label = _footprint(frame)
+    rov, clutter = _at(2.15)[0], _alarm(3.6, frame.azimuths_rad[12])
+    examples = Examples()
+    run, other = RUNS[0], RUNS[1]
+    pings = [(k * 0.25, found) for k in range(40) for found in ([rov, clutter], [])]
+    for t_s, found in pings:  # every 0.25 s the ROV found beside a false alarm, then missed
+        examples.note("heldout", run, t_s, frame, label, found)
+    kept = examples.found[("heldout", f"{run[0]} {run[1]} {run[2]} {run[3]}")]
+    assert [e.kind for e in kept].count("missed") == EXAMPLES_PER_KIND
+    assert [e.kind for e in kept].count("false alarm") == EXAMPLES_PER_KIND
+    # At most one of a kind per EXAMPLE_SPACING_S of the run: not its first consecutive pings.
+    times = [
+        float(e.title.rsplit("(", 1)[1].removesuffix(" s)")) for e in kept if e.kind == "missed"
+    ]
+    assert all(b - a >= EXAMPLE_SPACING_S for a, b in itertools.pairwise(times))
+    alarm = next(e for e in kept if e.kind == "false alarm")
+    assert alarm.title.startswith("alarm 3.6 m, 0.80")
+    # Centred on the place: the clutter patch in the middle of its crop, brighter than water.
+    c = alarm.crop.shape[0] // 2
+    assert alarm.crop[c - 2 : c + 3, c - 2 : c + 3].mean() > alarm.crop[:5, :5].mean()
+    # A ping without the ROV in view is no miss; the surest candidate is named in a miss.
+    examples.note("heldout", other, 0.0, frame, msgspec.structs.replace(label, visible=False), [])
+    assert ("heldout", f"{other[0]} {other[1]} {other[2]} {other[3]}") in examples.found
+    assert not examples.found[("heldout", f"{other[0]} {other[1]} {other[2]} {other[3]}")]
+    examples.note("off", other, 0.0, frame, label, [clutter])
+    miss, alarm_off = examples.found[("off", f"{other[0]} {other[1]} {other[2]} {other[3]}")]
+    assert miss.title.startswith(f"missed {label.range_m:.1f} m, else 0.80")
+    assert (miss.kind, alarm_off.kind) == ("missed", "false alarm")
+    paths = example_sheets(examples.found, tmp_path, detector="cnn")
+    assert [p.name for p in paths] == ["examples_heldout.png", "examples_off.png"]
+    assert all(p.stat().st_size > 1000 for p in paths)
