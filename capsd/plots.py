@@ -168,7 +168,11 @@ def example_sheets(
     """
     paths = []
     for look in dict.fromkeys(look for look, _ in found):
-        rows = [(run, found[(lk, run)]) for lk, run in found if lk == look and found[(lk, run)]]
+        rows = [
+            (run, sorted(found[(lk, run)], key=lambda e: e.kind != "missed"))  # misses first
+            for lk, run in found
+            if lk == look and found[(lk, run)]
+        ]
         if not rows:
             continue
         columns = max(len(examples) for _, examples in rows)
@@ -206,8 +210,8 @@ def show_crop(ax: Any, crop: np.ndarray, *, title: str, colour: str, fontsize: i
 
 
 def save_sheet(fig: Any, path: Path) -> Path:
-    """Lay out, write (70 dpi) and close a sheet of crops."""
-    fig.tight_layout()
+    """Lay out (room at the top for its title), write (70 dpi) and close a sheet of crops."""
+    fig.tight_layout(rect=(0.0, 0.0, 1.0, 1.0 - 0.4 / fig.get_figheight()))
     fig.savefig(path, dpi=70)
     plt.close(fig)
     return path

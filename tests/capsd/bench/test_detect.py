@@ -478,6 +478,8 @@ def test_examples_keep_misses_and_false_alarms_spaced_and_few(tmp_path: Path) ->
     miss, alarm_off = examples.found[("off", f"{other[0]} {other[1]} {other[2]} {other[3]}")]
     assert miss.title.startswith(f"missed {label.range_m:.1f} m, else 0.80")
     assert (miss.kind, alarm_off.kind) == ("missed", "false alarm")
+    # Gathered as they came (the sheet draws a run's misses first).
+    assert [e.kind for e in kept[:2]] == ["false alarm", "missed"]
     paths = example_sheets(examples.found, tmp_path, detector="cnn")
     assert [p.name for p in paths] == ["examples_heldout.png", "examples_off.png"]
     assert all(p.stat().st_size > 1000 for p in paths)
