@@ -448,8 +448,10 @@ class Examples:
         match = matched(label, found)
         places: list[tuple[ExampleKind, float, float, str]] = []
         if label.visible and match is None:
+            # `found` holds the sure candidates only: whether the ROV was proposed and scored
+            # under the bar is not told here.
             surest = max((d.confidence for d in found), default=None)
-            others = "nothing else" if surest is None else f"else {surest:.2f}"
+            others = "nothing sure" if surest is None else f"{surest:.2f} elsewhere"
             places.append(("missed", label.range_m, label.azimuth_rad,
                            f"missed {label.range_m:.1f} m, {others}"))  # fmt: skip
         alarms = [d for d in found if d is not match]

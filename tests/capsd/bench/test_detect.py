@@ -465,6 +465,9 @@ def test_examples_keep_misses_and_false_alarms_spaced_and_few(tmp_path: Path) ->
         float(e.title.rsplit("(", 1)[1].removesuffix(" s)")) for e in kept if e.kind == "missed"
     ]
     assert all(b - a >= EXAMPLE_SPACING_S for a, b in itertools.pairwise(times))
+    assert next(e for e in kept if e.kind == "missed").title.startswith(
+        f"missed {label.range_m:.1f} m, nothing sure"
+    )
     alarm = next(e for e in kept if e.kind == "false alarm")
     assert alarm.title.startswith("alarm 3.6 m, 0.80")
     # Centred on the place: the clutter patch in the middle of its crop, brighter than water.
@@ -476,7 +479,7 @@ def test_examples_keep_misses_and_false_alarms_spaced_and_few(tmp_path: Path) ->
     assert not examples.found[("heldout", f"{other[0]} {other[1]} {other[2]} {other[3]}")]
     examples.note("off", other, 0.0, frame, label, [clutter])
     miss, alarm_off = examples.found[("off", f"{other[0]} {other[1]} {other[2]} {other[3]}")]
-    assert miss.title.startswith(f"missed {label.range_m:.1f} m, else 0.80")
+    assert miss.title.startswith(f"missed {label.range_m:.1f} m, 0.80 elsewhere")
     assert (miss.kind, alarm_off.kind) == ("missed", "false alarm")
     # Gathered as they came (the sheet draws a run's misses first).
     assert [e.kind for e in kept[:2]] == ["false alarm", "missed"]
