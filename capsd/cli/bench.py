@@ -43,6 +43,14 @@ def _cmd_bench_detect(args: argparse.Namespace) -> int:
         if not weights.is_file():
             return fail(f"bench detect: --weights {weights}: no such file", EXIT_CONFIG)
     mirrors = tuple(dict.fromkeys(args.mirror_average))
+    if args.examples is not None and (
+        args.detector == "classical" or args.throughput or args.prior_sweep
+    ):
+        return fail(
+            "bench detect: --examples draws the configured CNN's misses and false alarms on the "
+            "held-out runs: not with --detector classical, --throughput or --prior-sweep",
+            EXIT_CONFIG,
+        )
     if args.throughput:
         return detect.run_throughput(
             frames=args.frames,

@@ -302,6 +302,17 @@ def test_the_rov_is_the_brightest_of_its_band_unless_something_there_outshines_i
 
 
 @pytest.mark.parametrize(
+    "extra", [["--detector", "classical"], ["--throughput"], ["--prior-sweep", "1"]]
+)
+def test_examples_are_refused_where_no_cnn_is_scored(
+    extra: list[str], tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["bench", "detect", "--examples", str(tmp_path), *extra]) == 2
+    assert "--examples" in capfd.readouterr().err
+    assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize(
     "extra",
     [
         ["--outside-knobs", "gamma"],  # without the outside look
