@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import itertools
 import math
 
 import msgspec
@@ -213,36 +214,30 @@ def test_what_the_gate_rules_out_takes_nothing_from_the_one_rov() -> None:
     assert (rejected, ambiguous) == (0, 2)
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(
     pitch=st.floats(15.0, 45.0),
-    pitch_error=st.floats(-2.0, 2.0),
-    roll_error=st.floats(-2.0, 2.0),
     range_m=st.floats(0.5, 20.0),
     azimuth_deg=st.floats(-60.0, 60.0),
-    elevation_deg=st.floats(-10.0, 10.0),
-    off_plane_m=st.floats(-0.3, 0.3),
 )
 def test_the_default_gate_keeps_a_rov_within_its_error_budget(
-    pitch: float,
-    pitch_error: float,
-    roll_error: float,
-    range_m: float,
-    azimuth_deg: float,
-    elevation_deg: float,
-    off_plane_m: float,
+    pitch: float, range_m: float, azimuth_deg: float
 ) -> None:
-    # The sonar truly pitched and rolled up to 2 deg off what the gate is told, the ROV's
-    # echo inside the nominal aperture and up to 0.3 m off the plane the depth reading gives.
+    # The worst corners of the budget: the sonar truly pitched and rolled 2 deg off what the
+    # gate is told, the ROV's echo at the nominal aperture's edge and 0.3 m off the plane the
+    # depth reading gives, each either way.
     told = DepthGateConfig()
-    true_sonar = _sonar(pitch + pitch_error, 0.0, roll_error)
-    p_s = range_m * beam_direction(
-        "conical", math.radians(azimuth_deg), math.radians(elevation_deg)
-    )
-    rov_z = float(true_sonar.apply(p_s)[2]) + off_plane_m
-    r, theta, _ = to_polar("conical", p_s)
-    gate = told.gate_at(_sonar(pitch, 0.0, 0.0), rov_z)
-    assert gate.plausible(r, theta)
+    for pitch_error, roll_error, elevation_deg, off_plane_m in itertools.product(
+        (-2.0, 2.0), (-2.0, 2.0), (-10.0, 10.0), (-0.3, 0.3)
+    ):
+        true_sonar = _sonar(pitch + pitch_error, 0.0, roll_error)
+        p_s = range_m * beam_direction(
+            "conical", math.radians(azimuth_deg), math.radians(elevation_deg)
+        )
+        rov_z = float(true_sonar.apply(p_s)[2]) + off_plane_m
+        r, theta, _ = to_polar("conical", p_s)
+        gate = told.gate_at(_sonar(pitch, 0.0, 0.0), rov_z)
+        assert gate.plausible(r, theta), (pitch_error, roll_error, elevation_deg, off_plane_m)
 
 
 def test_the_default_gate_rejects_clutter_over_a_near_rov() -> None:
