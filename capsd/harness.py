@@ -376,6 +376,7 @@ def write_configs(
     heading = math.degrees(matrix_to_euler_zyx(start.asv_pose(0.0).rotation)[0]) + 20.0
     t = run.world_tank()
     tank_box = {"length_m": t.length_m, "width_m": t.width_m}
+    gate = {**(detector_settings or {}).get("depth_gate", {}), **told}
     configs = {
         "sim": sim,
         "asv_pose": {
@@ -393,11 +394,7 @@ def write_configs(
         "sonar_detect": {
             **(detector_settings or {}),
             "bus": bus,
-            **(
-                {"depth_gate": gate}
-                if (gate := {**(detector_settings or {}).get("depth_gate", {}), **told})
-                else {}
-            ),
+            **({"depth_gate": gate} if gate else {}),
         },
         "locator": {
             "bus": bus,

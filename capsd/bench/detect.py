@@ -430,6 +430,7 @@ class Example:
     kind: ExampleKind
     crop: np.ndarray  # polar_input.crop of the normalised image, centred on the place
     title: str
+    t_s: float  # into the run's paths
 
 
 @dataclass
@@ -438,7 +439,6 @@ class Examples:
 
     detector: str = "cnn"
     found: dict[tuple[str, str], list[Example]] = field(default_factory=dict)
-    _last_s: dict[tuple[str, str, ExampleKind], float] = field(default_factory=dict)
 
     def note(
         self, look: str, run: Run, t_s: float, frame: SonarFrame, label: SonarLabel,
@@ -459,17 +459,16 @@ class Examples:
             d = alarms[0]
             places.append(("false alarm", d.range_m, d.azimuth_rad,
                            f"alarm {d.range_m:.1f} m, {d.confidence:.2f}"))  # fmt: skip
-        key = (look, run_group("", run).removeprefix(" / run "))
-        kept = self.found.setdefault(key, [])
+        kept = self.found.setdefault((look, run_name(run)), [])
+        image = None  # normalised once a ping, only if an example is kept
         for kind, range_m, azimuth_rad, title in places:
-            last = self._last_s.get((*key, kind))
-            count = sum(e.kind == kind for e in kept)
-            if count >= EXAMPLES_PER_KIND or (last is not None and t_s - last < EXAMPLE_SPACING_S):
+            times = [e.t_s for e in kept if e.kind == kind]
+            if len(times) >= EXAMPLES_PER_KIND or (times and t_s - times[-1] < EXAMPLE_SPACING_S):
                 continue
-            image = crop(normalised_image(frame), frame, BeamTable(frame.azimuths_rad),
+            image = normalised_image(frame) if image is None else image
+            patch = crop(image, frame, BeamTable(frame.azimuths_rad),
                          range_m=range_m, azimuth_rad=azimuth_rad)  # fmt: skip
-            kept.append(Example(kind, image, f"{title} ({t_s:.1f} s)"))
-            self._last_s[(*key, kind)] = t_s
+            kept.append(Example(kind, patch, f"{title} ({t_s:.1f} s)", t_s))
 
 
 def evaluate(
@@ -540,10 +539,15 @@ def evaluate(
     return dict(tallies)
 
 
+def run_name(run: Run) -> str:
+    """'tank trajectory asv_mode seed'."""
+    tank, trajectory, asv_mode, seed = run
+    return f"{tank} {trajectory} {asv_mode} {seed}"
+
+
 def run_group(prefix: str, run: Run) -> str:
     """The tally of one run's pings under `prefix` ('detector / look')."""
-    tank, trajectory, asv_mode, seed = run
-    return f"{prefix} / run {tank} {trajectory} {asv_mode} {seed}"
+    return f"{prefix} / run {run_name(run)}"
 
 
 RESAMPLES = 2000
