@@ -90,6 +90,13 @@ class Calibration:
         pitched = self.pitch_fit is not None and self.pitch_fit.determined
         return mount or ranged or pitched or (d is not None and d.determined)
 
+    @property
+    def mount_changed(self) -> bool:
+        """Whether a fit of the sonar mount ran (its config section is then rewritten)."""
+        ranged = self.range_fit is not None and self.range_fit.determined
+        pitched = self.pitch_fit is not None and self.pitch_fit.determined
+        return self.mount_fit is not None or ranged or pitched
+
 
 @dataclass
 class _Streams:
@@ -323,27 +330,63 @@ def installation_after(
     )
 
 
-def write_config(source: Path, out: Path, calibration: Calibration, recording: Path) -> None:
-    """A copy of the locator config `source` with what was calibrated, and its provenance."""
+def write_config(
+    source: Path, out: Path, calibration: Calibration, recording: Path
+) -> dict[str, Any]:
+    """A copy of the locator config `source` with what was calibrated, and its provenance.
+
+    Returns what it wrote (the config's data).
+    """
     data: dict[str, Any] = yaml.safe_load(source.read_text()) or {}
-    ranged = calibration.range_fit is not None and calibration.range_fit.determined
-    pitched = calibration.pitch_fit is not None and calibration.pitch_fit.determined
-    if calibration.mount_fit is not None or ranged or pitched:
-        mount = calibration.mount
-        sonar = dict(data.get("sonar") or {})
-        sonar.update(
-            position_m=list(mount.position_m),
-            yaw_deg=mount.yaw_deg,
-            pitch_deg=mount.pitch_deg,
-            roll_deg=mount.roll_deg,
-            range_offset_m=mount.range_offset_m,
-        )
-        data["sonar"] = sonar
+    if calibration.mount_changed:
+        data["sonar"] = calibrated_sonar(data.get("sonar") or {}, calibration)
     if calibration.depth_fit is not None and calibration.depth_fit.determined:
         rov = dict(data.get("rov") or {})
         rov["depth_offset_m"] = calibration.rov.depth_offset_m
         data["rov"] = rov
     data["installation"] = msgspec.to_builtins(calibration.installation)
+    _write(out, data, source, calibration, recording)
+    return data
+
+
+def write_detector_config(
+    source: Path,
+    out: Path,
+    calibration: Calibration,
+    recording: Path,
+    *,
+    locator_sonar: dict[str, Any],
+) -> None:
+    """A copy of the sonar_detect config `source` whose depth gate sees the calibrated sonar.
+
+    The gate's `sonar` section becomes the calibrated locator's whole `sonar` section
+    (`locator_sonar`, as `write_config` wrote it: the mount and its servos), so that the
+    detector rules candidates out against the sonar the locator fixes with.
+    """
+    data: dict[str, Any] = yaml.safe_load(source.read_text()) or {}
+    gate = dict(data.get("depth_gate") or {})
+    gate["sonar"] = locator_sonar
+    data["depth_gate"] = gate
+    _write(out, data, source, calibration, recording)
+
+
+def calibrated_sonar(section: dict[str, Any], calibration: Calibration) -> dict[str, Any]:
+    """A config's `sonar` section with the calibrated mount's fields (servos kept)."""
+    mount = calibration.mount
+    sonar = dict(section)
+    sonar.update(
+        position_m=list(mount.position_m),
+        yaw_deg=mount.yaw_deg,
+        pitch_deg=mount.pitch_deg,
+        roll_deg=mount.roll_deg,
+        range_offset_m=mount.range_offset_m,
+    )
+    return sonar
+
+
+def _write(
+    out: Path, data: dict[str, Any], source: Path, calibration: Calibration, recording: Path
+) -> None:
     header = [
         f"# {source.name} calibrated by `capsd calibrate {recording.name}`:",
         *(f"#   {line}" for line in calibration.lines()),

@@ -15,12 +15,20 @@ from capsd.launch import (
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
-    from capsd.calibrate import calibrate, write_config
+    from capsd.calibrate import calibrate, write_config, write_detector_config
     from capsd.config import load_config
     from capsd.services.locator.service import Config as LocatorConfig
+    from capsd.services.sonar_detect.service import Config as DetectorConfig
 
+    if (args.detector_config is None) != (args.detector_out is None):
+        return fail("calibrate: --detector-config and --detector-out go together", EXIT_CONFIG)
     try:
         locator = load_config(args.locator_config, LocatorConfig)
+        detector = (
+            None
+            if args.detector_config is None
+            else load_config(args.detector_config, DetectorConfig)
+        )
         if locator.tank is None:
             return fail(
                 f"calibrate: {args.locator_config} has no `tank` section: the walls are needed",
@@ -41,13 +49,27 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         print(line)
     if not result.determined_anything:
         return fail("calibrate: nothing was determined; no config written", EXIT_FAILURE)
-    write_config(args.locator_config, args.out, result, args.recording)
+    written = write_config(args.locator_config, args.out, result, args.recording)
     mount, rov = result.mount, result.rov
     print(
         f"wrote {args.out}: sonar yaw {mount.yaw_deg:g} deg, pitch {mount.pitch_deg:g} deg, "
         f"roll {mount.roll_deg:g} deg, position {list(mount.position_m)} m; "
         f"depth offset {rov.depth_offset_m:+g} m"
     )
+    if detector is not None:
+        write_detector_config(
+            args.detector_config,
+            args.detector_out,
+            result,
+            args.recording,
+            locator_sonar=written.get("sonar") or {},
+        )
+        before = (
+            ""
+            if detector.depth_gate.sonar == locator.sonar
+            else f" (before, it differed from {args.locator_config}'s `sonar`)"
+        )
+        print(f"wrote {args.detector_out}: its depth_gate.sonar is {args.out}'s `sonar`{before}")
     left = result.installation
     print(
         "still allowed for in every fix's covariance (1 sigma): range scale "
@@ -86,6 +108,20 @@ def register(sub: Subcommands) -> None:
         help="the locator's config during the recording (its sonar mount and tank)",
     )
     cal.add_argument("-o", "--out", type=Path, required=True, help="the calibrated config")
+    cal.add_argument(
+        "--detector-config",
+        type=Path,
+        default=None,
+        help="the sonar_detect config (e.g. deploy/config/sonar_detect.yaml): a copy whose "
+        "depth gate sees the calibrated sonar is written to --detector-out",
+    )
+    cal.add_argument(
+        "--detector-out",
+        type=Path,
+        default=None,
+        help="with --detector-config: the copy, its `depth_gate.sonar` the calibrated "
+        "locator config's `sonar`",
+    )
     cal.add_argument(
         "--what",
         choices=("all", "mount", "depth", "range", "pitch"),  # capsd.calibrate.What

@@ -31,6 +31,17 @@ def test_bad_numbers_on_the_command_line_are_usage_errors(
     assert message in capfd.readouterr().err
 
 
+def test_calibrate_writes_a_detector_copy_only_with_both_paths(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    detector = tmp_path / "sonar_detect.yaml"
+    detector.write_text("site: tank\n")
+    argv = ["calibrate", "x.mcap", "-o", str(tmp_path / "o.yaml"), "--detector-config"]
+    assert main([*argv, str(detector)]) == 2
+    assert "--detector-config and --detector-out go together" in capfd.readouterr().err
+    assert not (tmp_path / "o.yaml").exists()
+
+
 def test_tls_files_are_checked_before_joining(capfd: pytest.CaptureFixture[str]) -> None:
     assert main(["tap", "cap/**", "--tls", "/nonexistent/ca.pem", "c.pem", "k.pem"]) == 2
     assert "ca_certificate" in capfd.readouterr().err

@@ -190,10 +190,17 @@ def test_capsd_calibrate_writes_the_corrected_config(tmp_path: Path) -> None:
         "site: tank\ntank: {length_m: 20.0, width_m: 12.0, depth_m: 6.0}\n"
         "sonar: {position_m: [0.3, 0.0, -0.2], pitch_deg: 30.0}\n"
     )
-    out = tmp_path / "calibrated.yaml"
+    # The detector's gate was told another pitch by hand: the copy sees the calibrated sonar.
+    detector = tmp_path / "sonar_detect.yaml"
+    detector.write_text(
+        "site: tank\nmin_confidence: 0.6\n"
+        "depth_gate: {tolerance_m: 0.25, sonar: {position_m: [0.3, 0.0, -0.2], pitch_deg: 28.0}}\n"
+    )
+    out, detector_out = tmp_path / "calibrated.yaml", tmp_path / "detect_calibrated.yaml"
     proc = subprocess.run(
         [sys.executable, "-m", "capsd", "calibrate", str(recording), "--locator-config",
-         str(locator), "-o", str(out)],
+         str(locator), "-o", str(out), "--detector-config", str(detector),
+         "--detector-out", str(detector_out)],
         capture_output=True, text=True, timeout=120, cwd=REPO,
     )  # fmt: skip
     assert proc.returncode == 0, proc.stdout + proc.stderr
@@ -217,6 +224,11 @@ def test_capsd_calibrate_writes_the_corrected_config(tmp_path: Path) -> None:
     assert "depth offset" in proc.stdout
     assert "still allowed for in every fix's covariance" in proc.stdout
     assert out.read_text().startswith("# locator.yaml calibrated by `capsd calibrate spin.mcap`")
+    gated = yaml.safe_load(detector_out.read_text())
+    assert gated["depth_gate"]["sonar"] == written["sonar"]
+    assert gated["depth_gate"]["tolerance_m"] == 0.25  # the rest of the file as it was
+    assert gated["min_confidence"] == 0.6
+    assert "it differed from" in proc.stdout
 
 
 def test_capsd_calibrate_depth_alone_needs_no_frames(tmp_path: Path) -> None:
