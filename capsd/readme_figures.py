@@ -258,21 +258,23 @@ _BRIGHTEST = "(no detector) the ROV brightest in its band"
 _ALARM_KINDS = ("rov_found", "rov_missed", "rov_out_of_view")
 
 
-def _cnn_rows(figures: dict[str, Any]) -> tuple[list[str], Callable[[str, str], str]]:
-    """The configured CNN's rows per look (all pings, range bands, clutter), and a row maker."""
+def _detect_row(figures: dict[str, Any], label: str, name: str) -> str:
+    """One detector's row of the detect tables: all its pings in one group."""
+    g = figures["groups"][name]
+    return (
+        f"| {label} | {_pct(g['detection_rate'])} | {g['false_alarms_per_frame']:.3f} "
+        f"| {_err(g, 'range_err_cm', 'cm', 2)} | {_err(g, 'azimuth_err_deg', 'deg', 2)} |"
+    )
+
+
+def _cnn_rows(figures: dict[str, Any]) -> list[str]:
+    """The configured CNN's rows per look (all pings, range bands, clutter)."""
     groups = figures["groups"]
     lines = [
         "| look / pings | detected | false alarms / frame | range err median (p90) "
         "| bearing err median (p90) |",
         "|---|---:|---:|---:|---:|",
     ]
-
-    def whole(label: str, name: str) -> str:
-        g = groups[name]
-        return (
-            f"| {label} | {_pct(g['detection_rate'])} | {g['false_alarms_per_frame']:.3f} "
-            f"| {_err(g, 'range_err_cm', 'cm', 2)} | {_err(g, 'azimuth_err_deg', 'deg', 2)} |"
-        )
 
     def split(label: str, names: list[str]) -> str:
         found = [groups.get(n, {}) for n in names]
@@ -293,7 +295,7 @@ def _cnn_rows(figures: dict[str, Any]) -> tuple[list[str], Callable[[str, str], 
         )
 
     for look, label in (("off", "fixed look"), ("heldout", "held-out look")):
-        lines.append(whole(f"{label}, all", f"cnn / {look} / all"))
+        lines.append(_detect_row(figures, f"{label}, all", f"cnn / {look} / all"))
         spread = figures.get("over_runs", {}).get(f"cnn / {look}")  # since session 65
         if spread is not None:
             # Runs without the ROV in view have no detection rate.
@@ -333,20 +335,20 @@ def _cnn_rows(figures: dict[str, Any]) -> tuple[list[str], Callable[[str, str], 
                 f"of view; on the ROV's bearing | | {kinds}; "
                 f"{every['false_alarms_per_frame_on_rov_bearing']:.3f} | | |"
             )
-    return lines, whole
+    return lines
 
 
 def detect_table(figures: dict[str, Any]) -> list[str]:
     """The configured CNN per look (all pings, range bands, clutter), and the fallback."""
-    lines, whole = _cnn_rows(figures)
-    return [*lines, whole("classical (CFAR) fallback, held-out look", "classical / heldout / all")]
+    fallback = "classical (CFAR) fallback, held-out look"
+    return [*_cnn_rows(figures), _detect_row(figures, fallback, "classical / heldout / all")]
 
 
 def detect_gated_table(figures: dict[str, Any]) -> list[str]:
     """The configured CNN through the service's depth-aware search, given the truth."""
     if figures["depth_gate"] != "truth":  # another run of the bench: not this table's
         raise KeyError("depth_gate")
-    return _cnn_rows(figures)[0]
+    return _cnn_rows(figures)
 
 
 def finetune_table(figures: dict[str, Any]) -> list[str]:
