@@ -22,6 +22,9 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
     if (args.detector_config is None) != (args.detector_out is None):
         return fail("calibrate: --detector-config and --detector-out go together", EXIT_CONFIG)
+    for flag, out in (("-o", args.out), ("--detector-out", args.detector_out)):
+        if out is not None and not out.parent.is_dir():  # said before minutes of fitting
+            return fail(f"calibrate: {flag} {out}: no folder {out.parent}", EXIT_CONFIG)
     try:
         locator = load_config(args.locator_config, LocatorConfig)
         detector = (

@@ -40,6 +40,12 @@ def test_calibrate_writes_a_detector_copy_only_with_both_paths(
     assert main([*argv, str(detector)]) == 2
     assert "--detector-config and --detector-out go together" in capfd.readouterr().err
     assert not (tmp_path / "o.yaml").exists()
+    # An output folder that is not there: said before any work, for either copy.
+    elsewhere = tmp_path / "missing" / "d.yaml"
+    assert main([*argv, str(detector), "--detector-out", str(elsewhere)]) == 2
+    assert f"--detector-out {elsewhere}: no folder" in capfd.readouterr().err
+    assert main(["calibrate", "x.mcap", "-o", str(elsewhere)]) == 2
+    assert f"-o {elsewhere}: no folder" in capfd.readouterr().err
 
 
 def test_tls_files_are_checked_before_joining(capfd: pytest.CaptureFixture[str]) -> None:
