@@ -348,7 +348,12 @@ def detect_gated_table(figures: dict[str, Any]) -> list[str]:
     """The configured CNN through the service's depth-aware search, given the truth."""
     if figures["depth_gate"] != "truth":  # another run of the bench: not this table's
         raise KeyError("depth_gate")
-    return _cnn_rows(figures)
+    fallback = [  # with --detector all (since session 67): the classical one through the gate
+        _detect_row(figures, f"classical (CFAR) fallback, {label}", f"classical / {look} / all")
+        for look, label in (("off", "fixed look"), ("heldout", "held-out look"))
+        if f"classical / {look} / all" in figures["groups"]
+    ]
+    return [*_cnn_rows(figures), *fallback]
 
 
 def finetune_table(figures: dict[str, Any]) -> list[str]:
@@ -555,10 +560,7 @@ RENDERERS: dict[str, tuple[Callable[[dict[str, Any]], list[str]], str]] = {
     "demo_summary": (demo_summary, "capsd demo"),
     "latency_table": (latency_table, "capsd bench latency"),
     "detect_table": (detect_table, "capsd bench detect --json FILE"),
-    "detect_gated_table": (
-        detect_gated_table,
-        "capsd bench detect --detector cnn --depth-gate truth --json FILE",
-    ),
+    "detect_gated_table": (detect_gated_table, "capsd bench detect --depth-gate truth --json FILE"),
     "consistency_table": (consistency_table, "capsd bench consistency"),
     "finetune_table": (finetune_table, "capsd bench finetune"),
     "calibrate_table": (calibrate_table, "capsd bench calibrate"),

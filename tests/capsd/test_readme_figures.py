@@ -116,8 +116,17 @@ def test_the_gated_detect_table_takes_only_the_gated_bench() -> None:
     assert figures["depth_gate"] == "off"
     with pytest.raises(KeyError, match="depth_gate"):
         readme_figures.detect_gated_table(figures)
-    # The gated bench runs the CNN alone: no fallback row, the CNN's rows as the plain table's.
+    # With the classical detector run too, its rows through the gate after the CNN's, per look.
     figures["depth_gate"] = "truth"
+    figures["groups"]["classical / off / all"] = figures["groups"]["classical / heldout / all"]
+    gated = readme_figures.detect_gated_table(figures)
+    fallback = [line for line in gated if "classical" in line]
+    assert [line.split(" |")[0] for line in fallback] == [
+        "| classical (CFAR) fallback, fixed look",
+        "| classical (CFAR) fallback, held-out look",
+    ]
+    assert gated[-2:] == fallback
+    # The CNN alone: no fallback row, the CNN's rows as the plain table's.
     figures["groups"] = {k: v for k, v in figures["groups"].items() if "classical" not in k}
     gated = readme_figures.detect_gated_table(figures)
     assert not any("classical" in line for line in gated)
