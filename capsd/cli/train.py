@@ -100,6 +100,7 @@ def _cmd_train_proposal(args: argparse.Namespace) -> int:
         close_max_range_m=args.close_max_range,
         **({} if args.width is None else {"width": args.width}),
         targets=args.targets,
+        rack_heights=args.rack_heights,
         workers=args.workers,
         threads=args.threads,
         evaluate=args.evaluate,
@@ -470,6 +471,14 @@ def register(sub: Subcommands) -> None:
         "--workers", type=positive_int, default=2, help="rendering processes (1: this one)"
     )
     tprop.add_argument("--threads", type=positive_int, default=2, help="torch threads")
+    tprop.add_argument(
+        "--rack-heights",
+        choices=["preset", "drawn"],
+        default=None,
+        help="drawn: each run's racks and skips at even odds 5-100 cm under the ROV's hull at "
+        "its lower flight level; preset: the tanks' own heights (default: as the weights' "
+        "runs were)",
+    )
     tprop.add_argument(
         "--evaluate",
         choices=("heldout", "none"),

@@ -38,6 +38,7 @@ from capsd.services.sonar_detect.polar_net import (
     ProposalNet,
     load,
 )
+from capsd.simulator.world import RackHeights
 from capsd.train.data import render
 from capsd.train.detector import (
     TrainConfig,
@@ -67,6 +68,8 @@ class ProposalConfig:
     # labels_and_teacher: the network it replaces (the weights' own) gives its heat as a soft
     # target beside the labels (distillation: a narrow network learns from the wide one).
     targets: Literal["labels", "labels_and_teacher"] = "labels"
+    # The runs' racks and skips (world.RackHeights); None: as the weights' own train_config.
+    rack_heights: RackHeights | None = None
     workers: int = 2
     threads: int = 2
     # None: as the weights' own train_config (tests make them small).
@@ -118,6 +121,7 @@ def train_proposal(weights: Path, out_dir: Path, config: ProposalConfig) -> dict
         duration_s=base.duration_s if config.duration_s is None else config.duration_s,
         proposal_epochs=base.proposal_epochs if config.epochs is None else config.epochs,
         calibration_duration_s=config.calibration_duration_s,
+        rack_heights=base.rack_heights if config.rack_heights is None else config.rack_heights,
     )
     if train_config.inputs != net.inputs:
         raise CapsdError(f"{weights}: its networks read {net.inputs}, its train_config says not")

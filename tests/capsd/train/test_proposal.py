@@ -57,12 +57,16 @@ def test_a_close_proposal_network_is_added_the_rest_kept_deterministic(tmp_path:
 
 
 def test_the_main_network_trained_again_narrower_the_close_one_kept(tmp_path: Path) -> None:
-    main = dataclasses.replace(TINY, network="main", width=8, close_share=None)
+    main = dataclasses.replace(
+        TINY, network="main", width=8, close_share=None, rack_heights="drawn"
+    )
     meta = train_proposal(DEFAULT_WEIGHTS, tmp_path / "main", main)
     shipped_meta = json.loads(DEFAULT_WEIGHTS.with_suffix(".json").read_text())
     assert meta["proposal"] == shipped_meta["proposal"]  # the close network's record
-    # The weights' own runs: no close runs unless asked.
+    # The weights' own runs: no close runs unless asked; the racks as asked.
     assert meta["main_proposal"]["train_config"]["close_share"] == 0.0
+    assert meta["main_proposal"]["train_config"]["rack_heights"] == "drawn"
+    assert meta["train_config"].get("rack_heights", "preset") == "preset"  # the refiners'
     net = load(tmp_path / "main" / "polar_net.pt")
     assert net.proposal.width == 8
     shipped = load(DEFAULT_WEIGHTS)
