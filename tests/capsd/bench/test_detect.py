@@ -24,6 +24,7 @@ from capsd.bench.detect import (
     evaluate,
     over_runs,
     run_group,
+    run_name,
     score,
     sonar_only,
     truth_gate,
@@ -468,13 +469,11 @@ def test_examples_keep_misses_and_false_alarms_spaced_and_few(tmp_path: Path) ->
     pings = [(k * 0.25, found) for k in range(40) for found in ([rov, clutter], [])]
     for t_s, found in pings:  # every 0.25 s the ROV found beside a false alarm, then missed
         examples.note("heldout", run, t_s, frame, label, found)
-    kept = examples.found[("heldout", f"{run[0]} {run[1]} {run[2]} {run[3]}")]
+    kept = examples.found[("heldout", run_name(run))]
     assert [e.kind for e in kept].count("missed") == EXAMPLES_PER_KIND
     assert [e.kind for e in kept].count("false alarm") == EXAMPLES_PER_KIND
     # At most one of a kind per EXAMPLE_SPACING_S of the run: not its first consecutive pings.
-    times = [
-        float(e.title.rsplit("(", 1)[1].removesuffix(" s)")) for e in kept if e.kind == "missed"
-    ]
+    times = [e.t_s for e in kept if e.kind == "missed"]
     assert all(b - a >= EXAMPLE_SPACING_S for a, b in itertools.pairwise(times))
     assert next(e for e in kept if e.kind == "missed").title.startswith(
         f"missed {label.range_m:.1f} m, nothing sure"
@@ -486,10 +485,10 @@ def test_examples_keep_misses_and_false_alarms_spaced_and_few(tmp_path: Path) ->
     assert alarm.crop[c - 2 : c + 3, c - 2 : c + 3].mean() > alarm.crop[:5, :5].mean()
     # A ping without the ROV in view is no miss; the surest candidate is named in a miss.
     examples.note("heldout", other, 0.0, frame, msgspec.structs.replace(label, visible=False), [])
-    assert ("heldout", f"{other[0]} {other[1]} {other[2]} {other[3]}") in examples.found
-    assert not examples.found[("heldout", f"{other[0]} {other[1]} {other[2]} {other[3]}")]
+    assert ("heldout", run_name(other)) in examples.found
+    assert not examples.found[("heldout", run_name(other))]
     examples.note("off", other, 0.0, frame, label, [clutter])
-    miss, alarm_off = examples.found[("off", f"{other[0]} {other[1]} {other[2]} {other[3]}")]
+    miss, alarm_off = examples.found[("off", run_name(other))]
     assert miss.title.startswith(f"missed {label.range_m:.1f} m, 0.80 elsewhere")
     assert (miss.kind, alarm_off.kind) == ("missed", "false alarm")
     # Gathered as they came (the sheet draws a run's misses first).
