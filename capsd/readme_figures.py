@@ -361,9 +361,17 @@ def finetune_table(figures: dict[str, Any]) -> list[str]:
     groups = figures["groups"]
     labels = figures["labels"]
     tank, trajectory, seed = figures["dive"]
+    # The site look's knobs beyond the range trained on (since session 68; null: all five).
+    knobs = figures.get("outside_knobs")
+    look = (
+        "a look outside the training variety"
+        if knobs is None
+        else f"a look with {', '.join(knobs) or 'no knob'} beyond the range trained on, the "
+        f"other knobs from their whole range (`--outside-knobs {' '.join(knobs) or 'none'}`)"
+    )
     lines = [
-        f"First dive: {tank} {trajectory} (seed {seed}), {figures['dive_duration_s']:g} s in a "
-        f"look outside the training variety; {labels['labelled']} of {labels['frames']} "
+        f"First dive: {tank} {trajectory} (seed {seed}), {figures['dive_duration_s']:g} s in "
+        f"{look}; {labels['labelled']} of {labels['frames']} "
         f"recorded pings labelled from confident tracked fixes; fine-tuned in "
         f"{figures['finetune_seconds'] / 60:.1f} min (operating point "
         f"{figures['operating_point']['offset']:.2f} against the shipped "

@@ -31,6 +31,7 @@ from capsd.recording import McapRecorder, Sample
 from capsd.simulator.config import Config as SimConfig
 from capsd.simulator.config import Rates, SonarImageConfig
 from capsd.simulator.install_errors import InstallErrorsConfig
+from capsd.simulator.sonar_look import OutsideKnob
 from capsd.simulator.world import TankName, TrajectoryName
 
 DIVE: tuple[TankName, TrajectoryName, int] = ("nfp", "square", 404)  # the "first dive"
@@ -50,14 +51,23 @@ _KEYS = {
 }
 
 
-def record_dive(path: Path, *, duration_s: float, sonar_hz: float) -> int:
-    """The first dive through the offline pipeline into an MCAP recording; fixes recorded."""
+def record_dive(
+    path: Path,
+    *,
+    duration_s: float,
+    sonar_hz: float,
+    outside_knobs: tuple[OutsideKnob, ...] | None = None,
+) -> int:
+    """The first dive through the offline pipeline into an MCAP recording; fixes recorded.
+
+    `outside_knobs`: the knobs of its look beyond the range trained on (None: all five).
+    """
     tank, trajectory, seed = DIVE
     sim = SimConfig(
         tank=tank,
         trajectory=trajectory,
         seed=seed,
-        sonar_image=SonarImageConfig(variety="outside"),
+        sonar_image=SonarImageConfig(variety="outside", outside_knobs=outside_knobs),
         rates=Rates(sonar_hz=sonar_hz),
         install_errors=InstallErrorsConfig(mode="off"),  # the detector's path, not the mounts'
     )
@@ -89,7 +99,14 @@ def _cnn(weights: Path) -> Any:
     return CnnDetector(CnnSettings(weights=weights)).detect
 
 
-def run(*, out: Path, duration_s: float, eval_duration_s: float) -> int:
+def run(
+    *,
+    out: Path,
+    duration_s: float,
+    eval_duration_s: float,
+    outside_knobs: tuple[OutsideKnob, ...] | None = None,
+) -> int:
+    """The whole path; `outside_knobs`: the site look's knobs beyond training (None: five)."""
     from capsd.services.locator.service import Config as LocatorConfig
     from capsd.services.sonar_detect.cnn import DEFAULT_WEIGHTS
     from capsd.train.finetune import FinetuneConfig, finetune
@@ -98,7 +115,9 @@ def run(*, out: Path, duration_s: float, eval_duration_s: float) -> int:
     out.mkdir(parents=True, exist_ok=True)
     started = time.monotonic()
     recording = out / "first_dive.mcap"
-    good = record_dive(recording, duration_s=duration_s, sonar_hz=5.0)
+    good = record_dive(recording, duration_s=duration_s, sonar_hz=5.0, outside_knobs=outside_knobs)
+    beyond = "all five" if outside_knobs is None else ", ".join(outside_knobs) or "none"
+    print(f"the site's look: beyond the range trained on {beyond}")
     print(f"first dive: {recording} ({recording.stat().st_size / 1e6:.0f} MB), {good} good fixes")
     labels, summary = label_recording(recording, sonar=LocatorConfig().sonar)
     print(f"labels: {summary}")
@@ -111,7 +130,12 @@ def run(*, out: Path, duration_s: float, eval_duration_s: float) -> int:
     # The dive's own look (what a site's fine-tune is for), and, to see what it costs
     # elsewhere, the bench's held-out look of each run.
     site = evaluate(
-        detectors, duration_s=eval_duration_s, runs=HELD_OUT, looks=("outside",), look_seed=DIVE[2]
+        detectors,
+        duration_s=eval_duration_s,
+        runs=HELD_OUT,
+        looks=("outside",),
+        look_seed=DIVE[2],
+        outside_knobs=outside_knobs,
     )
     tallies = {name.replace("/ outside /", "/ this site /"): t for name, t in site.items()}
     tallies.update(
@@ -129,6 +153,8 @@ def run(*, out: Path, duration_s: float, eval_duration_s: float) -> int:
     result = {
         "dive": list(DIVE),
         "dive_duration_s": duration_s,
+        # The site look's knobs beyond the range trained on (null: all five).
+        "outside_knobs": None if outside_knobs is None else list(outside_knobs),
         "good_fixes": good,
         "labels": asdict(summary),
         "held_out": [list(r) for r in HELD_OUT],

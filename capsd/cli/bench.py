@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import itertools
 from pathlib import Path
-from typing import get_args
+from typing import TYPE_CHECKING, cast, get_args
 
 from capsd.cli.common import Subcommands, fail
 from capsd.launch import (
@@ -17,6 +17,9 @@ from capsd.launch import (
     positive_float,
     positive_int,
 )
+
+if TYPE_CHECKING:
+    from capsd.simulator.sonar_look import OutsideKnob
 
 
 def _cmd_bench_sim(args: argparse.Namespace) -> int:
@@ -32,12 +35,36 @@ def _cmd_bench_finetune(args: argparse.Namespace) -> int:
 
     if not (args.duration > 0 and args.eval_duration > 0):
         return fail("bench finetune: durations must be positive", EXIT_CONFIG)
-    return finetune.run(out=args.out, duration_s=args.duration, eval_duration_s=args.eval_duration)
+    outside_knobs = _outside_knobs("bench finetune", args.outside_knobs)
+    if isinstance(outside_knobs, int):
+        return outside_knobs
+    return finetune.run(
+        out=args.out,
+        duration_s=args.duration,
+        eval_duration_s=args.eval_duration,
+        outside_knobs=outside_knobs,
+    )
+
+
+def _outside_knobs(command: str, knobs: list[str] | None) -> tuple[OutsideKnob, ...] | int | None:
+    """`--outside-knobs` checked: the knobs (None: all five), or the exit status of a refusal."""
+    from capsd.simulator.sonar_look import OutsideKnob
+
+    named = ("none", *get_args(OutsideKnob))
+    for knob in knobs or ():
+        if knob not in named:
+            return fail(
+                f"{command}: --outside-knobs {knob}: one of {', '.join(named)}", EXIT_CONFIG
+            )
+    if knobs is not None and "none" in knobs and len(knobs) > 1:
+        return fail(
+            f"{command}: --outside-knobs {' '.join(knobs)}: 'none' stands alone", EXIT_CONFIG
+        )
+    return None if knobs is None else tuple(cast(OutsideKnob, k) for k in knobs if k != "none")
 
 
 def _cmd_bench_detect(args: argparse.Namespace) -> int:
     from capsd.bench import detect
-    from capsd.simulator.sonar_look import OutsideKnob
 
     for weights in args.weights or []:
         if not weights.is_file():
@@ -96,20 +123,11 @@ def _cmd_bench_detect(args: argparse.Namespace) -> int:
             f"{duration_s:g} s overlap",
             EXIT_CONFIG,
         )
-    knobs = args.outside_knobs
-    named = ("none", *get_args(OutsideKnob))
-    for knob in knobs or ():
-        if knob not in named:
-            return fail(
-                f"bench detect: --outside-knobs {knob}: one of {', '.join(named)}", EXIT_CONFIG
-            )
-    if knobs is not None and "outside" not in (args.looks or ()):
+    if args.outside_knobs is not None and "outside" not in (args.looks or ()):
         return fail("bench detect: --outside-knobs needs --looks ... outside", EXIT_CONFIG)
-    if knobs is not None and "none" in knobs and len(knobs) > 1:
-        return fail(
-            f"bench detect: --outside-knobs {' '.join(knobs)}: 'none' stands alone", EXIT_CONFIG
-        )
-    outside_knobs = None if knobs is None else tuple(k for k in knobs if k != "none")
+    outside_knobs = _outside_knobs("bench detect", args.outside_knobs)
+    if isinstance(outside_knobs, int):
+        return outside_knobs
     if args.prior_sweep:
         return detect.sweep_prior(
             args.prior_sweep, duration_s=duration_s, options=options, starts_s=starts
@@ -425,6 +443,14 @@ def register(sub: Subcommands) -> None:
     )
     bft.add_argument(
         "--eval-duration", type=positive_float, default=15.0, help="seconds per held-out run"
+    )
+    bft.add_argument(
+        "--outside-knobs",
+        nargs="+",
+        default=None,
+        metavar="KNOB",
+        help="only these knobs beyond the range trained on in the site's look, the rest from "
+        "their whole range and the same draws (default: all five with an outside band)",
     )
     bft.set_defaults(func=_cmd_bench_finetune)
     bcal = bench_sub.add_parser(

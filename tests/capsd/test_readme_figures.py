@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from capsd.errors import CapsdError
-from capsd.readme_figures import RENDERERS, blocks, render
+from capsd.readme_figures import RENDERERS, blocks, finetune_table, render
 from tests.conftest import REPO
 
 
@@ -134,3 +134,15 @@ def test_the_gated_detect_table_takes_only_the_gated_bench() -> None:
         readme_figures.detect_table(figures)
     assert gated[0].startswith("| look / pings |")
     assert any(line.startswith("| held-out look, all |") for line in gated)
+
+
+def test_the_finetune_table_says_which_knobs_were_beyond_training() -> None:
+    five = json.loads((REPO / "docs/figures/finetune.json").read_text())
+    assert "outside_knobs" not in five  # written before session 68: all five
+    assert "in a look outside the training variety;" in finetune_table(five)[0]
+    one = json.loads((REPO / "docs/figures/finetune_water_db.json").read_text())
+    assert one["outside_knobs"] == ["water_db"]
+    first = finetune_table(one)[0]
+    assert "with water_db beyond the range trained on" in first
+    assert "(`--outside-knobs water_db`)" in first
+    assert "--outside-knobs none" in finetune_table({**one, "outside_knobs": []})[0]
