@@ -668,7 +668,7 @@ class CnnOptions:
     candidates come from (a network on a finer grid gives lower heat).
     """
 
-    search_refines: Literal["proposals", "proposals_and_track"] = "proposals"
+    search_refines: Literal["proposals", "proposals_and_track"] = "proposals_and_track"
     track_hold_s: float = 0.0
     proposal_threshold: float = 0.1  # the service's default
     track_proposal_threshold: float | None = 0.03  # the service's default (None: off)

@@ -387,7 +387,7 @@ def register(sub: Subcommands) -> None:
     bdet.add_argument(
         "--search-refines",
         choices=("proposals", "proposals_and_track"),
-        default="proposals",
+        default="proposals_and_track",
         help="the service's cnn.search_refines for the CNN with its settings (default: "
         "%(default)s)",
     )

@@ -102,10 +102,12 @@ class CnnSettings:
     track_max_gap_s: float = 0.2
     # What a whole-frame search refines: the proposals only, or also the last ping's tracked
     # detections (a far, faint ROV the proposal network ranks below brighter clutter, which the
-    # refiner still knows). The latter moves along the same trade-off rather than beating it:
-    # on the validation runs (20 s, prior 1) 82.6 / 61.2 % detected against 81.4 / 60.7 %,
-    # false alarms 0.0079 / 0.066 against 0.0062 / 0.059 per frame (fixed / drawn looks).
-    search_refines: Literal["proposals", "proposals_and_track"] = "proposals"
+    # refiner still knows). Without the depth gate it moved along the same trade-off (session
+    # 49's validation runs); through the gate it beats it (session 68, `capsd bench detect
+    # --depth-gate truth`: held out 82.6 -> 83.3 % found at 0.023 -> 0.022 false alarms per
+    # frame, fixed look 95.5 -> 96.9 % at 0.005 -> 0.001; `capsd bench accuracy` MED within
+    # +1.4 % on every run), so the tracked ROV is refined in every search since session 68.
+    search_refines: Literal["proposals", "proposals_and_track"] = "proposals_and_track"
     # After pings without a confident ROV, keep refining where it last was for this long
     # (0: forget it at the first miss): a far ROV's echo fades for a ping or two.
     track_hold_s: float = 0.0

@@ -79,8 +79,9 @@ class CnnConfig(ConfigSection, frozen=True, kw_only=True):
     # before, within 0.3 m): hysteresis, so a ROV at the beam's edge is not dropped. 0: none.
     track_prior_logit: Annotated[float, msgspec.Meta(ge=0.0, le=10.0)] = 1.0
     # What a whole-frame search refines: the proposals, or also the last ping's tracked ROV
-    # (keeps a far, faint ROV the proposals rank below clutter; more false alarms kept too).
-    search_refines: Literal["proposals", "proposals_and_track"] = "proposals"
+    # (keeps a far, faint ROV the proposals rank below clutter; through the depth gate more
+    # ROVs found and fewer false alarms: cnn.CnnSettings, session 68).
+    search_refines: Literal["proposals", "proposals_and_track"] = "proposals_and_track"
     # After pings without a confident ROV, keep refining where it last was for this long
     # (without the prior); 0: forget it at the first miss.
     track_hold_s: Annotated[float, msgspec.Meta(ge=0.0, le=10.0)] = 0.0

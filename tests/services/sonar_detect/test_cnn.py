@@ -189,7 +189,7 @@ def test_tracks_between_whole_frame_searches() -> None:
     # a track to continue, nothing is found.
     for k in (3, 4):
         tracking.detect(frame_at(k)[0])
-    proposals_only = CnnDetector(CnnSettings(track_prior_logit=2.0))
+    proposals_only = CnnDetector(CnnSettings(track_prior_logit=2.0, search_refines="proposals"))
     for k in (2, 3, 4):
         proposals_only.detect(frame_at(k)[0])
     frame, range_m = frame_at(8)  # 0.1 s after the last search: searched whole
@@ -387,7 +387,11 @@ def test_a_search_proposes_the_tracked_rov_from_the_lower_bar() -> None:
             ("off", None, rov),
             ("elsewhere", 0.03, aside),
         ):
-            detector = CnnDetector(CnnSettings(track_proposal_threshold=bar))
+            # The proposals alone (the shipped search also refines the tracked ROV, which
+            # would find it here whatever the bar).
+            detector = CnnDetector(
+                CnnSettings(track_proposal_threshold=bar, search_refines="proposals")
+            )
             window = (0.8, 2.0)  # the depth gate's, as the service passes it
             assert [
                 d
