@@ -141,7 +141,9 @@ class CnnSettings:
 
 
 # The network alone: every frame searched, no track prior (calibration, stored evaluation).
-NETWORK_ALONE = CnnSettings(search_every_s=0.0, track_prior_logit=0.0)
+# The proposals alone too: since session 68 the service's search also refines the tracked ROV,
+# which the operating point's calibration and the weights' evaluation must not lean on.
+NETWORK_ALONE = CnnSettings(search_every_s=0.0, track_prior_logit=0.0, search_refines="proposals")
 
 
 @dataclass(frozen=True)

@@ -628,3 +628,10 @@ def test_the_close_proposal_network_gives_the_heat_near_the_sonar(tmp_path: Path
     torch.save({**blob, "close_proposal": 1}, tmp_path / "odd.pt")
     with pytest.raises(CapsdError, match=r"odd\.pt: close_proposal 1"):
         load(tmp_path / "odd.pt")
+
+
+def test_the_network_alone_refines_its_proposals_only() -> None:
+    # The operating point's calibration and the weights' evaluation score the network as it
+    # searches each frame: the service's tracked-ROV refinement must not leak in with it.
+    assert CnnSettings().search_refines == "proposals_and_track"
+    assert (NETWORK_ALONE.search_refines, NETWORK_ALONE.search_every_s) == ("proposals", 0.0)
