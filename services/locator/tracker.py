@@ -48,7 +48,7 @@ class TrackerSettings:
     """Tuning of the tracker; see the module docstring for the model."""
 
     accel_density_xy: float = 0.02  # m^2/s^3: a BlueROV2 changes speed gently in a tank
-    accel_density_z: float = 0.01
+    accel_density_z: float = 0.0005  # the locator config's default (why: its comment)
     initial_speed_sigma_m_s: float = 0.5
     gate_chi2: float = 16.27  # chi-square 3 dof, p = 0.999
     lost_after_s: float = 2.0
