@@ -124,7 +124,7 @@ class TrackingConfig(ConfigSection, frozen=True, kw_only=True):
     # 0.01 until session 69. The depth readings (10 Hz, the simulator's 1 cm noise) are most of
     # a fix's vertical error; a ROV changes depth gently, so the track may average more of
     # them. Chosen on `capsd bench accuracy --seed 1` (never the committed table's seed 0),
-    # its nfp and mockup runs: 0.01 / 0.002 / 0.0005 / 0.0001 gave z RMSE 7.0 / 5.9 / 5.0 /
+    # its nfp and mockup runs: 0.01 / 0.002 / 0.0005 / 0.0001 gave z RMSE 7.0 / 5.9 / 5.1 /
     # 4.1 mm on nfp square and MED lower at each step on every run but the mockup's at 0.0001
     # (16.0 -> 16.8 mm, z 6.2 -> 8.0: the track lags its depth changes): 0.0005
     # (docs/JOURNAL.md, the accuracy bench, session 69).
